@@ -1,0 +1,91 @@
+//! The one error type of the operators crate.
+
+use diffphys_tape::TapeError;
+use thiserror::Error;
+
+/// Everything an operator can reject or fail at. Bad input is an error, never a panic.
+#[derive(Debug, Error)]
+#[non_exhaustive]
+pub enum OpsError {
+    /// Two shapes that had to agree did not.
+    #[error("shape mismatch in {op}: expected {expected:?}, got {found:?}")]
+    ShapeMismatch {
+        /// The operator that checked.
+        op: String,
+        /// The shape it needed.
+        expected: Vec<usize>,
+        /// The shape it was given.
+        found: Vec<usize>,
+    },
+    /// An argument other than a shape is out of range or meaningless.
+    #[error("invalid argument to {op}: {message}")]
+    InvalidArgument {
+        /// The operator.
+        op: String,
+        /// What was wrong.
+        message: String,
+    },
+    /// An explicit scheme was asked to step with a Courant number above its limit.
+    #[error("CFL violation in {op}: Courant number {courant:.4} exceeds {limit} (max |u|·dt/dx); reduce dt or allow it explicitly")]
+    Cfl {
+        /// The operator.
+        op: String,
+        /// The largest `|u|·dt/dx` found.
+        courant: f64,
+        /// The stability limit.
+        limit: f64,
+    },
+    /// An input or result holds NaN or infinity.
+    #[error("non-finite value in {op}: {what}")]
+    NonFinite {
+        /// The operator.
+        op: String,
+        /// Which array.
+        what: String,
+    },
+    /// An error from the tape (when an operator runs as a tape op).
+    #[error(transparent)]
+    Tape(#[from] TapeError),
+}
+
+impl OpsError {
+    /// A [`OpsError::ShapeMismatch`].
+    pub fn shape(op: &str, expected: &[usize], found: &[usize]) -> Self {
+        OpsError::ShapeMismatch {
+            op: op.to_string(),
+            expected: expected.to_vec(),
+            found: found.to_vec(),
+        }
+    }
+
+    /// A [`OpsError::InvalidArgument`].
+    pub fn invalid(op: &str, message: impl Into<String>) -> Self {
+        OpsError::InvalidArgument {
+            op: op.to_string(),
+            message: message.into(),
+        }
+    }
+}
+
+/// Converts an operator error raised inside a plugin's forward or backward into the
+/// tape's error, keeping it as the source. A tape error passes through unchanged.
+impl From<OpsError> for TapeError {
+    fn from(e: OpsError) -> Self {
+        match e {
+            OpsError::Tape(t) => t,
+            other => {
+                let op = match &other {
+                    OpsError::ShapeMismatch { op, .. }
+                    | OpsError::InvalidArgument { op, .. }
+                    | OpsError::Cfl { op, .. }
+                    | OpsError::NonFinite { op, .. } => op.clone(),
+                    OpsError::Tape(_) => unreachable!("handled above"),
+                };
+                TapeError::op(&op, other)
+            }
+        }
+    }
+}
+
+/// Result alias of the operators crate.
+pub type Result<T, E = OpsError> = std::result::Result<T, E>;

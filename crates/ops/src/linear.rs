@@ -1,0 +1,76 @@
+//! The matrix-free linear operator trait that stencils implement and solvers consume.
+
+use diffphys_tape::Real;
+use ndarray::{ArrayD, ArrayViewD, ArrayViewMutD, IxDyn};
+
+use crate::{OpsError, Result};
+
+/// A linear map `A: ℝ^{input_shape} → ℝ^{output_shape}` given by its action and the
+/// action of its transpose, never by its matrix.
+///
+/// Implementors write [`LinearOperator::apply_into`] and
+/// [`LinearOperator::apply_transpose_into`] on arrays whose shapes the caller has
+/// checked; the provided [`LinearOperator::apply`] and
+/// [`LinearOperator::apply_transpose`] check shapes and allocate. Every implementor
+/// passes the dot-product test `<A x, y> = <x, Aᵀ y>`.
+pub trait LinearOperator<T: Real> {
+    /// A short name for errors and reports.
+    fn name(&self) -> &str;
+
+    /// Shape of `x` in `A x`.
+    fn input_shape(&self) -> &[usize];
+
+    /// Shape of `A x`.
+    fn output_shape(&self) -> &[usize];
+
+    /// `out = A x`. Shapes are the caller's responsibility (checked by
+    /// [`LinearOperator::apply`]); implementations may panic on a mismatch.
+    fn apply_into(&self, x: ArrayViewD<'_, T>, out: ArrayViewMutD<'_, T>);
+
+    /// `out = Aᵀ y`, shapes as in [`LinearOperator::apply_into`] but swapped.
+    fn apply_transpose_into(&self, y: ArrayViewD<'_, T>, out: ArrayViewMutD<'_, T>);
+
+    /// True if `A = Aᵀ` (then solvers may use `apply` for both directions).
+    fn is_symmetric(&self) -> bool {
+        false
+    }
+
+    /// The diagonal of `A` (shape [`LinearOperator::output_shape`]), for Jacobi
+    /// preconditioning; `None` if the operator cannot say cheaply.
+    fn diagonal(&self) -> Option<ArrayD<T>> {
+        None
+    }
+
+    /// The nonzeros of `A` as `(row, column, value)` over row-major flattened
+    /// indices, for assembling a sparse matrix (the exact reference solves);
+    /// `None` if the operator cannot say cheaply.
+    fn triplets(&self) -> Option<Vec<(usize, usize, T)>> {
+        None
+    }
+
+    /// `A x`, allocated.
+    ///
+    /// # Errors
+    /// [`OpsError::ShapeMismatch`] if `x` is not of [`LinearOperator::input_shape`].
+    fn apply(&self, x: ArrayViewD<'_, T>) -> Result<ArrayD<T>> {
+        if x.shape() != self.input_shape() {
+            return Err(OpsError::shape(self.name(), self.input_shape(), x.shape()));
+        }
+        let mut out = ArrayD::zeros(IxDyn(self.output_shape()));
+        self.apply_into(x, out.view_mut());
+        Ok(out)
+    }
+
+    /// `Aᵀ y`, allocated.
+    ///
+    /// # Errors
+    /// [`OpsError::ShapeMismatch`] if `y` is not of [`LinearOperator::output_shape`].
+    fn apply_transpose(&self, y: ArrayViewD<'_, T>) -> Result<ArrayD<T>> {
+        if y.shape() != self.output_shape() {
+            return Err(OpsError::shape(self.name(), self.output_shape(), y.shape()));
+        }
+        let mut out = ArrayD::zeros(IxDyn(self.input_shape()));
+        self.apply_transpose_into(y, out.view_mut());
+        Ok(out)
+    }
+}

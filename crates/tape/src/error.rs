@@ -1,0 +1,130 @@
+//! The one error type of the tape.
+
+use thiserror::Error;
+
+/// Where in the computation a non-finite value appeared.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Pass {
+    /// While evaluating an op's forward.
+    Forward,
+    /// While evaluating an op's backward (its vector–Jacobian product).
+    Backward,
+}
+
+impl std::fmt::Display for Pass {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Pass::Forward => "forward",
+            Pass::Backward => "backward",
+        })
+    }
+}
+
+/// Everything that can go wrong while recording on a tape or sweeping it backwards.
+///
+/// Bad input is always an error, never a panic; messages name the op and the shapes.
+#[derive(Debug, Error)]
+#[non_exhaustive]
+pub enum TapeError {
+    /// Two shapes that had to agree (or broadcast) did not.
+    #[error("shape mismatch in {op}: lhs {lhs:?}, rhs {rhs:?}")]
+    ShapeMismatch {
+        /// The op that checked the shapes.
+        op: String,
+        /// The first shape.
+        lhs: Vec<usize>,
+        /// The second shape.
+        rhs: Vec<usize>,
+    },
+    /// An argument other than a shape is out of range (an axis, a slice bound, a length).
+    #[error("invalid argument to {op}: {message}")]
+    InvalidArgument {
+        /// The op that rejected its argument.
+        op: String,
+        /// What was wrong.
+        message: String,
+    },
+    /// An op received a different number of inputs than it takes.
+    #[error("{op} takes {expected} input(s), got {found}")]
+    Arity {
+        /// The op.
+        op: String,
+        /// Inputs it takes.
+        expected: usize,
+        /// Inputs it was given.
+        found: usize,
+    },
+    /// `backward` was called on a non-scalar output without a seed gradient.
+    #[error("backward needs a scalar loss or an explicit seed; the output has shape {shape:?}")]
+    NonScalarLoss {
+        /// Shape of the output that was passed as the loss.
+        shape: Vec<usize>,
+    },
+    /// A variable recorded on another tape was passed to this one.
+    #[error("{op}: variable belongs to tape {found}, not to tape {expected}")]
+    ForeignVar {
+        /// The op (or `backward`) that received it.
+        op: String,
+        /// The id of the tape doing the work.
+        expected: u64,
+        /// The id of the tape the variable came from.
+        found: u64,
+    },
+    /// An op produced NaN or infinity.
+    #[error("non-finite value ({count} of {len} entries) produced by the {pass} of {op}")]
+    NonFinite {
+        /// The op that produced it.
+        op: String,
+        /// Forward or backward.
+        pass: Pass,
+        /// How many entries were non-finite.
+        count: usize,
+        /// How many entries the array had.
+        len: usize,
+    },
+    /// A plugin op was asked for a gradient it does not implement.
+    #[error("backward is not supported by op {op}")]
+    BackwardNotSupported {
+        /// The op.
+        op: String,
+    },
+    /// A plugin op failed for a reason of its own (a solver that did not converge, say).
+    #[error("{op} failed: {source}")]
+    Op {
+        /// The op.
+        op: String,
+        /// The op's own error.
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync + 'static>,
+    },
+}
+
+impl TapeError {
+    /// A [`TapeError::ShapeMismatch`] for `op` between two shapes.
+    pub fn shape(op: &str, lhs: &[usize], rhs: &[usize]) -> Self {
+        TapeError::ShapeMismatch {
+            op: op.to_string(),
+            lhs: lhs.to_vec(),
+            rhs: rhs.to_vec(),
+        }
+    }
+
+    /// A [`TapeError::InvalidArgument`] for `op`.
+    pub fn invalid(op: &str, message: impl Into<String>) -> Self {
+        TapeError::InvalidArgument {
+            op: op.to_string(),
+            message: message.into(),
+        }
+    }
+
+    /// Wraps a plugin's own error as [`TapeError::Op`].
+    pub fn op(op: &str, source: impl std::error::Error + Send + Sync + 'static) -> Self {
+        TapeError::Op {
+            op: op.to_string(),
+            source: Box::new(source),
+        }
+    }
+}
+
+/// Result alias of the tape crate.
+pub type Result<T, E = TapeError> = std::result::Result<T, E>;

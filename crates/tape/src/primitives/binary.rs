@@ -1,0 +1,140 @@
+//! Elementwise binary ops with broadcasting: add, sub, mul, div, min, max.
+//!
+//! Each is a kernel `f(a, b)` and its partial derivatives `df(a, b, y) -> (∂y/∂a, ∂y/∂b)`;
+//! one generic op does the broadcasting in the forward and sums gradients back to
+//! each input's shape in the backward.
+
+use ndarray::{ArrayD, ArrayViewD, IxDyn, Zip};
+
+use super::broadcast::{broadcast_shape, sum_to_shape};
+use crate::{BackwardArgs, Op, Real, Result, Var};
+
+/// The maths of one elementwise binary op.
+pub(crate) trait BinaryKernel<T: Real>: Copy + 'static {
+    const NAME: &'static str;
+    /// `y = f(a, b)`.
+    fn f(a: T, b: T) -> T;
+    /// `(∂y/∂a, ∂y/∂b)` at `(a, b)` with `y = f(a, b)`.
+    fn df(a: T, b: T, y: T) -> (T, T);
+}
+
+#[derive(Clone, Copy)]
+pub(crate) struct Binary<K>(pub(crate) K);
+
+impl<T: Real, K: BinaryKernel<T>> Op<T> for Binary<K> {
+    fn name(&self) -> &str {
+        K::NAME
+    }
+
+    fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> Result<Vec<ArrayD<T>>> {
+        let (a, b) = (&inputs[0], &inputs[1]);
+        let shape = broadcast_shape(K::NAME, a.shape(), b.shape())?;
+        let a = a.broadcast(IxDyn(&shape)).expect("shape checked");
+        let b = b.broadcast(IxDyn(&shape)).expect("shape checked");
+        Ok(vec![Zip::from(&a).and(&b).map_collect(|&a, &b| K::f(a, b))])
+    }
+
+    fn backward(&self, args: &BackwardArgs<'_, T>) -> Result<Vec<Option<ArrayD<T>>>> {
+        let y = args.output(0);
+        let a = args.input(0).broadcast(y.raw_dim()).expect("shape checked");
+        let b = args.input(1).broadcast(y.raw_dim()).expect("shape checked");
+        let g = args.grad_out();
+        let grad_for = |which: usize| {
+            let full = Zip::from(&a).and(&b).and(y).and(g).map_collect(|&a, &b, &y, &g| {
+                let (da, db) = K::df(a, b, y);
+                g * if which == 0 { da } else { db }
+            });
+            sum_to_shape(full.view(), args.input(which).shape())
+        };
+        Ok(vec![
+            args.needs(0).then(|| grad_for(0)),
+            args.needs(1).then(|| grad_for(1)),
+        ])
+    }
+}
+
+macro_rules! binary_kernel {
+    ($(#[$doc:meta])* $kernel:ident, $name:literal, |$a:ident, $b:ident| $f:expr, |$da:ident, $db:ident, $y:ident| $df:expr) => {
+        $(#[$doc])*
+        #[derive(Clone, Copy)]
+        pub(crate) struct $kernel;
+        impl<T: Real> BinaryKernel<T> for $kernel {
+            const NAME: &'static str = $name;
+            #[inline]
+            fn f($a: T, $b: T) -> T {
+                $f
+            }
+            #[inline]
+            #[allow(unused_variables)]
+            fn df($da: T, $db: T, $y: T) -> (T, T) {
+                $df
+            }
+        }
+    };
+}
+
+binary_kernel!(Add, "add", |a, b| a + b, |a, b, y| (T::one(), T::one()));
+binary_kernel!(Sub, "sub", |a, b| a - b, |a, b, y| (T::one(), -T::one()));
+binary_kernel!(Mul, "mul", |a, b| a * b, |a, b, y| (b, a));
+// d(a/b)/da = 1/b, d(a/b)/db = -a/b² = -y/b
+binary_kernel!(Div, "div", |a, b| a / b, |a, b, y| (T::one() / b, -y / b));
+// Ties send the whole gradient to the first input (a subgradient).
+binary_kernel!(Minimum, "minimum", |a, b| if a <= b { a } else { b }, |a, b, y| {
+    if a <= b { (T::one(), T::zero()) } else { (T::zero(), T::one()) }
+});
+binary_kernel!(Maximum, "maximum", |a, b| if a >= b { a } else { b }, |a, b, y| {
+    if a >= b { (T::one(), T::zero()) } else { (T::zero(), T::one()) }
+});
+
+impl<'t, T: Real> Var<'t, T> {
+    /// `self + rhs`, broadcasting. Adjoint: `grad` summed to each input's shape.
+    ///
+    /// # Errors
+    /// [`crate::TapeError::ShapeMismatch`] if the shapes do not broadcast;
+    /// [`crate::TapeError::ForeignVar`] if `rhs` is on another tape.
+    pub fn add(self, rhs: Var<'t, T>) -> Result<Var<'t, T>> {
+        self.apply1(Binary(Add), &[rhs])
+    }
+
+    /// `self − rhs`, broadcasting. Adjoint: `(grad, −grad)`, summed to shape.
+    ///
+    /// # Errors
+    /// As [`Var::add`].
+    pub fn sub(self, rhs: Var<'t, T>) -> Result<Var<'t, T>> {
+        self.apply1(Binary(Sub), &[rhs])
+    }
+
+    /// `self · rhs` elementwise, broadcasting. Adjoint: `(grad·rhs, grad·self)`.
+    ///
+    /// # Errors
+    /// As [`Var::add`].
+    pub fn mul(self, rhs: Var<'t, T>) -> Result<Var<'t, T>> {
+        self.apply1(Binary(Mul), &[rhs])
+    }
+
+    /// `self / rhs` elementwise, broadcasting. Adjoint: `(grad/rhs, −grad·y/rhs)`.
+    ///
+    /// # Errors
+    /// As [`Var::add`]; [`crate::TapeError::NonFinite`] on division by zero.
+    pub fn div(self, rhs: Var<'t, T>) -> Result<Var<'t, T>> {
+        self.apply1(Binary(Div), &[rhs])
+    }
+
+    /// Elementwise `min(self, rhs)`, broadcasting. Adjoint: `grad` to the smaller
+    /// input (to `self` on ties).
+    ///
+    /// # Errors
+    /// As [`Var::add`].
+    pub fn minimum(self, rhs: Var<'t, T>) -> Result<Var<'t, T>> {
+        self.apply1(Binary(Minimum), &[rhs])
+    }
+
+    /// Elementwise `max(self, rhs)`, broadcasting. Adjoint: `grad` to the larger
+    /// input (to `self` on ties).
+    ///
+    /// # Errors
+    /// As [`Var::add`].
+    pub fn maximum(self, rhs: Var<'t, T>) -> Result<Var<'t, T>> {
+        self.apply1(Binary(Maximum), &[rhs])
+    }
+}

@@ -10,5 +10,5 @@ pub mod grid;
 pub mod linear;
 
 pub use error::{OpsError, Result};
-pub use grid::Boundary;
+pub use grid::{Boundary, Grid1, Grid2};
 pub use linear::LinearOperator;

@@ -45,7 +45,12 @@ impl Grid1 {
                 format!("need n > 0 and finite dx > 0, got n = {n}, dx = {dx}, x0 = {x0}"),
             ));
         }
-        Ok(Grid1 { n, dx, x0, boundary })
+        Ok(Grid1 {
+            n,
+            dx,
+            x0,
+            boundary,
+        })
     }
 
     /// The grid that divides `[lo, hi]` into `n` cells.
@@ -54,7 +59,10 @@ impl Grid1 {
     /// As [`Grid1::new`], and if `hi <= lo`.
     pub fn over(lo: f64, hi: f64, n: usize, boundary: Boundary) -> Result<Self> {
         if hi.partial_cmp(&lo) != Some(std::cmp::Ordering::Greater) {
-            return Err(OpsError::invalid("Grid1", format!("empty domain [{lo}, {hi}]")));
+            return Err(OpsError::invalid(
+                "Grid1",
+                format!("empty domain [{lo}, {hi}]"),
+            ));
         }
         Self::new(n, (hi - lo) / n as f64, lo, boundary)
     }
@@ -104,7 +112,9 @@ impl Grid2 {
         if nx == 0 || ny == 0 || !(dx.is_finite() && dx > 0.0) || !(dy.is_finite() && dy > 0.0) {
             return Err(OpsError::invalid(
                 "Grid2",
-                format!("need nx, ny > 0 and finite spacings > 0, got {nx}×{ny}, dx = {dx}, dy = {dy}"),
+                format!(
+                    "need nx, ny > 0 and finite spacings > 0, got {nx}×{ny}, dx = {dx}, dy = {dy}"
+                ),
             ));
         }
         Ok(Grid2 {

@@ -124,13 +124,22 @@ impl<T: Real> Tape<T> {
                     }
                 })
                 .collect();
-            let needs_grad: SmallVec<[bool; 4]> = node.inputs.iter().map(|&i| from_wrt[i]).collect();
-            let inputs: SmallVec<[ArrayViewD<'_, T>; 4]> =
-                node.inputs.iter().map(|&i| inner.slots[i].data.view()).collect();
-            let outputs: SmallVec<[ArrayViewD<'_, T>; 2]> =
-                node.outputs.iter().map(|&o| inner.slots[o].data.view()).collect();
-            let grad_views: SmallVec<[Option<ArrayViewD<'_, T>>; 2]> =
-                grad_outputs.iter().map(|g| g.as_ref().map(|g| g.view())).collect();
+            let needs_grad: SmallVec<[bool; 4]> =
+                node.inputs.iter().map(|&i| from_wrt[i]).collect();
+            let inputs: SmallVec<[ArrayViewD<'_, T>; 4]> = node
+                .inputs
+                .iter()
+                .map(|&i| inner.slots[i].data.view())
+                .collect();
+            let outputs: SmallVec<[ArrayViewD<'_, T>; 2]> = node
+                .outputs
+                .iter()
+                .map(|&o| inner.slots[o].data.view())
+                .collect();
+            let grad_views: SmallVec<[Option<ArrayViewD<'_, T>>; 2]> = grad_outputs
+                .iter()
+                .map(|g| g.as_ref().map(|g| g.view()))
+                .collect();
             let args = BackwardArgs {
                 inputs: &inputs,
                 outputs: &outputs,
@@ -151,10 +160,16 @@ impl<T: Real> Tape<T> {
                 ));
             }
             for ((&i, g), &needed) in node.inputs.iter().zip(grad_inputs).zip(&needs_grad) {
-                let Some(g) = g.filter(|_| needed) else { continue };
+                let Some(g) = g.filter(|_| needed) else {
+                    continue;
+                };
                 let want = inner.slots[i].data.shape();
                 if g.shape() != want {
-                    return Err(TapeError::shape(&format!("backward of {name}"), g.shape(), want));
+                    return Err(TapeError::shape(
+                        &format!("backward of {name}"),
+                        g.shape(),
+                        want,
+                    ));
                 }
                 if self.checks_finite() {
                     check_finite(name, Pass::Backward, &g.view())?;

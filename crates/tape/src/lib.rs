@@ -20,6 +20,7 @@
 
 mod backward;
 mod error;
+pub mod gradcheck;
 mod op;
 pub mod primitives;
 mod real;
@@ -27,6 +28,9 @@ mod tape;
 
 pub use backward::Gradients;
 pub use error::{Pass, Result, TapeError};
+pub use gradcheck::{
+    check_adjoint, check_gradient, test_array, AdjointReport, GradCheckOptions, GradCheckReport,
+};
 pub use ndarray::{ArrayD, ArrayViewD, IxDyn};
 pub use op::{BackwardArgs, Op};
 pub use real::Real;

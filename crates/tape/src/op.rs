@@ -52,9 +52,9 @@ impl<'a, T: Real> BackwardArgs<'a, T> {
     /// Only on a broken tape invariant: the tape calls backward only when at least
     /// one output received a gradient, so a single-output op always has it.
     pub fn grad_out(&self) -> &ArrayViewD<'a, T> {
-        self.grad_outputs[0]
-            .as_ref()
-            .expect("tape invariant: a single-output op is only swept when its output has a gradient")
+        self.grad_outputs[0].as_ref().expect(
+            "tape invariant: a single-output op is only swept when its output has a gradient",
+        )
     }
 }
 

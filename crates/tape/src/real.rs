@@ -18,8 +18,9 @@ pub trait Real: NdFloat + Default + Display + Debug + Send + Sync + 'static {
 
     /// Converts from `f64`, rounding to nearest for `f32`.
     fn from_f64(x: f64) -> Self;
-    /// Converts to `f64` (exact for both types).
-    fn to_f64(self) -> f64;
+    /// Converts to `f64` (exact for both types). Named `as_f64` so that it does not
+    /// clash with `num_traits::ToPrimitive::to_f64`, which returns an `Option`.
+    fn as_f64(self) -> f64;
     /// Converts a `usize` (rounded for large values).
     fn from_usize(n: usize) -> Self {
         Self::from_f64(n as f64)
@@ -38,7 +39,7 @@ impl Real for f32 {
     fn from_f64(x: f64) -> Self {
         x as f32
     }
-    fn to_f64(self) -> f64 {
+    fn as_f64(self) -> f64 {
         f64::from(self)
     }
 }
@@ -49,7 +50,7 @@ impl Real for f64 {
     fn from_f64(x: f64) -> Self {
         x
     }
-    fn to_f64(self) -> f64 {
+    fn as_f64(self) -> f64 {
         self
     }
 }
@@ -66,7 +67,7 @@ mod tests {
 
     #[test]
     fn conversions_round_trip() {
-        assert_eq!(f32::from_f64(0.5).to_f64(), 0.5);
+        assert_eq!(f32::from_f64(0.5).as_f64(), 0.5);
         assert_eq!(f64::from_usize(7), 7.0);
         assert_eq!(<f32 as Real>::NAME, "f32");
     }

@@ -173,7 +173,11 @@ impl<T: Real> Tape<T> {
     /// [`TapeError::ForeignVar`] if an input belongs to another tape, whatever the
     /// op's forward returns, and [`TapeError::NonFinite`] if an output holds NaN or
     /// infinity while the check is on.
-    pub fn apply<O: Op<T> + 'static>(&self, op: O, inputs: &[Var<'_, T>]) -> Result<Vec<Var<'_, T>>> {
+    pub fn apply<O: Op<T> + 'static>(
+        &self,
+        op: O,
+        inputs: &[Var<'_, T>],
+    ) -> Result<Vec<Var<'_, T>>> {
         self.apply_boxed(Box::new(op), inputs)
     }
 
@@ -198,14 +202,20 @@ impl<T: Real> Tape<T> {
     ///
     /// # Errors
     /// As [`Tape::apply`].
-    pub fn apply_boxed(&self, mut op: Box<dyn Op<T>>, inputs: &[Var<'_, T>]) -> Result<Vec<Var<'_, T>>> {
+    pub fn apply_boxed(
+        &self,
+        mut op: Box<dyn Op<T>>,
+        inputs: &[Var<'_, T>],
+    ) -> Result<Vec<Var<'_, T>>> {
         for v in inputs {
             self.check_owned(op.name(), v)?;
         }
         let (outputs, requires_grad) = {
             let inner = self.inner.borrow();
-            let views: SmallVec<[ArrayViewD<'_, T>; 4]> =
-                inputs.iter().map(|v| inner.slots[v.index].data.view()).collect();
+            let views: SmallVec<[ArrayViewD<'_, T>; 4]> = inputs
+                .iter()
+                .map(|v| inner.slots[v.index].data.view())
+                .collect();
             let outputs = op.forward(&views)?;
             let requires_grad = inputs.iter().any(|v| inner.slots[v.index].requires_grad);
             (outputs, requires_grad)
@@ -229,7 +239,10 @@ impl<T: Real> Tape<T> {
             });
             inner.update_peak();
         }
-        Ok(indices.into_iter().map(|index| Var { tape: self, index }).collect())
+        Ok(indices
+            .into_iter()
+            .map(|index| Var { tape: self, index })
+            .collect())
     }
 
     pub(crate) fn check_owned(&self, op: &str, v: &Var<'_, T>) -> Result<()> {
@@ -269,7 +282,10 @@ impl<T: Real> Tape<T> {
 impl<T: Real> Inner<T> {
     fn push_slot(&mut self, data: ArrayD<T>, requires_grad: bool) -> usize {
         self.value_bytes += bytes_of(&data);
-        self.slots.push(Slot { data, requires_grad });
+        self.slots.push(Slot {
+            data,
+            requires_grad,
+        });
         self.update_peak();
         self.slots.len() - 1
     }
@@ -296,12 +312,17 @@ impl<'t, T: Real> Var<'t, T> {
 
     /// The shape of its value.
     pub fn shape(&self) -> Vec<usize> {
-        self.tape.inner.borrow().slots[self.index].data.shape().to_vec()
+        self.tape.inner.borrow().slots[self.index]
+            .data
+            .shape()
+            .to_vec()
     }
 
     /// Borrows its value. Drop the borrow before recording further ops.
     pub fn value(&self) -> Ref<'t, ArrayD<T>> {
-        Ref::map(self.tape.inner.borrow(), |inner| &inner.slots[self.index].data)
+        Ref::map(self.tape.inner.borrow(), |inner| {
+            &inner.slots[self.index].data
+        })
     }
 
     /// A copy of its value.

@@ -40,10 +40,14 @@ impl<T: Real, K: BinaryKernel<T>> Op<T> for Binary<K> {
         let b = args.input(1).broadcast(y.raw_dim()).expect("shape checked");
         let g = args.grad_out();
         let grad_for = |which: usize| {
-            let full = Zip::from(&a).and(&b).and(y).and(g).map_collect(|&a, &b, &y, &g| {
-                let (da, db) = K::df(a, b, y);
-                g * if which == 0 { da } else { db }
-            });
+            let full = Zip::from(&a)
+                .and(&b)
+                .and(y)
+                .and(g)
+                .map_collect(|&a, &b, &y, &g| {
+                    let (da, db) = K::df(a, b, y);
+                    g * if which == 0 { da } else { db }
+                });
             sum_to_shape(full.view(), args.input(which).shape())
         };
         Ok(vec![
@@ -79,12 +83,30 @@ binary_kernel!(Mul, "mul", |a, b| a * b, |a, b, y| (b, a));
 // d(a/b)/da = 1/b, d(a/b)/db = -a/b² = -y/b
 binary_kernel!(Div, "div", |a, b| a / b, |a, b, y| (T::one() / b, -y / b));
 // Ties send the whole gradient to the first input (a subgradient).
-binary_kernel!(Minimum, "minimum", |a, b| if a <= b { a } else { b }, |a, b, y| {
-    if a <= b { (T::one(), T::zero()) } else { (T::zero(), T::one()) }
-});
-binary_kernel!(Maximum, "maximum", |a, b| if a >= b { a } else { b }, |a, b, y| {
-    if a >= b { (T::one(), T::zero()) } else { (T::zero(), T::one()) }
-});
+binary_kernel!(
+    Minimum,
+    "minimum",
+    |a, b| if a <= b { a } else { b },
+    |a, b, y| {
+        if a <= b {
+            (T::one(), T::zero())
+        } else {
+            (T::zero(), T::one())
+        }
+    }
+);
+binary_kernel!(
+    Maximum,
+    "maximum",
+    |a, b| if a >= b { a } else { b },
+    |a, b, y| {
+        if a >= b {
+            (T::one(), T::zero())
+        } else {
+            (T::zero(), T::one())
+        }
+    }
+);
 
 impl<'t, T: Real> Var<'t, T> {
     /// `self + rhs`, broadcasting. Adjoint: `grad` summed to each input's shape.

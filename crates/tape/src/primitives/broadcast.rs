@@ -52,7 +52,11 @@ pub fn sum_to_shape<T: Real>(grad: ArrayViewD<'_, T>, shape: &[usize]) -> ArrayD
             g = g.sum_axis(Axis(axis)).insert_axis(Axis(axis));
         }
     }
-    assert_eq!(g.shape(), shape, "sum_to_shape: {shape:?} does not broadcast to the gradient");
+    assert_eq!(
+        g.shape(),
+        shape,
+        "sum_to_shape: {shape:?} does not broadcast to the gradient"
+    );
     g
 }
 

@@ -156,7 +156,7 @@ where
                 };
                 report.worst = (k, idx);
             }
-            if !(excess <= 0.0) {
+            if excess > 0.0 || excess.is_nan() {
                 report.passed = false;
             }
             report.entries += 1;

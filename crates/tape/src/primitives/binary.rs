@@ -108,6 +108,8 @@ binary_kernel!(
     }
 );
 
+// The names are the mathematics; the std operator traits cannot return a Result.
+#[allow(clippy::should_implement_trait)]
 impl<'t, T: Real> Var<'t, T> {
     /// `self + rhs`, broadcasting. Adjoint: `grad` summed to each input's shape.
     ///

@@ -30,6 +30,14 @@ pub trait LinearOperator<T: Real> {
     /// `out = Aᵀ y`, shapes as in [`LinearOperator::apply_into`] but swapped.
     fn apply_transpose_into(&self, y: ArrayViewD<'_, T>, out: ArrayViewMutD<'_, T>);
 
+    /// `out = A x`, returning `<x, A x>`: the curvature that conjugate gradient
+    /// needs each iteration. Stencils override this to compute the dot product in
+    /// the same pass over memory as the stencil; the default applies, then sums.
+    fn apply_into_dot(&self, x: ArrayViewD<'_, T>, mut out: ArrayViewMutD<'_, T>) -> T {
+        self.apply_into(x.view(), out.view_mut());
+        ndarray::Zip::from(&x).and(&out).fold(T::zero(), |acc, &a, &b| acc + a * b)
+    }
+
     /// True if `A = Aᵀ` (then solvers may use `apply` for both directions).
     fn is_symmetric(&self) -> bool {
         false

@@ -46,6 +46,9 @@ pub enum OpsError {
     /// An error from the tape (when an operator runs as a tape op).
     #[error(transparent)]
     Tape(#[from] TapeError),
+    /// Conjugate gradient failed (in a solve that is not itself a tape op).
+    #[error(transparent)]
+    Cg(#[from] crate::cg::CgError),
 }
 
 impl OpsError {
@@ -79,6 +82,7 @@ impl From<OpsError> for TapeError {
                     | OpsError::InvalidArgument { op, .. }
                     | OpsError::Cfl { op, .. }
                     | OpsError::NonFinite { op, .. } => op.clone(),
+                    OpsError::Cg(_) => "conjugate_gradient".to_string(),
                     OpsError::Tape(_) => unreachable!("handled above"),
                 };
                 TapeError::op(&op, other)

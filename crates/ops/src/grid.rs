@@ -162,6 +162,100 @@ impl Grid2 {
     }
 }
 
+/// Which cells of a grid take part in a computation (the others are obstacles or
+/// lie outside the domain): one flag per cell, in the row-major order of a
+/// cell-centred field.
+///
+/// [`crate::stencil::Masked`] restricts a linear operator to the active cells.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct CellMask {
+    shape: Vec<usize>,
+    active: Vec<bool>,
+}
+
+impl CellMask {
+    /// Every cell of a field of `shape` active.
+    pub fn all_active(shape: &[usize]) -> Self {
+        CellMask {
+            shape: shape.to_vec(),
+            active: vec![true; shape.iter().product()],
+        }
+    }
+
+    /// The cells of a 1D grid whose centre `x` satisfies `active(x)`.
+    pub fn from_fn1(grid: &Grid1, active: impl Fn(f64) -> bool) -> Self {
+        CellMask {
+            shape: grid.shape().to_vec(),
+            active: (0..grid.n).map(|i| active(grid.center(i))).collect(),
+        }
+    }
+
+    /// The cells of a 2D grid whose centre `[x, y]` satisfies `active`.
+    pub fn from_fn2(grid: &Grid2, active: impl Fn([f64; 2]) -> bool) -> Self {
+        let mut flags = Vec::with_capacity(grid.cells());
+        for i in 0..grid.nx {
+            for j in 0..grid.ny {
+                flags.push(active(grid.center(i, j)));
+            }
+        }
+        CellMask {
+            shape: grid.shape().to_vec(),
+            active: flags,
+        }
+    }
+
+    /// A mask from an array of flags (any layout).
+    pub fn from_array(flags: ndarray::ArrayViewD<'_, bool>) -> Self {
+        CellMask {
+            shape: flags.shape().to_vec(),
+            active: flags.iter().copied().collect(),
+        }
+    }
+
+    /// The shape of the fields it applies to.
+    pub fn shape(&self) -> &[usize] {
+        &self.shape
+    }
+
+    /// The flags in row-major order.
+    pub fn as_slice(&self) -> &[bool] {
+        &self.active
+    }
+
+    /// Whether the cell at row-major index `flat` is active.
+    ///
+    /// # Panics
+    /// If `flat` is out of range.
+    pub fn is_active(&self, flat: usize) -> bool {
+        self.active[flat]
+    }
+
+    /// How many cells are active.
+    pub fn active_count(&self) -> usize {
+        self.active.iter().filter(|&&a| a).count()
+    }
+
+    /// Sets the inactive cells of `field` to zero.
+    ///
+    /// # Errors
+    /// [`OpsError::ShapeMismatch`] if `field` does not have the mask's shape.
+    pub fn zero_inactive<T: diffphys_tape::Real>(
+        &self,
+        mut field: ndarray::ArrayViewMutD<'_, T>,
+    ) -> Result<()> {
+        if field.shape() != self.shape.as_slice() {
+            return Err(OpsError::shape("CellMask", &self.shape, field.shape()));
+        }
+        // Row-major iteration order matches the flags whatever the layout.
+        for (v, &a) in field.iter_mut().zip(&self.active) {
+            if !a {
+                *v = T::zero();
+            }
+        }
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -171,6 +265,26 @@ mod tests {
         let g = Grid1::over(-1.0, 1.0, 4, Boundary::Periodic).unwrap();
         assert_eq!(g.dx, 0.5);
         assert_eq!(g.centers(), vec![-0.75, -0.25, 0.25, 0.75]);
+    }
+
+    #[test]
+    fn masks_from_cell_centres() {
+        let g = Grid2::new(4, 2, 0.5, 1.0, Boundary::Closed).unwrap();
+        // centres x ∈ {0.25, 0.75, 1.25, 1.75}: an obstacle for x > 1
+        let m = CellMask::from_fn2(&g, |c| c[0] < 1.0);
+        assert_eq!(m.active_count(), 4);
+        assert!(m.is_active(3) && !m.is_active(4));
+        let mut f = ndarray::ArrayD::<f64>::ones(ndarray::IxDyn(&[4, 2]));
+        m.zero_inactive(f.view_mut()).unwrap();
+        assert_eq!(f.sum(), 4.0);
+        assert!(m
+            .zero_inactive(ndarray::ArrayD::<f64>::ones(ndarray::IxDyn(&[2, 4])).view_mut())
+            .is_err());
+        let m1 = CellMask::from_fn1(&Grid1::new(3, 1.0, 0.0, Boundary::Closed).unwrap(), |x| {
+            x > 1.0
+        });
+        assert_eq!(m1.as_slice(), &[false, true, true]);
+        assert_eq!(CellMask::all_active(&[2, 3]).active_count(), 6);
     }
 
     #[test]

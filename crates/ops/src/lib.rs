@@ -5,10 +5,19 @@
 //! the tape; the tape plug-in ([`diffphys_tape::Op`]) is a thin adapter over them.
 #![warn(missing_docs)]
 
+pub mod advection;
+pub mod cg;
+pub mod dense;
 mod error;
 pub mod grid;
 pub mod linear;
+pub mod mac;
+pub mod poisson;
+pub mod projection;
+pub mod reference;
+pub mod stencil;
+pub mod tape_ops;
 
 pub use error::{OpsError, Result};
-pub use grid::{Boundary, Grid1, Grid2};
+pub use grid::{Boundary, CellMask, Grid1, Grid2};
 pub use linear::LinearOperator;

@@ -35,7 +35,9 @@ pub trait LinearOperator<T: Real> {
     /// the same pass over memory as the stencil; the default applies, then sums.
     fn apply_into_dot(&self, x: ArrayViewD<'_, T>, mut out: ArrayViewMutD<'_, T>) -> T {
         self.apply_into(x.view(), out.view_mut());
-        ndarray::Zip::from(&x).and(&out).fold(T::zero(), |acc, &a, &b| acc + a * b)
+        ndarray::Zip::from(&x)
+            .and(&out)
+            .fold(T::zero(), |acc, &a, &b| acc + a * b)
     }
 
     /// True if `A = Aᵀ` (then solvers may use `apply` for both directions).

@@ -22,6 +22,7 @@ mod backward;
 mod error;
 pub mod gradcheck;
 mod op;
+pub mod optim;
 pub mod primitives;
 mod real;
 mod tape;
@@ -33,6 +34,7 @@ pub use gradcheck::{
 };
 pub use ndarray::{ArrayD, ArrayViewD, IxDyn};
 pub use op::{BackwardArgs, Op};
+pub use optim::{Adam, GradientDescent, Optimizer};
 pub use real::Real;
 pub use tape::{Tape, TapeStats, Var};
 

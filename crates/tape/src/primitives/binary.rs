@@ -6,7 +6,7 @@
 
 use ndarray::{ArrayD, ArrayViewD, IxDyn, Zip};
 
-use super::broadcast::{broadcast_shape, sum_to_shape};
+use super::broadcast::{broadcast_shape, sum_to_shape_owned};
 use crate::{BackwardArgs, Op, Real, Result, Var};
 
 /// The maths of one elementwise binary op.
@@ -48,7 +48,7 @@ impl<T: Real, K: BinaryKernel<T>> Op<T> for Binary<K> {
                     let (da, db) = K::df(a, b, y);
                     g * if which == 0 { da } else { db }
                 });
-            sum_to_shape(full.view(), args.input(which).shape())
+            sum_to_shape_owned(full, args.input(which).shape())
         };
         Ok(vec![
             args.needs(0).then(|| grad_for(0)),

@@ -1,6 +1,6 @@
 //! NumPy-style broadcasting and its adjoint, summing a gradient back to a shape.
 
-use ndarray::{ArrayD, ArrayViewD, Axis};
+use ndarray::{ArrayD, ArrayViewD, Axis, CowArray};
 
 use crate::{Real, Result, TapeError};
 
@@ -42,14 +42,32 @@ pub fn sum_to_shape<T: Real>(grad: ArrayViewD<'_, T>, shape: &[usize]) -> ArrayD
     if grad.shape() == shape {
         return grad.to_owned();
     }
+    sum_broadcast_axes(grad, shape)
+}
+
+/// [`sum_to_shape`] of an owned gradient: returns it unchanged (no copy) where no
+/// axis was broadcast.
+pub(crate) fn sum_to_shape_owned<T: Real>(grad: ArrayD<T>, shape: &[usize]) -> ArrayD<T> {
+    if grad.shape() == shape {
+        return grad;
+    }
+    sum_broadcast_axes(grad.view(), shape)
+}
+
+fn sum_broadcast_axes<T: Real>(grad: ArrayViewD<'_, T>, shape: &[usize]) -> ArrayD<T> {
+    assert!(
+        grad.ndim() >= shape.len(),
+        "sum_to_shape: {shape:?} does not broadcast to the gradient {:?}",
+        grad.shape()
+    );
     let lead = grad.ndim() - shape.len();
-    let mut g = grad.to_owned();
+    let mut g = CowArray::from(grad);
     for _ in 0..lead {
-        g = g.sum_axis(Axis(0));
+        g = g.sum_axis(Axis(0)).into();
     }
     for (axis, &n) in shape.iter().enumerate() {
         if n == 1 && g.shape()[axis] != 1 {
-            g = g.sum_axis(Axis(axis)).insert_axis(Axis(axis));
+            g = g.sum_axis(Axis(axis)).insert_axis(Axis(axis)).into();
         }
     }
     assert_eq!(
@@ -57,7 +75,7 @@ pub fn sum_to_shape<T: Real>(grad: ArrayViewD<'_, T>, shape: &[usize]) -> ArrayD
         shape,
         "sum_to_shape: {shape:?} does not broadcast to the gradient"
     );
-    g
+    g.into_owned()
 }
 
 #[cfg(test)]

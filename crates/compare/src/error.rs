@@ -1,0 +1,82 @@
+//! The one error type of the comparison harness.
+
+use diffphys_ops::OpsError;
+use diffphys_tape::TapeError;
+use thiserror::Error;
+
+/// Everything the harness can reject or fail at. A failing gradient method is a
+/// result to report (its row's `error` field), not a reason to stop a sweep; these
+/// errors say what went wrong and where.
+#[derive(Debug, Error)]
+#[non_exhaustive]
+pub enum CompareError {
+    /// An operator rejected its input or failed (a solver that did not converge, …).
+    #[error(transparent)]
+    Ops(#[from] OpsError),
+    /// The tape rejected an op or a gradient (shape, non-finite value, …).
+    #[error(transparent)]
+    Tape(#[from] TapeError),
+    /// The naive (unrolled) CG failed inside one of its recorded iterations; the
+    /// source names the op (for a non-finite value, which op produced it and in
+    /// which pass).
+    #[error("naive CG, iteration {iteration}: {source}")]
+    NaiveIteration {
+        /// The CG iteration (0-based) whose recording or backward failed.
+        iteration: usize,
+        /// The tape's error.
+        #[source]
+        source: TapeError,
+    },
+    /// A gradient or solution came out with NaN or infinity where the method itself
+    /// did not catch it.
+    #[error("non-finite value in {method}: {what}")]
+    NonFinite {
+        /// The gradient method.
+        method: String,
+        /// Which array.
+        what: String,
+    },
+    /// Reading or writing a file failed.
+    #[error("I/O error on {path}: {source}")]
+    Io {
+        /// The file or folder.
+        path: String,
+        /// The underlying error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// A chart could not be drawn (empty or degenerate data, or a drawing error).
+    #[error("chart: {0}")]
+    Chart(String),
+    /// Serialising results to JSON failed.
+    #[error("JSON: {0}")]
+    Json(#[from] serde_json::Error),
+    /// An argument (a size, an iteration count, a precision name, …) is out of range.
+    #[error("invalid argument: {0}")]
+    InvalidArgument(String),
+    /// A run was not attempted, and why (a naive tape that would not fit in the
+    /// memory limit, say).
+    #[error("skipped: {0}")]
+    Skipped(String),
+    /// A requested mode or method exists in the interface but is not built yet.
+    #[error("not implemented yet: {0}")]
+    NotImplemented(String),
+}
+
+impl CompareError {
+    /// A [`CompareError::Io`] on `path`.
+    pub fn io(path: impl AsRef<std::path::Path>, source: std::io::Error) -> Self {
+        CompareError::Io {
+            path: path.as_ref().display().to_string(),
+            source,
+        }
+    }
+
+    /// A [`CompareError::InvalidArgument`].
+    pub fn invalid(message: impl Into<String>) -> Self {
+        CompareError::InvalidArgument(message.into())
+    }
+}
+
+/// Result alias of the comparison crate.
+pub type Result<T, E = CompareError> = std::result::Result<T, E>;

@@ -1,0 +1,292 @@
+//! `diffphys-compare`: naive vs implicit gradients through conjugate gradient,
+//! measured in one run (time, tape and heap memory, accuracy against an exact
+//! solve), written to a folder as `results.json`, `report.md` and SVG charts.
+//!
+//! ```text
+//! cargo run --release -p diffphys-compare                       # the default study
+//! cargo run --release -p diffphys-compare -- --quick --out tmp  # seconds, for CI
+//! cargo run --release -p diffphys-compare -- --sizes 64,128 --rtol 1e-6,1e-10 --precision f64
+//! ```
+//!
+//! Stdout ends with one JSON line of key figures (counts, floors, output folder).
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Instant;
+
+use clap::{Args, Parser, Subcommand};
+use diffphys_compare::alloc::CountingAllocator;
+use diffphys_compare::harness::{
+    cg_speedup, compute_floors, prepare_out_dir, run_sweep, write_charts, Precision, SweepConfig,
+    FLOOR_N,
+};
+use diffphys_compare::problem::OperatorKind;
+use diffphys_compare::report::{
+    floors_text, is_skipped, key_figures_line, render_table, write_report_md, write_results_json,
+    Report,
+};
+use diffphys_compare::{CompareError, Result};
+
+#[global_allocator]
+static HEAP: CountingAllocator = CountingAllocator::new();
+
+/// Naive vs implicit gradients through a Poisson solve: time, memory, accuracy.
+#[derive(Debug, Parser)]
+#[command(name = "diffphys-compare", version, about, long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    command: Option<Command>,
+    #[command(flatten)]
+    sweep: SweepArgs,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Where methods fail: precision, iterations past convergence, unconverged
+    /// solves, conditioning, initial guesses, long unrolls (not implemented yet).
+    Stability {
+        /// Output folder.
+        #[arg(long, default_value = "out/stability")]
+        out: PathBuf,
+    },
+}
+
+/// The sweep of the default command. Each list flag replaces its default; giving
+/// only one of `--iters` and `--rtol` runs only that kind of stopping rule.
+#[derive(Debug, Args)]
+struct SweepArgs {
+    /// Grid sizes n (n × n cells), comma-separated [default: 32,64,128,256].
+    #[arg(long, value_delimiter = ',')]
+    sizes: Vec<usize>,
+    /// Fixed CG iteration counts [default: 10,30,100,300].
+    #[arg(long, value_delimiter = ',')]
+    iters: Vec<usize>,
+    /// Relative CG tolerances [default: 1e-4,1e-6,1e-8].
+    #[arg(long, value_delimiter = ',')]
+    rtol: Vec<f64>,
+    /// Precisions: f32, f64 [default: f32,f64].
+    #[arg(long, value_delimiter = ',', value_parser = parse_precision)]
+    precision: Vec<Precision>,
+    /// Operators: laplacian, aniso<ratio> [default: laplacian,aniso100].
+    #[arg(long, value_delimiter = ',', value_parser = parse_operator)]
+    operators: Vec<OperatorKind>,
+    /// Iteration cap of tolerance runs [default: 20000].
+    #[arg(long)]
+    max_iters: Option<usize>,
+    /// Skip naive runs whose tape would exceed this many MiB [default: 3072].
+    #[arg(long)]
+    naive_tape_limit_mib: Option<usize>,
+    /// Output folder for results.json, report.md and the charts.
+    #[arg(long, default_value = "out/compare")]
+    out: PathBuf,
+    /// A tiny sweep (sizes 8 and 16) that finishes in seconds, for CI.
+    #[arg(long)]
+    quick: bool,
+}
+
+fn parse_precision(s: &str) -> std::result::Result<Precision, String> {
+    Precision::parse(s).map_err(|e| e.to_string())
+}
+
+fn parse_operator(s: &str) -> std::result::Result<OperatorKind, String> {
+    OperatorKind::parse(s).map_err(|e| e.to_string())
+}
+
+impl SweepArgs {
+    fn config(&self) -> Result<SweepConfig> {
+        let mut c = if self.quick {
+            SweepConfig::quick()
+        } else {
+            SweepConfig::default_run()
+        };
+        if !self.sizes.is_empty() {
+            c.sizes = self.sizes.clone();
+        }
+        match (self.iters.is_empty(), self.rtol.is_empty()) {
+            (true, true) => {}
+            (false, true) => {
+                c.iters = self.iters.clone();
+                c.rtols.clear();
+            }
+            (true, false) => {
+                c.iters.clear();
+                c.rtols = self.rtol.clone();
+            }
+            (false, false) => {
+                c.iters = self.iters.clone();
+                c.rtols = self.rtol.clone();
+            }
+        }
+        if !self.precision.is_empty() {
+            c.precisions = self.precision.clone();
+        }
+        if !self.operators.is_empty() {
+            c.operators = self.operators.clone();
+        }
+        if let Some(m) = self.max_iters {
+            c.max_iters = m;
+        }
+        if let Some(mib) = self.naive_tape_limit_mib {
+            c.naive_tape_limit_bytes = mib.saturating_mul(1 << 20);
+        }
+        c.validate()?;
+        Ok(c)
+    }
+}
+
+fn describe(config: &SweepConfig, args: &SweepArgs) -> Vec<String> {
+    let list = |v: Vec<String>| {
+        if v.is_empty() {
+            "none".to_string()
+        } else {
+            v.join(", ")
+        }
+    };
+    vec![
+        format!(
+            "command: `diffphys-compare {}`",
+            std::env::args().skip(1).collect::<Vec<_>>().join(" ")
+        ),
+        format!("mode: {}", if args.quick { "quick" } else { "full" }),
+        format!(
+            "grid sizes: {}",
+            list(config.sizes.iter().map(|n| format!("{n}²")).collect())
+        ),
+        format!(
+            "fixed iteration counts: {}",
+            list(config.iters.iter().map(|k| k.to_string()).collect())
+        ),
+        format!(
+            "tolerances: {} (cap {} iterations)",
+            list(config.rtols.iter().map(|r| format!("{r:e}")).collect()),
+            config.max_iters
+        ),
+        format!(
+            "precisions: {}",
+            list(
+                config
+                    .precisions
+                    .iter()
+                    .map(|p| p.name().to_string())
+                    .collect()
+            )
+        ),
+        format!(
+            "operators: {}",
+            list(config.operators.iter().map(|o| o.label()).collect())
+        ),
+        format!("loss: {:?}", config.loss),
+        format!(
+            "naive tape limit: {}",
+            diffphys_compare::report::format_bytes(config.naive_tape_limit_bytes)
+        ),
+        format!(
+            "machine: {} logical CPUs, {} {}",
+            std::thread::available_parallelism().map_or(0, |n| n.get()),
+            std::env::consts::OS,
+            std::env::consts::ARCH
+        ),
+    ]
+}
+
+fn run(args: &SweepArgs, started: Instant) -> Result<String> {
+    let config = args.config()?;
+    let out = prepare_out_dir(&args.out)?;
+    let rows = run_sweep(&config, Some(&HEAP))?;
+    let (timing, timing_note) = cg_speedup(&config);
+    // Like the other floors, the speedup is judged at 256²; on smaller grids the
+    // fixed costs of a solve call dominate, so the ratio is reported, not judged.
+    let speedup = match timing {
+        Some(t) if t.n == FLOOR_N => (Some(t.speedup()), timing_note),
+        Some(t) => (
+            None,
+            format!(
+                "measured {:.2} at {}² only (the floor is judged at {FLOOR_N}²): {timing_note}",
+                t.speedup(),
+                t.n
+            ),
+        ),
+        None => (None, timing_note),
+    };
+    let floors = compute_floors(&rows, Some(speedup));
+    let (charts, mut notes) = write_charts(&out, &rows);
+    let skipped = rows.iter().filter(|r| is_skipped(r)).count();
+    if skipped > 0 {
+        notes.push(format!(
+            "{skipped} naive runs were skipped because their tape would exceed the limit \
+             (raise --naive-tape-limit-mib to run them)"
+        ));
+    }
+    write_results_json(&out.join("results.json"), &rows)?;
+    let report = Report {
+        title: "diffphys-compare: naive vs implicit gradients through CG",
+        configuration: describe(&config, args),
+        rows: &rows,
+        floors: &floors,
+        charts,
+        notes: notes.clone(),
+    };
+    write_report_md(&out.join("report.md"), &report)?;
+
+    println!("{}", render_table(&rows));
+    println!("Performance floors:\n{}", floors_text(&floors));
+    for n in &notes {
+        println!("note: {n}");
+    }
+    println!(
+        "wrote {}, {} and the charts",
+        out.join("results.json").display(),
+        out.join("report.md").display()
+    );
+    Ok(key_figures_line(
+        &rows,
+        &floors,
+        &out,
+        started.elapsed().as_secs_f64(),
+    ))
+}
+
+fn main() -> ExitCode {
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) if !e.use_stderr() => e.exit(), // --help, --version
+        Err(e) => {
+            let _ = e.print();
+            println!(
+                "{}",
+                serde_json::json!({ "mode": "usage", "ok": false, "error": e.kind().to_string() })
+            );
+            return ExitCode::from(64);
+        }
+    };
+    let started = Instant::now();
+    let (mode, result) = match &cli.command {
+        None => ("sweep", run(&cli.sweep, started)),
+        Some(Command::Stability { out }) => (
+            "stability",
+            Err(CompareError::NotImplemented(format!(
+                "the stability mode (issue 6) is not built yet; nothing was written to {}",
+                out.display()
+            ))),
+        ),
+    };
+    match result {
+        Ok(line) => {
+            println!("{line}");
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("error: {e}");
+            let code = match e {
+                CompareError::NotImplemented(_) => 2,
+                CompareError::InvalidArgument(_) => 64,
+                _ => 1,
+            };
+            println!(
+                "{}",
+                serde_json::json!({ "mode": mode, "ok": false, "error": e.to_string() })
+            );
+            ExitCode::from(code)
+        }
+    }
+}

@@ -1,0 +1,163 @@
+//! A square linear operator restricted to the active cells of a [`CellMask`].
+
+use diffphys_tape::Real;
+use ndarray::{ArrayD, ArrayViewD, ArrayViewMutD};
+
+use crate::{CellMask, LinearOperator, OpsError, Result};
+
+/// `A` restricted to the active cells of a mask: with `P` the diagonal projection
+/// onto active cells, `M = P A P + (I − P)`.
+///
+/// Active cells see inactive neighbours as zero (for a Laplacian, an obstacle
+/// acts as a zero value at the neighbouring cell centre); inactive cells are
+/// decoupled and mapped to themselves, so `M` stays invertible, and symmetric
+/// positive definite when `A` is. Adjoint: `Mᵀ = P Aᵀ P + (I − P)`.
+#[derive(Debug, Clone)]
+pub struct Masked<A> {
+    op: A,
+    mask: CellMask,
+}
+
+impl<A> Masked<A> {
+    /// `op` restricted to `mask`. `T` is the scalar whose [`LinearOperator`]
+    /// implementation gives the shapes (`Masked::new::<f64>(op, mask)`; the stencils
+    /// have the same shapes in every precision).
+    ///
+    /// # Errors
+    /// [`OpsError::InvalidArgument`] if `op` is not square, and
+    /// [`OpsError::ShapeMismatch`] if the mask does not have its shape.
+    pub fn new<T: Real>(op: A, mask: CellMask) -> Result<Self>
+    where
+        A: LinearOperator<T>,
+    {
+        if op.input_shape() != op.output_shape() {
+            return Err(OpsError::invalid(
+                "masked",
+                format!(
+                    "{} maps {:?} to {:?}; a mask needs a square operator",
+                    op.name(),
+                    op.input_shape(),
+                    op.output_shape()
+                ),
+            ));
+        }
+        if mask.shape() != op.input_shape() {
+            return Err(OpsError::shape("masked", op.input_shape(), mask.shape()));
+        }
+        Ok(Masked { op, mask })
+    }
+
+    /// The mask.
+    pub fn mask(&self) -> &CellMask {
+        &self.mask
+    }
+
+    /// The unmasked operator.
+    pub fn operator(&self) -> &A {
+        &self.op
+    }
+
+    /// `out = P B (P x) + (I − P) x` with `B` applied by `apply`.
+    fn masked_apply<T: Real>(
+        &self,
+        x: ArrayViewD<'_, T>,
+        mut out: ArrayViewMutD<'_, T>,
+        apply: impl FnOnce(ArrayViewD<'_, T>, ArrayViewMutD<'_, T>),
+    ) {
+        let mut px = x.to_owned();
+        self.mask
+            .zero_inactive(px.view_mut())
+            .expect("shape checked at construction");
+        apply(px.view(), out.view_mut());
+        for ((o, &xv), &a) in out.iter_mut().zip(x.iter()).zip(self.mask.as_slice()) {
+            if !a {
+                *o = xv;
+            }
+        }
+    }
+}
+
+impl<T: Real, A: LinearOperator<T>> LinearOperator<T> for Masked<A> {
+    fn name(&self) -> &str {
+        self.op.name()
+    }
+    fn input_shape(&self) -> &[usize] {
+        self.op.input_shape()
+    }
+    fn output_shape(&self) -> &[usize] {
+        self.op.output_shape()
+    }
+    fn apply_into(&self, x: ArrayViewD<'_, T>, out: ArrayViewMutD<'_, T>) {
+        self.masked_apply(x, out, |x, o| self.op.apply_into(x, o));
+    }
+    fn apply_transpose_into(&self, y: ArrayViewD<'_, T>, out: ArrayViewMutD<'_, T>) {
+        self.masked_apply(y, out, |y, o| self.op.apply_transpose_into(y, o));
+    }
+    fn is_symmetric(&self) -> bool {
+        self.op.is_symmetric()
+    }
+    fn diagonal(&self) -> Option<ArrayD<T>> {
+        let mut d = self.op.diagonal()?;
+        for (v, &a) in d.iter_mut().zip(self.mask.as_slice()) {
+            if !a {
+                *v = T::one();
+            }
+        }
+        Some(d)
+    }
+    fn triplets(&self) -> Option<Vec<(usize, usize, T)>> {
+        let active = self.mask.as_slice();
+        let mut t: Vec<_> = self
+            .op
+            .triplets()?
+            .into_iter()
+            .filter(|&(r, c, _)| active[r] && active[c])
+            .collect();
+        t.extend(
+            active
+                .iter()
+                .enumerate()
+                .filter(|(_, &a)| !a)
+                .map(|(k, _)| (k, k, T::one())),
+        );
+        Some(t)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::stencil::test_support::{check_operator, dense_of};
+    use crate::stencil::{Gradient1, Laplacian2};
+    use crate::{Boundary, Grid1, Grid2};
+
+    #[test]
+    fn masked_laplacian_is_symmetric_with_identity_on_obstacles() {
+        let grid = Grid2::new(6, 5, 0.2, 0.3, Boundary::Closed).unwrap();
+        // A square obstacle in the middle.
+        let mask = CellMask::from_fn2(&grid, |c| !(0.4..0.8).contains(&c[0]) || c[1] > 0.9);
+        let m = Masked::new::<f64>(Laplacian2::negative(grid), mask.clone()).unwrap();
+        check_operator(&m, 3);
+        let dense = dense_of(&m);
+        assert_eq!(dense, dense.t());
+        let diag = LinearOperator::<f64>::diagonal(&m).unwrap();
+        for (k, &a) in mask.as_slice().iter().enumerate() {
+            assert_eq!(diag.as_slice().unwrap()[k], dense[[k, k]]);
+            if !a {
+                // An inactive row is the identity row.
+                let row = dense.row(k);
+                assert_eq!(row.sum(), 1.0);
+            }
+        }
+    }
+
+    #[test]
+    fn non_square_or_wrong_mask_is_an_error() {
+        let g = Grid1::new(4, 1.0, 0.0, Boundary::Periodic).unwrap();
+        let g2 = Grid2::new(2, 3, 1.0, 1.0, Boundary::Periodic).unwrap();
+        let wrong = CellMask::all_active(&[5]);
+        assert!(Masked::new::<f64>(Gradient1::new(g), wrong).is_err());
+        let grad2 = crate::stencil::Gradient2::new(g2);
+        assert!(Masked::new::<f64>(grad2, CellMask::all_active(&[2, 3])).is_err());
+    }
+}

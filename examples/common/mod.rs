@@ -1,0 +1,68 @@
+//! What every example shares: its command line (`--small` for CI, `--out DIR` for
+//! charts) and the closing JSON line.
+
+#![allow(dead_code)] // each example uses a different part
+
+use std::path::PathBuf;
+
+/// The options every example takes.
+#[derive(Debug, Clone)]
+pub struct ExampleArgs {
+    /// Run at a small size (CI and quick checks).
+    pub small: bool,
+    /// Folder for charts and other files.
+    pub out: PathBuf,
+    /// Overrides the number of optimisation iterations.
+    pub iterations: Option<usize>,
+}
+
+impl ExampleArgs {
+    /// Reads `--small`, `--out DIR` and `--iterations N` from the command line;
+    /// `default_out` names the folder under `out/` when `--out` is not given.
+    pub fn parse(default_out: &str) -> Result<Self, String> {
+        let mut args = ExampleArgs {
+            small: false,
+            out: PathBuf::from("out").join(default_out),
+            iterations: None,
+        };
+        let mut it = std::env::args().skip(1);
+        while let Some(arg) = it.next() {
+            match arg.as_str() {
+                "--small" => args.small = true,
+                "--out" => args.out = it.next().ok_or("--out needs a folder")?.into(),
+                "--iterations" => {
+                    let n = it.next().ok_or("--iterations needs a number")?;
+                    args.iterations = Some(
+                        n.parse()
+                            .map_err(|_| format!("--iterations: not a number: {n}"))?,
+                    );
+                }
+                "-h" | "--help" => {
+                    println!("options: --small (CI size), --out DIR (charts), --iterations N");
+                    std::process::exit(0);
+                }
+                other => return Err(format!("unknown argument {other:?}; try --help")),
+            }
+        }
+        std::fs::create_dir_all(&args.out)
+            .map_err(|e| format!("cannot create {}: {e}", args.out.display()))?;
+        Ok(args)
+    }
+
+    /// `small` if running small, else `full`.
+    pub fn pick<T>(&self, full: T, small: T) -> T {
+        if self.small {
+            small
+        } else {
+            full
+        }
+    }
+}
+
+/// Prints the example's key figures as its last stdout line.
+pub fn print_json_line(value: &serde_json::Value) {
+    println!(
+        "{}",
+        serde_json::to_string(value).expect("a JSON value serialises")
+    );
+}

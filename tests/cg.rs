@@ -1,0 +1,414 @@
+//! Conjugate gradient: manufactured solutions (`b = A x*`) in f32 and f64, with
+//! and without Jacobi, singular operators, and every error provoked.
+
+mod common;
+
+use common::*;
+use diffphys::ops::cg::{
+    cg_solve, conjugate_gradient, CgError, CgParams, NullSpace, Preconditioner,
+};
+use diffphys::ops::dense::DenseOperator;
+use diffphys::ops::reference::SparseCholesky;
+use diffphys::ops::stencil::Laplacian2;
+use diffphys::{Boundary, Grid2, LinearOperator};
+use ndarray::{arr1, arr2, Array2, ArrayD, ArrayViewD, ArrayViewMutD, IxDyn};
+
+/// `‖x − x*‖ / ‖x*‖` in f64.
+fn rel_err<T: Real>(x: &ArrayD<T>, x_star: &ArrayD<f64>) -> f64 {
+    let num: f64 = x
+        .iter()
+        .zip(x_star)
+        .map(|(a, b)| (a.as_f64() - b).powi(2))
+        .sum();
+    let den: f64 = x_star.iter().map(|b| b * b).sum();
+    (num / den).sqrt()
+}
+
+fn cast<T: Real>(a: &ArrayD<f64>) -> ArrayD<T> {
+    a.mapv(T::from_f64)
+}
+
+/// The tolerance each precision can meet on the true residual.
+fn rel_tol<T: Real>() -> f64 {
+    if T::EPS.as_f64() < 1e-10 {
+        1e-10
+    } else {
+        1e-5
+    }
+}
+
+/// Eigenvalues log-spaced from 1 to `kappa`.
+fn log_spectrum(n: usize, kappa: f64) -> Vec<f64> {
+    (0..n)
+        .map(|i| kappa.powf(i as f64 / (n - 1) as f64))
+        .collect()
+}
+
+/// Dense SPD matrix of condition 10³: the error obeys the perturbation bound
+/// `‖x − x*‖/‖x*‖ ≤ κ·(‖b − A x‖/‖b‖ + ‖δA‖/‖A‖)`, with `δA` the rounding of
+/// the matrix to `T` (at most ε per entry, so a few ε in norm).
+fn manufactured_dense_spd<T: Real>() {
+    let n = 40;
+    let kappa = 1e3;
+    let spectrum = log_spectrum(n, kappa);
+    let a64 = DenseOperator::<f64>::with_spectrum(&spectrum, 7);
+    let a = DenseOperator::<T>::with_spectrum(&spectrum, 7);
+    let x_star = random_field::<f64>(&[n], 11);
+    let b = a64.apply(x_star.view()).unwrap();
+    for pre in [Preconditioner::None, Preconditioner::Jacobi] {
+        let params = CgParams::default()
+            .with_rel_tol(rel_tol::<T>())
+            .with_preconditioner(pre);
+        let (x, info) = cg_solve(&a, cast::<T>(&b).view(), &params).unwrap();
+        assert!(info.converged);
+        let bound = kappa * (info.relative_residual.max(rel_tol::<T>()) + 8.0 * T::EPS.as_f64());
+        let err = rel_err(&x, &x_star);
+        assert!(
+            err <= bound,
+            "{} {pre:?}: error {err:.3e} > κ-bound {bound:.3e} ({info:?})",
+            T::NAME
+        );
+        // CG on n unknowns: at most n steps in exact arithmetic, a few more here.
+        assert!(info.iterations <= 2 * n, "{info:?}");
+    }
+}
+
+/// The 2D Laplacian with zero Dirichlet walls, a random (rough) solution.
+fn manufactured_laplacian<T: Real>() {
+    let grid = Grid2::new(24, 20, 0.1, 0.05, Boundary::ZeroDirichlet).unwrap();
+    let a = Laplacian2::negative(grid);
+    let x_star = random_field::<f64>(&[24, 20], 5);
+    let b = LinearOperator::<f64>::apply(&a, x_star.view()).unwrap();
+    let exact = SparseCholesky::new(&a, NullSpace::None).unwrap();
+    let x_ref = exact.solve(b.view()).unwrap();
+    // faer's Cholesky reproduces x* to rounding: the reference is exact.
+    assert!(rel_err(&x_ref, &x_star) < 1e-12);
+    for pre in [Preconditioner::None, Preconditioner::Jacobi] {
+        let params = CgParams::default()
+            .with_rel_tol(rel_tol::<T>())
+            .with_preconditioner(pre)
+            .with_history();
+        let (x, info) = cg_solve(&a, cast::<T>(&b).view(), &params).unwrap();
+        // κ(−∇²) on this grid is about 1.6·10³ (λ ∝ sin²); a rough x* sits in
+        // the high modes, where the error is smaller than the residual.
+        let limit = if T::EPS.as_f64() < 1e-10 { 1e-8 } else { 1e-3 };
+        let err = rel_err(&x, &x_star);
+        assert!(
+            err < limit,
+            "{} {pre:?}: {err:.3e} ({:?})",
+            T::NAME,
+            info.iterations
+        );
+        let h = info.history.as_ref().unwrap();
+        assert_eq!(h.len(), info.iterations + 1);
+        let b_norm = b.iter().map(|v| v * v).sum::<f64>().sqrt();
+        // The first entry is ‖b‖ (zero initial guess), the last meets the tolerance.
+        assert!(
+            (h[0] - b_norm).abs() <= 1e-5 * b_norm,
+            "{} vs {b_norm}",
+            h[0]
+        );
+        assert!(*h.last().unwrap() <= rel_tol::<T>() * b_norm * (1.0 + 1e-6));
+    }
+}
+
+both_precisions!(manufactured_dense_spd, manufactured_laplacian);
+
+/// Issue 6's floor, checked at the source: f32 CG on the 64×64 Laplacian to
+/// relative tolerance 1e-5 lands within 1e-4 of the f64 exact solution (the
+/// f64 accumulation of the dot products keeps it near 1e-6).
+#[test]
+fn f32_solution_on_64x64_is_within_1e_4_of_exact() {
+    for boundary in [Boundary::ZeroDirichlet, Boundary::Closed] {
+        let grid = Grid2::square(64, 64, 1.0 / 64.0, boundary).unwrap();
+        let a = Laplacian2::negative(grid);
+        let b = ArrayD::from_shape_fn(IxDyn(&[64, 64]), |ix| {
+            let (x, y) = (ix[0] as f64 / 64.0, ix[1] as f64 / 64.0);
+            (3.0 * x).sin() * (2.0 * y).cos() + x * y
+        });
+        let ns = if boundary == Boundary::Closed {
+            NullSpace::Constant
+        } else {
+            NullSpace::None
+        };
+        let exact = SparseCholesky::new(&a, ns.clone())
+            .unwrap()
+            .solve(b.view())
+            .unwrap();
+        let params = CgParams::default().with_rel_tol(1e-5).with_null_space(ns);
+        let (x, info) = cg_solve(&a, cast::<f32>(&b).view(), &params).unwrap();
+        let err = rel_err(&x, &exact);
+        assert!(err < 1e-4, "{boundary:?}: {err:.3e} after {info:?}");
+    }
+}
+
+#[test]
+fn jacobi_pays_off_on_a_badly_scaled_matrix() {
+    // D A D with D spanning four decades: Jacobi undoes the scaling.
+    let n = 60;
+    let base = DenseOperator::<f64>::with_spectrum(&log_spectrum(n, 10.0), 3);
+    let d: Vec<f64> = (0..n)
+        .map(|i| 10f64.powf(4.0 * i as f64 / (n - 1) as f64 - 2.0))
+        .collect();
+    let m = base.matrix();
+    let scaled = DenseOperator::new(Array2::from_shape_fn((n, n), |(i, j)| {
+        let (p, q) = (i.min(j), i.max(j)); // the same rounding on both sides
+        d[p] * m[[p, q]] * d[q]
+    }));
+    let x_star = random_field::<f64>(&[n], 2);
+    let b = scaled.apply(x_star.view()).unwrap();
+    let run = |pre| {
+        let params = CgParams::default()
+            .with_rel_tol(1e-10)
+            .with_preconditioner(pre)
+            .with_max_iters(100_000);
+        cg_solve(&scaled, b.view(), &params).unwrap().1.iterations
+    };
+    let (plain, jacobi) = (run(Preconditioner::None), run(Preconditioner::Jacobi));
+    assert!(
+        3 * jacobi < plain,
+        "Jacobi {jacobi} iterations vs {plain} without"
+    );
+}
+
+#[test]
+fn singular_neumann_system_with_the_mean_removed() {
+    let grid = Grid2::new(16, 12, 1.0, 1.0, Boundary::Closed).unwrap();
+    let a = Laplacian2::negative(grid);
+    let mut x_star = random_field::<f64>(&[16, 12], 8);
+    let mean = x_star.mean().unwrap();
+    x_star.mapv_inplace(|v| v - mean);
+    // b = A x* + 3: the constant is in the kernel's direction, not in the range;
+    // the solver removes it and returns the zero-mean solution x*.
+    let b = LinearOperator::<f64>::apply(&a, x_star.view()).unwrap() + 3.0;
+    for pre in [Preconditioner::None, Preconditioner::Jacobi] {
+        let params = CgParams::default()
+            .with_rel_tol(1e-11)
+            .with_null_space(NullSpace::Constant)
+            .with_preconditioner(pre);
+        let (x, info) = cg_solve(&a, b.view(), &params).unwrap();
+        assert!(rel_err(&x, &x_star) < 1e-8, "{pre:?} {info:?}");
+        assert!(x.mean().unwrap().abs() < 1e-13);
+        let reference = SparseCholesky::new(&a, NullSpace::Constant)
+            .unwrap()
+            .solve(b.view())
+            .unwrap();
+        assert!(rel_err(&x, &reference) < 1e-8);
+    }
+    // Without the null space the inconsistent system cannot be solved, and
+    // the solver says so.
+    let err = cg_solve(
+        &a,
+        b.view(),
+        &CgParams::default().with_rel_tol(1e-11).with_max_iters(2000),
+    )
+    .unwrap_err();
+    assert!(
+        matches!(
+            err,
+            CgError::NotPositiveDefinite { .. } | CgError::NoConvergence { .. }
+        ),
+        "{err}"
+    );
+}
+
+#[test]
+fn warm_start_zero_rhs_layouts_and_fixed_iterations() {
+    let grid = Grid2::new(12, 12, 1.0, 1.0, Boundary::ZeroDirichlet).unwrap();
+    let a = Laplacian2::negative(grid);
+    let b = random_field::<f64>(&[12, 12], 4);
+    let params = CgParams::default().with_rel_tol(1e-10);
+    let (x, info) = cg_solve(&a, b.view(), &params).unwrap();
+    assert!(info.iterations > 5);
+
+    // Starting from the solution: nothing to do.
+    let mut warm = x.clone();
+    let again = conjugate_gradient(&a, b.view(), warm.view_mut(), &params).unwrap();
+    assert_eq!(again.iterations, 0);
+    assert!(again.relative_residual <= 1e-10);
+
+    // b = 0: x = 0 whatever the initial guess.
+    let mut z = random_field::<f64>(&[12, 12], 9);
+    let zero = ArrayD::<f64>::zeros(IxDyn(&[12, 12]));
+    let info0 = conjugate_gradient(&a, zero.view(), z.view_mut(), &params).unwrap();
+    assert_eq!(info0.iterations, 0);
+    assert!(z.iter().all(|&v| v == 0.0));
+
+    // A transposed (non-contiguous) solution view and right-hand side.
+    let bt = b.t().to_owned();
+    let mut xt = ArrayD::<f64>::zeros(IxDyn(&[12, 12]));
+    conjugate_gradient(&a, bt.t(), xt.view_mut().reversed_axes(), &params).unwrap();
+    assert!(max_abs_diff(&xt.t().to_owned(), &x) < 1e-12);
+
+    // Fixed iteration counts: exactly k, no error, not converged.
+    let (_, fixed) = cg_solve(&a, b.view(), &CgParams::default().fixed_iterations(3)).unwrap();
+    assert_eq!(fixed.iterations, 3);
+    assert!(!fixed.converged && fixed.relative_residual > 1e-3);
+
+    // An absolute tolerance stops earlier than a tight relative one.
+    let b_norm = b.iter().map(|v| v * v).sum::<f64>().sqrt();
+    let (_, abs) = cg_solve(
+        &a,
+        b.view(),
+        &CgParams::default()
+            .with_rel_tol(0.0)
+            .with_abs_tol(1e-3 * b_norm),
+    )
+    .unwrap();
+    assert!(abs.residual_norm <= 1e-3 * b_norm && abs.iterations < info.iterations);
+}
+
+/// A symmetric operator whose product is NaN: recurrences must catch it.
+struct Poisoned;
+
+impl LinearOperator<f64> for Poisoned {
+    fn name(&self) -> &str {
+        "poisoned"
+    }
+    fn input_shape(&self) -> &[usize] {
+        &[3]
+    }
+    fn output_shape(&self) -> &[usize] {
+        &[3]
+    }
+    fn apply_into(&self, x: ArrayViewD<'_, f64>, mut out: ArrayViewMutD<'_, f64>) {
+        out.assign(&x);
+        out[0] = f64::NAN;
+    }
+    fn apply_transpose_into(&self, y: ArrayViewD<'_, f64>, out: ArrayViewMutD<'_, f64>) {
+        self.apply_into(y, out);
+    }
+    fn is_symmetric(&self) -> bool {
+        true
+    }
+}
+
+#[test]
+fn every_error_is_provoked() {
+    let spd = DenseOperator::new(arr2(&[[4.0, 1.0], [1.0, 3.0]]));
+    let b = arr1(&[1.0, 2.0]).into_dyn();
+    let p = CgParams::default();
+
+    // NotPositiveDefinite: a mostly negative spectrum.
+    let indefinite = DenseOperator::<f64>::with_spectrum(&[-3.0, -2.0, -1.0, 1.0], 5);
+    let b4 = random_field::<f64>(&[4], 1);
+    match cg_solve(&indefinite, b4.view(), &p).unwrap_err() {
+        CgError::NotPositiveDefinite {
+            iteration,
+            curvature,
+        } => assert!(curvature <= 0.0 && iteration < 4),
+        e => panic!("expected NotPositiveDefinite, got {e}"),
+    }
+    // … and a negative diagonal, caught before iterating by Jacobi.
+    let neg = DenseOperator::new(arr2(&[[-1.0, 0.0], [0.0, 1.0]]));
+    let jacobi = CgParams::default().with_preconditioner(Preconditioner::Jacobi);
+    assert_eq!(
+        cg_solve(&neg, b.view(), &jacobi).unwrap_err(),
+        CgError::NotPositiveDefinite {
+            iteration: 0,
+            curvature: -1.0
+        }
+    );
+
+    // NoConvergence: five iterations cannot solve a 32×32 Laplacian to 1e-10;
+    // x keeps the fifth iterate, the same as a fixed five-iteration run.
+    let lap = Laplacian2::negative(Grid2::new(32, 32, 1.0, 1.0, Boundary::ZeroDirichlet).unwrap());
+    let bl = random_field::<f64>(&[32, 32], 3);
+    let mut x = ArrayD::zeros(IxDyn(&[32, 32]));
+    let err = conjugate_gradient(
+        &lap,
+        bl.view(),
+        x.view_mut(),
+        &CgParams::default().with_rel_tol(1e-10).with_max_iters(5),
+    )
+    .unwrap_err();
+    match &err {
+        CgError::NoConvergence {
+            iterations,
+            residual,
+            relative_residual,
+            target,
+        } => {
+            assert_eq!(*iterations, 5);
+            assert!(residual > target && *relative_residual > 1e-10);
+        }
+        e => panic!("expected NoConvergence, got {e}"),
+    }
+    assert!(err.to_string().contains("did not converge in 5 iterations"));
+    let (x5, _) = cg_solve(&lap, bl.view(), &CgParams::default().fixed_iterations(5)).unwrap();
+    assert!(max_abs_diff(&x, &x5) < 1e-12);
+
+    // NonFinite: NaN in b, inf in the initial guess (x untouched), NaN from the
+    // operator inside the recurrence.
+    let mut nan_b = b.clone();
+    nan_b[1] = f64::NAN;
+    let mut x2 = arr1(&[0.5, 0.5]).into_dyn();
+    let e = conjugate_gradient(&spd, nan_b.view(), x2.view_mut(), &p).unwrap_err();
+    assert_eq!(
+        e,
+        CgError::NonFinite {
+            iteration: 0,
+            what: "the right-hand side b".to_string()
+        }
+    );
+    assert_eq!(x2, arr1(&[0.5, 0.5]).into_dyn());
+    let mut inf_x = arr1(&[f64::INFINITY, 0.0]).into_dyn();
+    assert!(matches!(
+        conjugate_gradient(&spd, b.view(), inf_x.view_mut(), &p),
+        Err(CgError::NonFinite { iteration: 0, ref what }) if what.contains("initial guess")
+    ));
+    let e = cg_solve(&Poisoned, arr1(&[1.0, 1.0, 1.0]).into_dyn().view(), &p).unwrap_err();
+    assert!(
+        matches!(e, CgError::NonFinite { iteration: 0, ref what } if what.contains("curvature")),
+        "{e}"
+    );
+
+    // Breakdown: in f32 a curvature of 1e-39 (subnormal) makes α overflow.
+    let tiny = DenseOperator::new(arr2(&[[1e-39f32, 0.0], [0.0, 1.0]]));
+    let e = cg_solve(
+        &tiny,
+        arr1(&[1.0f32, 0.0]).into_dyn().view(),
+        &CgParams::default(),
+    )
+    .unwrap_err();
+    assert!(
+        matches!(e, CgError::Breakdown { iteration: 0, ref reason } if reason.contains("overflows f32")),
+        "{e}"
+    );
+
+    // ShapeMismatch.
+    let e = cg_solve(&spd, arr1(&[1.0, 2.0, 3.0]).into_dyn().view(), &p).unwrap_err();
+    assert_eq!(
+        e,
+        CgError::ShapeMismatch {
+            what: "right-hand side b".to_string(),
+            expected: vec![2],
+            found: vec![3]
+        }
+    );
+    let mask = diffphys::ops::CellMask::all_active(&[3]);
+    let e = cg_solve(
+        &spd,
+        b.view(),
+        &p.clone().with_null_space(NullSpace::ConstantOn(mask)),
+    )
+    .unwrap_err();
+    assert!(matches!(e, CgError::ShapeMismatch { .. }), "{e}");
+
+    // InvalidArgument: not symmetric, not square, no diagonal for Jacobi, a
+    // negative tolerance.
+    let nonsym = DenseOperator::new(arr2(&[[1.0, 2.0], [0.0, 1.0]]));
+    let e = cg_solve(&nonsym, b.view(), &p).unwrap_err();
+    assert!(matches!(e, CgError::InvalidArgument { ref message } if message.contains("symmetric")));
+    let rect = DenseOperator::new(arr2(&[[1.0, 2.0]]));
+    assert!(matches!(
+        cg_solve(&rect, arr1(&[1.0]).into_dyn().view(), &p),
+        Err(CgError::InvalidArgument { .. })
+    ));
+    let e = cg_solve(&Poisoned, arr1(&[1.0, 1.0, 1.0]).into_dyn().view(), &jacobi).unwrap_err();
+    assert!(matches!(e, CgError::InvalidArgument { ref message } if message.contains("diagonal")));
+    assert!(matches!(
+        cg_solve(&spd, b.view(), &CgParams::default().with_rel_tol(-1.0)),
+        Err(CgError::InvalidArgument { .. })
+    ));
+}

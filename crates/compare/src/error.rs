@@ -27,6 +27,17 @@ pub enum CompareError {
         #[source]
         source: TapeError,
     },
+    /// A long unroll of an explicit step (upwind advection) failed at one of its
+    /// steps; the source names the op (for a non-finite value, the op that
+    /// produced it and in which pass).
+    #[error("advection unroll, step {step}: {source}")]
+    UnrollStep {
+        /// The step (0-based) whose forward or backward failed.
+        step: usize,
+        /// The operator's (or tape's) error.
+        #[source]
+        source: OpsError,
+    },
     /// A gradient or solution came out with NaN or infinity where the method itself
     /// did not catch it.
     #[error("non-finite value in {method}: {what}")]

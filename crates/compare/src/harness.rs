@@ -119,7 +119,7 @@ pub fn is_non_finite(e: &CompareError) -> bool {
     match e {
         CompareError::NonFinite { .. } => true,
         CompareError::Tape(t) | CompareError::NaiveIteration { source: t, .. } => tape(t),
-        CompareError::Ops(o) => ops(o),
+        CompareError::Ops(o) | CompareError::UnrollStep { source: o, .. } => ops(o),
         _ => false,
     }
 }
@@ -531,9 +531,9 @@ pub fn progress_bar(len: usize, what: &str) -> ProgressBar {
 }
 
 /// The `f64` exact gradient of a scene, computed once per scene.
-type ExactCache = HashMap<(usize, String), Option<Array2<f64>>>;
+pub(crate) type ExactCache = HashMap<(usize, String), Option<Array2<f64>>>;
 
-fn exact_reference(cache: &mut ExactCache, spec: ProblemSpec) -> Option<Array2<f64>> {
+pub(crate) fn exact_reference(cache: &mut ExactCache, spec: ProblemSpec) -> Option<Array2<f64>> {
     cache
         .entry((spec.n, spec.operator.label()))
         .or_insert_with(|| {
@@ -808,7 +808,7 @@ pub fn compute_floors(rows: &[ResultRow], cg_speedup: Option<(Option<f64>, Strin
 
 const MIB: f64 = 1024.0 * 1024.0;
 
-fn write_chart(
+pub(crate) fn write_chart(
     out_dir: &Path,
     file: &str,
     caption: &str,
@@ -824,7 +824,7 @@ fn write_chart(
 
 /// Groups `rows` into one series per `method precision`, in a fixed method order
 /// so colours match across charts.
-fn series_by_method<'a>(
+pub(crate) fn series_by_method<'a>(
     rows: impl Iterator<Item = &'a ResultRow>,
     point: impl Fn(&ResultRow) -> Option<(f64, f64)>,
 ) -> Vec<Series> {

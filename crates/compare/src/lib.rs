@@ -32,5 +32,6 @@ pub mod harness;
 pub mod methods;
 pub mod problem;
 pub mod report;
+pub mod stability;
 
 pub use error::{CompareError, Result};

@@ -6,11 +6,13 @@
 //! cargo run --release -p diffphys-compare                       # the default study
 //! cargo run --release -p diffphys-compare -- --quick --out tmp  # seconds, for CI
 //! cargo run --release -p diffphys-compare -- --sizes 64,128 --rtol 1e-6,1e-10 --precision f64
+//! cargo run --release -p diffphys-compare -- stability          # where methods fail
+//! cargo run --release -p diffphys-compare -- stability --quick  # seconds, for CI
 //! ```
 //!
 //! Stdout ends with one JSON line of key figures (counts, floors, output folder).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
 
@@ -24,6 +26,10 @@ use diffphys_compare::problem::OperatorKind;
 use diffphys_compare::report::{
     floors_text, is_skipped, key_figures_line, render_table, write_report_md, write_results_json,
     Report,
+};
+use diffphys_compare::stability::{
+    converged_rtol, render_stability_md, result_rows, run_stability, stability_key_figures,
+    unroll_table, write_stability_charts, write_stability_json, StabilityConfig,
 };
 use diffphys_compare::{CompareError, Result};
 
@@ -43,11 +49,15 @@ struct Cli {
 #[derive(Debug, Subcommand)]
 enum Command {
     /// Where methods fail: precision, iterations past convergence, unconverged
-    /// solves, conditioning, initial guesses, long unrolls (not implemented yet).
+    /// solves, conditioning, initial guesses, long unrolls. Writes
+    /// stability.json, stability.md and SVG charts.
     Stability {
         /// Output folder.
         #[arg(long, default_value = "out/stability")]
         out: PathBuf,
+        /// Small grids and short sweeps that finish in seconds, for CI.
+        #[arg(long)]
+        quick: bool,
     },
 }
 
@@ -246,6 +256,67 @@ fn run(args: &SweepArgs, started: Instant) -> Result<String> {
     ))
 }
 
+fn run_stability_mode(out: &Path, quick: bool, started: Instant) -> Result<String> {
+    let config = if quick {
+        StabilityConfig::quick()
+    } else {
+        StabilityConfig::full()
+    };
+    let out = prepare_out_dir(out)?;
+    let results = run_stability(&config)?;
+    let (charts, notes) = write_stability_charts(&out, &results);
+    write_stability_json(&out.join("stability.json"), &results)?;
+    let configuration = vec![
+        format!(
+            "command: `diffphys-compare {}`",
+            std::env::args().skip(1).collect::<Vec<_>>().join(" ")
+        ),
+        format!("mode: {}", if quick { "quick" } else { "full" }),
+        format!(
+            "scenes: −∇² p = b with L = ½‖p − p*‖² (the sweep's scene); a CG run converges at \
+             relative residual {:e} (f64) / {:e} (f32)",
+            converged_rtol::<f64>(),
+            converged_rtol::<f32>()
+        ),
+        format!("configuration: `{}`", serde_json::to_string(&config)?),
+        format!(
+            "machine: {} logical CPUs, {} {}",
+            std::thread::available_parallelism().map_or(0, |n| n.get()),
+            std::env::consts::OS,
+            std::env::consts::ARCH
+        ),
+    ];
+    let md = render_stability_md(&results, configuration, charts, notes.clone());
+    let md_path = out.join("stability.md");
+    std::fs::write(&md_path, md).map_err(|e| CompareError::io(&md_path, e))?;
+
+    for (key, title) in [
+        ("iterations", "precision and iteration counts"),
+        ("unconverged", "forward solve stopped before convergence"),
+        ("conditioning", "conditioning"),
+    ] {
+        println!("== {title}\n{}", render_table(&result_rows(&results, key)));
+    }
+    println!(
+        "== long unrolls (upwind advection)\n{}",
+        unroll_table(&results.unroll, false)
+    );
+    println!("Findings:");
+    for f in &results.findings {
+        println!("- {f}");
+    }
+    println!("Floors:\n{}", floors_text(&results.floors));
+    for n in &notes {
+        println!("note: {n}");
+    }
+    println!(
+        "wrote {}, {} and the charts",
+        out.join("stability.json").display(),
+        md_path.display()
+    );
+    Ok(stability_key_figures(&results, &out, started.elapsed().as_secs_f64()).to_string())
+}
+
 fn main() -> ExitCode {
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
@@ -262,13 +333,9 @@ fn main() -> ExitCode {
     let started = Instant::now();
     let (mode, result) = match &cli.command {
         None => ("sweep", run(&cli.sweep, started)),
-        Some(Command::Stability { out }) => (
-            "stability",
-            Err(CompareError::NotImplemented(format!(
-                "the stability mode (issue 6) is not built yet; nothing was written to {}",
-                out.display()
-            ))),
-        ),
+        Some(Command::Stability { out, quick }) => {
+            ("stability", run_stability_mode(out, *quick, started))
+        }
     };
     match result {
         Ok(line) => {

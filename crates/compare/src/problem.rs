@@ -10,6 +10,7 @@
 //! (`A` is symmetric, so `A⁻ᵀ = A⁻¹`.) The data are fixed smooth functions of the
 //! cell centres on `[0, 1]²`, so every run of every method sees the same problem.
 
+use diffphys_ops::cg::NullSpace;
 use diffphys_ops::stencil::Laplacian2;
 use diffphys_ops::{Boundary, Grid2};
 use diffphys_tape::Real;
@@ -34,24 +35,44 @@ pub enum OperatorKind {
         /// `dy²/dx²`, above 1 for the weakly coupled y axis.
         ratio: f64,
     },
+    /// `−∇²` on `n × n` square cells with closed walls on all four sides: the
+    /// all-Neumann pressure system of a closed box. Singular (the constants are
+    /// its kernel), so the scene's right-hand side is made compatible (zero
+    /// mean, as the divergence of a velocity with zero normal flow at the walls
+    /// is), the solution is the zero-mean one, and solvers are told the null
+    /// space ([`OperatorKind::null_space`]).
+    Neumann,
 }
 
 impl OperatorKind {
-    /// A short label for tables and charts: `laplacian`, `aniso100`.
+    /// A short label for tables and charts: `laplacian`, `aniso100`, `neumann`.
     pub fn label(&self) -> String {
         match self {
             OperatorKind::Laplacian => "laplacian".to_string(),
             OperatorKind::Anisotropic { ratio } => format!("aniso{ratio}"),
+            OperatorKind::Neumann => "neumann".to_string(),
         }
     }
 
-    /// Parses a [`OperatorKind::label`]: `laplacian` or `aniso<ratio>`.
+    /// The kernel of the operator that solvers must project out:
+    /// [`NullSpace::Constant`] for [`OperatorKind::Neumann`], none otherwise.
+    pub fn null_space(&self) -> NullSpace {
+        match self {
+            OperatorKind::Neumann => NullSpace::Constant,
+            OperatorKind::Laplacian | OperatorKind::Anisotropic { .. } => NullSpace::None,
+        }
+    }
+
+    /// Parses a [`OperatorKind::label`]: `laplacian`, `aniso<ratio>` or `neumann`.
     ///
     /// # Errors
     /// [`CompareError::InvalidArgument`] for anything else.
     pub fn parse(s: &str) -> Result<Self> {
         if s == "laplacian" {
             return Ok(OperatorKind::Laplacian);
+        }
+        if s == "neumann" {
+            return Ok(OperatorKind::Neumann);
         }
         if let Some(r) = s.strip_prefix("aniso") {
             if let Ok(ratio) = r.parse::<f64>() {
@@ -61,7 +82,8 @@ impl OperatorKind {
             }
         }
         Err(CompareError::invalid(format!(
-            "unknown operator '{s}': expected 'laplacian' or 'aniso<ratio ≥ 1>', e.g. aniso100"
+            "unknown operator '{s}': expected 'laplacian', 'neumann' or 'aniso<ratio ≥ 1>', \
+             e.g. aniso100"
         )))
     }
 }
@@ -132,6 +154,7 @@ impl ProblemSpec {
                 Grid2::new(self.n, self.n, h, h * ratio.sqrt(), Boundary::ZeroDirichlet)?
                     .with_boundaries(Boundary::Closed, Boundary::ZeroDirichlet)
             }
+            OperatorKind::Neumann => Grid2::square(self.n, self.n, h, Boundary::Closed)?,
         };
         Ok(grid)
     }
@@ -168,12 +191,17 @@ impl<T: Real> Problem<T> {
         let pi = std::f64::consts::PI;
         // A positive and a negative source and a smooth background: every mode of
         // the solve matters a little.
-        let b = Array2::from_shape_fn((n, n), |(i, j)| {
+        let mut b = Array2::from_shape_fn((n, n), |(i, j)| {
             let (x, y) = (centre(i), centre(j));
-            let v = 20.0 * gauss(x, y, 0.3, 0.6, 0.02) - 12.0 * gauss(x, y, 0.7, 0.3, 0.03)
-                + 4.0 * (3.0 * pi * x).sin() * (pi * y).sin();
-            T::from_f64(v)
+            20.0 * gauss(x, y, 0.3, 0.6, 0.02) - 12.0 * gauss(x, y, 0.7, 0.3, 0.03)
+                + 4.0 * (3.0 * pi * x).sin() * (pi * y).sin()
         });
+        if spec.operator.null_space() == NullSpace::Constant {
+            // A singular system is solvable only for b ⟂ kernel: remove the mean.
+            let mean = b.mean().unwrap_or(0.0);
+            b.mapv_inplace(|v| v - mean);
+        }
+        let b = b.mapv(T::from_f64);
         let target = Array2::from_shape_fn((n, n), |(i, j)| {
             let (x, y) = (centre(i), centre(j));
             let v = match spec.loss {
@@ -227,6 +255,7 @@ mod tests {
         for k in [
             OperatorKind::Laplacian,
             OperatorKind::Anisotropic { ratio: 100.0 },
+            OperatorKind::Neumann,
         ] {
             assert_eq!(OperatorKind::parse(&k.label()).unwrap(), k);
         }

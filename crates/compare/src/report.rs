@@ -439,6 +439,16 @@ pub fn key_figures_line(
     out_dir: &Path,
     elapsed_s: f64,
 ) -> String {
+    key_figures_value(rows, floors, out_dir, elapsed_s).to_string()
+}
+
+/// The object of [`key_figures_line`], for modes that add their own figures.
+pub fn key_figures_value(
+    rows: &[ResultRow],
+    floors: &[Floor],
+    out_dir: &Path,
+    elapsed_s: f64,
+) -> serde_json::Value {
     let mut floor_map = serde_json::Map::new();
     for f in floors {
         floor_map.insert(
@@ -450,7 +460,7 @@ pub fn key_figures_line(
             }),
         );
     }
-    let value = serde_json::json!({
+    serde_json::json!({
         "runs": rows.len(),
         "failed": rows.iter().filter(|r| r.error.is_some() && !is_skipped(r)).count(),
         "skipped": rows.iter().filter(|r| is_skipped(r)).count(),
@@ -459,8 +469,7 @@ pub fn key_figures_line(
         "floors_hold": floors.iter().all(|f| f.holds() != Some(false)),
         "out": out_dir.display().to_string(),
         "elapsed_s": (elapsed_s * 1000.0).round() / 1000.0,
-    });
-    value.to_string()
+    })
 }
 
 #[cfg(test)]

@@ -9,7 +9,6 @@
 
 use std::time::Instant;
 
-use diffphys_ops::cg::NullSpace;
 use diffphys_ops::reference::SparseCholesky;
 use diffphys_ops::OpsError;
 use diffphys_tape::Real;
@@ -35,8 +34,9 @@ impl<T: Real> GradientMethod<T> for ExactCholesky {
 
     fn run(&self, problem: &Problem<T>, _stop: Stop) -> Result<RunOutcome<T>> {
         let start = Instant::now();
-        let chol =
-            SparseCholesky::new(&problem.operator, NullSpace::None).map_err(OpsError::from)?;
+        // A singular (all-Neumann) operator: the zero-mean solution and gradient.
+        let null_space = problem.spec.operator.null_space();
+        let chol = SparseCholesky::new(&problem.operator, null_space).map_err(OpsError::from)?;
         let b = problem.b.mapv(|v| v.as_f64());
         let p = to_2d(chol.solve(b.view().into_dyn()).map_err(OpsError::from)?)?;
         let p_t = p.mapv(T::from_f64);

@@ -14,10 +14,11 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use diffphys_ops::cg::CgParams;
-use diffphys_ops::poisson::{poisson_solve_tape, PoissonSolve};
-use diffphys_tape::{Real, Tape};
-use ndarray::Ix2;
+use diffphys_ops::cg::{conjugate_gradient, CgParams};
+use diffphys_ops::poisson::{poisson_solve_tape, poisson_solve_vjp, PoissonSolve};
+use diffphys_ops::stencil::Laplacian2;
+use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, Tape, TapeError};
+use ndarray::{Array2, Ix2};
 
 use super::naive::recorded_loss;
 use super::{relative_residual, GradientMethod, RunOutcome, Stop};
@@ -46,40 +47,176 @@ impl<T: Real> GradientMethod<T> for ImplicitSolve {
     }
 
     fn run(&self, problem: &Problem<T>, stop: Stop) -> Result<RunOutcome<T>> {
-        let tape = Tape::<T>::new();
-        let solve = PoissonSolve::new(Arc::new(problem.operator.clone()), cg_params(stop));
-        let log = solve.log();
+        run_implicit(problem, stop, stop)
+    }
+}
 
-        let start = Instant::now();
-        let b = tape.var(problem.b.clone().into_dyn());
-        let p = poisson_solve_tape(solve, b)?;
-        let loss = recorded_loss(problem, p)?;
-        let loss_value = loss.item()?.as_f64();
-        let forward_s = start.elapsed().as_secs_f64();
+/// The Poisson op with its implicit adjoint, the adjoint solve stopped by its own
+/// rule: with a forward solve stopped early and a tight adjoint, the gradient's
+/// error is that of the unconverged forward solution alone (the stability study).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ImplicitSeparateAdjoint {
+    /// The stopping rule of the adjoint solve.
+    pub adjoint: Stop,
+}
 
-        let start = Instant::now();
-        let grads = tape.backward(loss, &[b])?;
-        let backward_s = start.elapsed().as_secs_f64();
+impl<T: Real> GradientMethod<T> for ImplicitSeparateAdjoint {
+    fn name(&self) -> &'static str {
+        "implicit"
+    }
 
-        let gradient = grads
+    fn run(&self, problem: &Problem<T>, stop: Stop) -> Result<RunOutcome<T>> {
+        run_implicit(problem, stop, self.adjoint)
+    }
+}
+
+/// The CG parameters of `stop` for `problem`'s operator (its null space, if
+/// singular).
+fn problem_params<T: Real>(problem: &Problem<T>, stop: Stop) -> CgParams {
+    cg_params(stop).with_null_space(problem.spec.operator.null_space())
+}
+
+/// [`ImplicitSolve`] with the forward solve stopped by `forward` and the adjoint
+/// solve by `adjoint`.
+///
+/// # Errors
+/// A failed solve (the [`diffphys_ops::cg::CgError`] inside an op error named
+/// `poisson_solve`), a non-finite value caught by the tape.
+pub fn run_implicit<T: Real>(
+    problem: &Problem<T>,
+    forward: Stop,
+    adjoint: Stop,
+) -> Result<RunOutcome<T>> {
+    let tape = Tape::<T>::new();
+    let solve = PoissonSolve::new(
+        Arc::new(problem.operator.clone()),
+        problem_params(problem, forward),
+    )
+    .with_adjoint_params(problem_params(problem, adjoint));
+    let log = solve.log();
+
+    let start = Instant::now();
+    let b = tape.var(problem.b.clone().into_dyn());
+    let p = poisson_solve_tape(solve, b)?;
+    let loss = recorded_loss(problem, p)?;
+    let loss_value = loss.item()?.as_f64();
+    let forward_s = start.elapsed().as_secs_f64();
+
+    let start = Instant::now();
+    let grads = tape.backward(loss, &[b])?;
+    let backward_s = start.elapsed().as_secs_f64();
+
+    let gradient = to_2d(
+        grads
             .get(b)
             .cloned()
-            .ok_or_else(|| CompareError::invalid("implicit: no gradient for b"))?
-            .into_dimensionality::<Ix2>()
-            .map_err(|e| CompareError::invalid(format!("implicit: gradient shape: {e}")))?;
-        let solution = p
-            .to_array()
-            .into_dimensionality::<Ix2>()
-            .map_err(|e| CompareError::invalid(format!("implicit: solution shape: {e}")))?;
-        Ok(RunOutcome {
-            loss: loss_value,
-            gradient,
-            forward_s,
-            backward_s: Some(backward_s),
-            tape_bytes: tape.stats().peak_bytes,
-            iterations: log.last_forward().map(|i| i.iterations),
-            adjoint_iterations: log.last_adjoint().map(|i| i.iterations),
-            forward_residual: Some(relative_residual(problem, &solution)?),
-        })
+            .ok_or_else(|| CompareError::invalid("implicit: no gradient for b"))?,
+        "gradient",
+    )?;
+    let solution = to_2d(p.to_array(), "solution")?;
+    Ok(RunOutcome {
+        loss: loss_value,
+        gradient,
+        forward_s,
+        backward_s: Some(backward_s),
+        tape_bytes: tape.stats().peak_bytes,
+        iterations: log.last_forward().map(|i| i.iterations),
+        adjoint_iterations: log.last_adjoint().map(|i| i.iterations),
+        forward_residual: Some(relative_residual(problem, &solution)?),
+    })
+}
+
+fn to_2d<T: Real>(a: ArrayD<T>, what: &str) -> Result<Array2<T>> {
+    a.into_dimensionality::<Ix2>()
+        .map_err(|e| CompareError::invalid(format!("implicit: {what} shape: {e}")))
+}
+
+const WARM_NAME: &str = "poisson_solve_from";
+
+/// `p = A⁻¹ b` by CG started from an initial guess `x0`, as a tape op with
+/// inputs `[b, x0]`: the implicit Poisson solve when the initial guess is itself
+/// a variable (a warm start computed from parameters, say).
+///
+/// Forward: CG on `A p = b` from `x0` (the same solver and parameters as
+/// [`PoissonSolve`]). Backward, by the implicit function theorem applied to
+/// `A p − b = 0`: `grad_b = A⁻¹ grad_p` (one adjoint CG solve,
+/// [`poisson_solve_vjp`]) and `grad_x0 = 0`, because the equation that defines
+/// `p` does not contain `x0`; the initial guess only decides how many iterations
+/// the solver needs, not which solution it converges to.
+#[derive(Debug, Clone)]
+pub struct PoissonSolveFrom {
+    op: Arc<Laplacian2>,
+    forward: CgParams,
+    adjoint: CgParams,
+}
+
+impl<T: Real> Op<T> for PoissonSolveFrom {
+    fn name(&self) -> &str {
+        WARM_NAME
     }
+
+    fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
+        if inputs.len() != 2 {
+            return Err(TapeError::Arity {
+                op: WARM_NAME.to_string(),
+                expected: 2,
+                found: inputs.len(),
+            });
+        }
+        let mut x = inputs[1].to_owned();
+        conjugate_gradient(&*self.op, inputs[0].view(), x.view_mut(), &self.forward)
+            .map_err(|e| TapeError::op(WARM_NAME, e))?;
+        Ok(vec![x])
+    }
+
+    fn backward(
+        &self,
+        args: &BackwardArgs<'_, T>,
+    ) -> diffphys_tape::Result<Vec<Option<ArrayD<T>>>> {
+        let grad_b = if args.needs(0) {
+            let (g, _) = poisson_solve_vjp(&*self.op, args.grad_out().view(), &self.adjoint, None)
+                .map_err(|e| TapeError::op(WARM_NAME, e))?;
+            Some(g)
+        } else {
+            None
+        };
+        // ∂p/∂x0 = 0: A p = b holds whatever x0 (see the type's docs).
+        let grad_x0 = args
+            .needs(1)
+            .then(|| ArrayD::zeros(args.input(1).raw_dim()));
+        Ok(vec![grad_b, grad_x0])
+    }
+}
+
+/// The gradients of the loss with respect to `b` and to the initial guess `x0`
+/// of the implicit solve started from `x0` ([`PoissonSolveFrom`], stopped by
+/// `stop` forward and adjoint), with the loss.
+///
+/// # Errors
+/// As [`run_implicit`].
+pub fn implicit_initial_guess_gradient<T: Real>(
+    problem: &Problem<T>,
+    stop: Stop,
+    x0: &Array2<T>,
+) -> Result<(f64, Array2<T>, Array2<T>)> {
+    let tape = Tape::<T>::new();
+    let params = problem_params(problem, stop);
+    let op = PoissonSolveFrom {
+        op: Arc::new(problem.operator.clone()),
+        forward: params.clone(),
+        adjoint: params,
+    };
+    let b = tape.var(problem.b.clone().into_dyn());
+    let x0v = tape.var(x0.clone().into_dyn());
+    let p = tape.apply1(op, &[b, x0v])?;
+    let loss = recorded_loss(problem, p)?;
+    let grads = tape.backward(loss, &[b, x0v])?;
+    let get = |v, what| {
+        grads
+            .get(v)
+            .cloned()
+            .ok_or_else(|| CompareError::invalid(format!("implicit: no gradient for {what}")))
+            .and_then(|g| to_2d(g, what))
+    };
+    Ok((loss.item()?.as_f64(), get(b, "b")?, get(x0v, "x0")?))
 }

@@ -22,6 +22,7 @@
 use std::sync::Arc;
 use std::time::Instant;
 
+use diffphys_ops::cg::NullSpace;
 use diffphys_ops::stencil::Laplacian2;
 use diffphys_ops::tape_ops::apply_linear;
 use diffphys_tape::{Real, Tape, TapeError, Var};
@@ -54,20 +55,33 @@ struct Unrolled<'t, T: Real> {
     per_iteration: Vec<Vec<Var<'t, T>>>,
 }
 
-/// Records CG for `A x = b` from `x0` on `b`'s tape.
+/// Records CG for `A x = b` from `x0` on `b`'s tape. With `project` (a
+/// singular operator whose kernel is the constants) every residual is
+/// projected onto the range, `Π r = r − mean(r)`, as the solver of the
+/// implicit path does: without it, rounding leaks a constant into the
+/// residuals that no step can remove, and the backward pass through many
+/// iterations amplifies the gradient's constant component without bound.
 fn unrolled_cg<'t, T: Real>(
     a: &Arc<Laplacian2>,
     b: Var<'t, T>,
     x0: Var<'t, T>,
     b_norm: f64,
     stop: Stop,
+    project: bool,
 ) -> Result<Unrolled<'t, T>> {
     let at = |iteration: usize| {
         move |source: TapeError| CompareError::NaiveIteration { iteration, source }
     };
     let apply = |v: Var<'t, T>| apply_linear(Arc::clone(a), v).map_err(TapeError::from);
+    let range = |v: Var<'t, T>| -> diffphys_tape::Result<Var<'t, T>> {
+        if project {
+            v.sub(v.mean()?)
+        } else {
+            Ok(v)
+        }
+    };
     let setup = || -> diffphys_tape::Result<_> {
-        let r = b.sub(apply(x0)?)?;
+        let r = range(b.sub(apply(x0)?)?)?;
         let rr = r.dot(r)?;
         Ok((r, rr))
     };
@@ -93,7 +107,7 @@ fn unrolled_cg<'t, T: Real>(
             let alpha_p = p.mul(alpha)?;
             let x_next = x.add(alpha_p)?;
             let alpha_ap = ap.mul(alpha)?;
-            let r_next = r.sub(alpha_ap)?;
+            let r_next = range(r.sub(alpha_ap)?)?;
             let rr_next = r_next.dot(r_next)?;
             let beta = rr_next.div(rr)?;
             let beta_p = p.mul(beta)?;
@@ -161,6 +175,34 @@ impl<T: Real> GradientMethod<T> for NaiveUnrolled {
     }
 
     fn run(&self, problem: &Problem<T>, stop: Stop) -> Result<RunOutcome<T>> {
+        self.run_from(problem, stop, None).map(|(out, _)| out)
+    }
+}
+
+impl NaiveUnrolled {
+    /// Runs from the initial guess `x0` (zeros if `None`); with an `x0` it is a
+    /// variable of the tape and its gradient is returned too: the derivative of
+    /// the truncated iteration with respect to where it started, which decays
+    /// with the iterations but is not zero.
+    ///
+    /// # Errors
+    /// As [`GradientMethod::run`]; [`CompareError::InvalidArgument`] for an `x0`
+    /// of the wrong shape.
+    pub fn run_from<T: Real>(
+        &self,
+        problem: &Problem<T>,
+        stop: Stop,
+        x0: Option<&Array2<T>>,
+    ) -> Result<(RunOutcome<T>, Option<Array2<T>>)> {
+        if let Some(x0) = x0 {
+            if x0.dim() != problem.b.dim() {
+                return Err(CompareError::invalid(format!(
+                    "naive: initial guess of shape {:?}, b has {:?}",
+                    x0.dim(),
+                    problem.b.dim()
+                )));
+            }
+        }
         let tape = Tape::<T>::new();
         tape.set_check_finite(self.check_finite);
         let a = Arc::new(problem.operator.clone());
@@ -173,8 +215,12 @@ impl<T: Real> GradientMethod<T> for NaiveUnrolled {
 
         let start = Instant::now();
         let b = tape.var(problem.b.clone().into_dyn());
-        let x0 = tape.constant(Array2::<T>::zeros(problem.b.raw_dim()).into_dyn());
-        let cg = unrolled_cg(&a, b, x0, b_norm, stop)?;
+        let x0 = match x0 {
+            Some(x0) => tape.var(x0.clone().into_dyn()),
+            None => tape.constant(Array2::<T>::zeros(problem.b.raw_dim()).into_dyn()),
+        };
+        let project = problem.spec.operator.null_space() != NullSpace::None;
+        let cg = unrolled_cg(&a, b, x0, b_norm, stop, project)?;
         let last = cg.iterations;
         let loss = recorded_loss(problem, cg.x).map_err(|source| CompareError::NaiveIteration {
             iteration: last,
@@ -184,7 +230,12 @@ impl<T: Real> GradientMethod<T> for NaiveUnrolled {
         let forward_s = start.elapsed().as_secs_f64();
 
         let start = Instant::now();
-        let grads = match tape.backward(loss, &[b]) {
+        let wrt: Vec<Var<'_, T>> = if x0.requires_grad() {
+            vec![b, x0]
+        } else {
+            vec![b]
+        };
+        let grads = match tape.backward(loss, &wrt) {
             Ok(g) => g,
             Err(source @ TapeError::NonFinite { .. }) => {
                 let iteration = locate_non_finite(&tape, loss, &cg.per_iteration).unwrap_or(last);
@@ -194,17 +245,25 @@ impl<T: Real> GradientMethod<T> for NaiveUnrolled {
         };
         let backward_s = start.elapsed().as_secs_f64();
 
-        let gradient = grads
-            .get(b)
-            .cloned()
-            .ok_or_else(|| CompareError::invalid("naive: no gradient for b"))?
-            .into_dimensionality::<Ix2>()
-            .map_err(|e| CompareError::invalid(format!("naive: gradient shape: {e}")))?;
+        let grad_of = |v: Var<'_, T>, what: &str| -> Result<Array2<T>> {
+            grads
+                .get(v)
+                .cloned()
+                .ok_or_else(|| CompareError::invalid(format!("naive: no gradient for {what}")))?
+                .into_dimensionality::<Ix2>()
+                .map_err(|e| CompareError::invalid(format!("naive: gradient shape: {e}")))
+        };
+        let gradient = grad_of(b, "b")?;
+        let x0_gradient = if !x0.requires_grad() {
+            None
+        } else {
+            Some(grad_of(x0, "x0")?)
+        };
         let solution =
             cg.x.to_array()
                 .into_dimensionality::<Ix2>()
                 .map_err(|e| CompareError::invalid(format!("naive: solution shape: {e}")))?;
-        Ok(RunOutcome {
+        let outcome = RunOutcome {
             loss: loss_value,
             gradient,
             forward_s,
@@ -213,6 +272,7 @@ impl<T: Real> GradientMethod<T> for NaiveUnrolled {
             iterations: Some(cg.iterations),
             adjoint_iterations: None,
             forward_residual: Some(relative_residual(problem, &solution)?),
-        })
+        };
+        Ok((outcome, x0_gradient))
     }
 }

@@ -1005,8 +1005,8 @@ pub fn findings(r: &StabilityResults) -> Vec<String> {
                 match (&c.error, c.grad_rel_err) {
                     (Some(e), _) => format!("fails with a typed error: {e}"),
                     (None, Some(e)) => format!(
-                        "stays consistent (share of the gradient along the kernel {}), error \
-                         {e:.2e} vs exact",
+                        "finite, no drift along the kernel (share of the gradient along the \
+                         constants {}); error {e:.2e} vs exact",
                         fmt(*nsf)
                     ),
                     (None, None) => "non-finite gradient".to_string(),

@@ -32,7 +32,8 @@ pub enum CompareError {
     /// produced it and in which pass).
     #[error("advection unroll, step {step}: {source}")]
     UnrollStep {
-        /// The step (0-based) whose forward or backward failed.
+        /// The step (0-based) whose forward or backward failed; the number of
+        /// steps if the loss after the last step failed.
         step: usize,
         /// The operator's (or tape's) error.
         #[source]

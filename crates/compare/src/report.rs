@@ -384,7 +384,7 @@ pub fn render_report(report: &Report<'_>) -> String {
         out.push('\n');
     }
     if !report.floors.is_empty() {
-        out.push_str("## Performance floors (ratios measured in this run)\n\n");
+        out.push_str("## Floors (measured in this run)\n\n");
         out.push_str(&floors_markdown(report.floors));
         out.push('\n');
     }
@@ -394,26 +394,29 @@ pub fn render_report(report: &Report<'_>) -> String {
             let _ = writeln!(out, "### {caption}\n\n![{caption}]({file})\n");
         }
     }
-    let skipped = report.rows.iter().filter(|r| is_skipped(r)).count();
-    let failed = report
-        .rows
-        .iter()
-        .filter(|r| r.error.is_some() && !is_skipped(r))
-        .count();
-    let non_finite = report.rows.iter().filter(|r| !r.finite).count();
-    let _ = writeln!(
-        out,
-        "## Results\n\n{} runs, {} failed, {} skipped, {} with non-finite values. Times are wall-clock \
-         seconds; peak heap is measured by a counting allocator above the heap in use \
-         before each run; gradient error is relative to the f64 sparse-Cholesky gradient. \
-         `iters` counts forward CG iterations (`forward+adjoint` for the implicit method; in \
-         parentheses, the count or cap a failed run was given).\n",
-        report.rows.len(),
-        failed,
-        skipped,
-        non_finite
-    );
-    out.push_str(&markdown_table(report.rows));
+    // A report of studies (the stability mode) has no sweep rows: no Results table.
+    if !report.rows.is_empty() {
+        let skipped = report.rows.iter().filter(|r| is_skipped(r)).count();
+        let failed = report
+            .rows
+            .iter()
+            .filter(|r| r.error.is_some() && !is_skipped(r))
+            .count();
+        let non_finite = report.rows.iter().filter(|r| !r.finite).count();
+        let _ = writeln!(
+            out,
+            "## Results\n\n{} runs, {} failed, {} skipped, {} with non-finite values. Times are wall-clock \
+             seconds; peak heap is measured by a counting allocator above the heap in use \
+             before each run; gradient error is relative to the f64 sparse-Cholesky gradient. \
+             `iters` counts forward CG iterations (`forward+adjoint` for the implicit method; in \
+             parentheses, the count or cap a failed run was given).\n",
+            report.rows.len(),
+            failed,
+            skipped,
+            non_finite
+        );
+        out.push_str(&markdown_table(report.rows));
+    }
     if !report.notes.is_empty() {
         out.push_str("\n## Notes\n\n");
         for n in &report.notes {

@@ -1269,6 +1269,36 @@ const STUDIES: [(&str, &str); 4] = [
     ("floor", "The f32 floor"),
 ];
 
+/// Most rows a study's table in `stability.md` shows (the f32 floor study has
+/// one run per iteration cap, hundreds of them).
+const MAX_TABLE_ROWS: usize = 100;
+
+/// At most about `max` of `rows`, evenly spaced, always keeping the row of the
+/// largest gradient error and every row that failed or went non-finite.
+fn table_sample(rows: &[ResultRow], max: usize) -> Vec<ResultRow> {
+    if rows.len() <= max {
+        return rows.to_vec();
+    }
+    let stride = rows.len().div_ceil(max);
+    let worst = rows
+        .iter()
+        .enumerate()
+        .filter_map(|(i, r)| r.grad_rel_err.filter(|e| e.is_finite()).map(|e| (i, e)))
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|(i, _)| i);
+    rows.iter()
+        .enumerate()
+        .filter(|(i, r)| {
+            i % stride == 0
+                || *i + 1 == rows.len()
+                || Some(*i) == worst
+                || r.error.is_some()
+                || !r.finite
+        })
+        .map(|(_, r)| r.clone())
+        .collect()
+}
+
 /// `stability.md`: configuration, floors, findings, charts, and a table per
 /// study (the sweep's [`crate::report::render_report`] for the CG studies).
 pub fn render_stability_md(
@@ -1292,20 +1322,22 @@ pub fn render_stability_md(
         charts,
         notes: report_notes,
     });
-    // The sweep's report ends with an empty results table here; the studies follow.
-    let mut out = match head.find("## Results") {
-        Some(i) => {
-            let (a, b) = head.split_at(i);
-            let notes = b.find("## Notes").map_or("", |j| &b[j..]);
-            format!("{a}{notes}")
-        }
-        None => head,
-    };
+    let mut out = head;
     let _ = writeln!(out, "\n## Studies\n\n{} CG runs in all.\n", all.len());
     for (key, title) in STUDIES {
         let rows = result_rows(results, key);
         let _ = writeln!(out, "### {title}\n");
-        out.push_str(&crate::report::markdown_table(&rows));
+        let shown = table_sample(&rows, MAX_TABLE_ROWS);
+        if shown.len() < rows.len() {
+            let _ = writeln!(
+                out,
+                "{} of {} runs: evenly spaced, plus the worst error and every failure; \
+                 all of them are in `stability.json` and the chart.\n",
+                shown.len(),
+                rows.len()
+            );
+        }
+        out.push_str(&crate::report::markdown_table(&shown));
         out.push('\n');
     }
     out.push_str("### Gradient with respect to the initial guess x0\n\n");

@@ -20,7 +20,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
-use diffphys::compare::chart::{heatmap_svg, line_chart_svg, LineChart, Series};
+use diffphys::compare::chart::{heatmap_svg_with_axes, line_chart_svg, LineChart, Series};
 use diffphys::ops::advection::{semi_lagrangian_1d, semi_lagrangian_1d_tape};
 use diffphys::ops::stencil::{DiffusionParams, ExplicitDiffusion1};
 use diffphys::ops::tape_ops::apply_linear;
@@ -140,15 +140,17 @@ fn write_charts(
         files.push(p.clone());
         p
     };
-    heatmap_svg(
+    heatmap_svg_with_axes(
         &save("burgers_reconstructed.svg"),
-        "Burgers, reconstructed: u(t, x), t right (32 steps), x up",
+        "Burgers, reconstructed: u(t, x)",
         reconstructed.view(),
+        ["time step (dt = 1/32)", "x (cell, x = -1 at 0)"],
     )?;
-    heatmap_svg(
+    heatmap_svg_with_axes(
         &save("burgers_reference.svg"),
-        "Burgers from u0 = -sin(pi x): u(t, x), t right, x up",
+        "Burgers from u0 = -sin(πx): u(t, x)",
         truth.view(),
+        ["time step (dt = 1/32)", "x (cell, x = -1 at 0)"],
     )?;
     let loss_series = [Series::new(
         "loss",

@@ -601,7 +601,21 @@ fn block_average(
 /// [`CompareError::Chart`] for an empty field, [`CompareError::Io`] if the file
 /// cannot be written.
 pub fn heatmap_svg(path: &Path, title: &str, field: ArrayView2<'_, f64>) -> Result<()> {
-    let svg = heatmap_svg_string(title, field)?;
+    heatmap_svg_with_axes(path, title, field, ["x (cell)", "y (cell)"])
+}
+
+/// [`heatmap_svg`] with named axes, `[first index, second index]`: for a
+/// space-time field, say, `["time step", "x (cell)"]`.
+///
+/// # Errors
+/// As [`heatmap_svg`].
+pub fn heatmap_svg_with_axes(
+    path: &Path,
+    title: &str,
+    field: ArrayView2<'_, f64>,
+    axes: [&str; 2],
+) -> Result<()> {
+    let svg = heatmap_svg_string_with_axes(title, field, axes)?;
     write_file(path, &svg)
 }
 
@@ -610,6 +624,18 @@ pub fn heatmap_svg(path: &Path, title: &str, field: ArrayView2<'_, f64>) -> Resu
 /// # Errors
 /// As [`heatmap_svg`], without the I/O.
 pub fn heatmap_svg_string(title: &str, field: ArrayView2<'_, f64>) -> Result<String> {
+    heatmap_svg_string_with_axes(title, field, ["x (cell)", "y (cell)"])
+}
+
+/// [`heatmap_svg_with_axes`] into a string.
+///
+/// # Errors
+/// As [`heatmap_svg`], without the I/O.
+pub fn heatmap_svg_string_with_axes(
+    title: &str,
+    field: ArrayView2<'_, f64>,
+    axes: [&str; 2],
+) -> Result<String> {
     let (nx, ny) = field.dim();
     if nx == 0 || ny == 0 {
         return Err(CompareError::Chart(format!(
@@ -647,8 +673,8 @@ pub fn heatmap_svg_string(title: &str, field: ArrayView2<'_, f64>) -> Result<Str
         let fmt = |t: &f64| format_value(*t);
         ctx.configure_mesh()
             .disable_mesh()
-            .x_desc("x (cell)")
-            .y_desc("y (cell)")
+            .x_desc(axes[0])
+            .y_desc(axes[1])
             .x_label_formatter(&fmt)
             .y_label_formatter(&fmt)
             .axis_desc_style((FONT, 15))

@@ -1,8 +1,8 @@
 //! Charts are written as SVG text, and input that cannot be drawn is a typed error.
 
 use diffphys_compare::chart::{
-    heatmap_svg, heatmap_svg_string, line_chart_svg, line_chart_svg_string, quiver_svg,
-    quiver_svg_string, LineChart, Series,
+    heatmap_svg, heatmap_svg_string, heatmap_svg_string_with_axes, line_chart_svg,
+    line_chart_svg_string, quiver_svg, quiver_svg_string, LineChart, Series,
 };
 use diffphys_compare::CompareError;
 use ndarray::Array2;
@@ -120,7 +120,20 @@ fn heatmap_of_signed_and_single_signed_fields() {
     let positive = Array2::from_shape_fn((300, 200), |(i, j)| (i + j) as f64);
     let svg = heatmap_svg_string("positive, block-averaged", positive.view()).unwrap();
     assert!(svg.contains("<svg") && svg.contains("max 498"));
+    assert!(svg.contains("x (cell)") && svg.contains("y (cell)"));
     std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn heatmap_axes_can_be_named() {
+    let field = Array2::from_shape_fn((33, 16), |(t, x)| (t * x) as f64);
+    let svg =
+        heatmap_svg_string_with_axes("u(t, x)", field.view(), ["time step", "x (cell)"]).unwrap();
+    assert!(svg.contains("time step") && svg.contains("x (cell)"));
+    assert!(
+        !svg.contains("y (cell)"),
+        "the default axis name is replaced"
+    );
 }
 
 #[test]

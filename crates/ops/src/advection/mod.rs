@@ -32,8 +32,8 @@ pub use upwind::{
     Upwind2dOp,
 };
 
-use diffphys_tape::Real;
-use ndarray::{ArrayBase, ArrayView, ArrayViewD, Data, Dimension};
+use diffphys_tape::{ArrayD, BackwardArgs, Real};
+use ndarray::{Array, ArrayBase, ArrayView, ArrayViewD, Data, Dimension};
 
 use crate::{OpsError, Result};
 
@@ -156,4 +156,49 @@ pub(crate) fn tape_view<'a, T: Real, D: Dimension>(
     a.clone().into_dimensionality::<D>().map_err(|_| {
         diffphys_tape::TapeError::invalid(op, format!("input of wrong rank: shape {:?}", a.shape()))
     })
+}
+
+/// The forward of a `[d, u] → d'` advection tape op: checks the arity, views the
+/// inputs at the scheme's ranks and runs the plain forward `step`.
+pub(crate) fn advection_forward<T: Real, D: Dimension, U: Dimension>(
+    op: &str,
+    inputs: &[ArrayViewD<'_, T>],
+    step: impl FnOnce(ArrayView<'_, T, D>, ArrayView<'_, T, U>) -> Result<Array<T, D>>,
+) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
+    check_arity(op, inputs.len(), 2)?;
+    let d = tape_view::<T, D>(op, &inputs[0])?;
+    let u = tape_view::<T, U>(op, &inputs[1])?;
+    Ok(vec![step(d, u)?.into_dyn()])
+}
+
+/// The plain vector–Jacobian product of an advection scheme: `(d, u, g, wants)`
+/// to the gradients of `d` and `u` that `wants` asks for.
+pub(crate) type AdvectionVjp<T, D, U> = Result<AdvectionGrads<Array<T, D>, Array<T, U>>>;
+
+/// The backward of a `[d, u] → d'` advection tape op: asks the plain `vjp` for
+/// exactly the gradients the tape needs and hands them back in input order.
+pub(crate) fn advection_backward<'a, T: Real, D: Dimension, U: Dimension>(
+    op: &str,
+    args: &BackwardArgs<'a, T>,
+    vjp: impl FnOnce(
+        ArrayView<'a, T, D>,
+        ArrayView<'a, T, U>,
+        ArrayView<'a, T, D>,
+        Wants,
+    ) -> AdvectionVjp<T, D, U>,
+) -> diffphys_tape::Result<Vec<Option<ArrayD<T>>>> {
+    let wants = Wants {
+        field: args.needs(0),
+        velocity: args.needs(1),
+    };
+    let g = vjp(
+        tape_view::<T, D>(op, args.input(0))?,
+        tape_view::<T, U>(op, args.input(1))?,
+        tape_view::<T, D>(op, args.grad_out())?,
+        wants,
+    )?;
+    Ok(vec![
+        g.field.map(|a| a.into_dyn()),
+        g.velocity.map(|a| a.into_dyn()),
+    ])
 }

@@ -29,7 +29,8 @@ use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, Var};
 use ndarray::{Array1, Array2, Array3, ArrayView1, ArrayView2, ArrayView3, Ix1, Ix2, Ix3};
 
 use super::{
-    check_arity, check_dt, check_finite_velocity, check_shape, tape_view, AdvectionGrads, Wants,
+    advection_backward, advection_forward, check_dt, check_finite_velocity, check_shape,
+    AdvectionGrads, Wants,
 };
 use crate::{Boundary, Grid1, Grid2, Result};
 
@@ -318,34 +319,18 @@ impl<T: Real> Op<T> for SemiLagrangian1dOp {
     }
 
     fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
-        check_arity(OP_1D, inputs.len(), 2)?;
-        let d = tape_view::<T, Ix1>(OP_1D, &inputs[0])?;
-        let u = tape_view::<T, Ix1>(OP_1D, &inputs[1])?;
-        Ok(vec![
-            semi_lagrangian_1d(&self.grid, self.dt, d, u)?.into_dyn()
-        ])
+        advection_forward::<T, Ix1, Ix1>(OP_1D, inputs, |d, u| {
+            semi_lagrangian_1d(&self.grid, self.dt, d, u)
+        })
     }
 
     fn backward(
         &self,
         args: &BackwardArgs<'_, T>,
     ) -> diffphys_tape::Result<Vec<Option<ArrayD<T>>>> {
-        let wants = Wants {
-            field: args.needs(0),
-            velocity: args.needs(1),
-        };
-        let g = semi_lagrangian_1d_vjp(
-            &self.grid,
-            self.dt,
-            tape_view::<T, Ix1>(OP_1D, args.input(0))?,
-            tape_view::<T, Ix1>(OP_1D, args.input(1))?,
-            tape_view::<T, Ix1>(OP_1D, args.grad_out())?,
-            wants,
-        )?;
-        Ok(vec![
-            g.field.map(|a| a.into_dyn()),
-            g.velocity.map(|a| a.into_dyn()),
-        ])
+        advection_backward(OP_1D, args, |d, u, g, wants| {
+            semi_lagrangian_1d_vjp(&self.grid, self.dt, d, u, g, wants)
+        })
     }
 }
 
@@ -365,34 +350,18 @@ impl<T: Real> Op<T> for SemiLagrangian2dOp {
     }
 
     fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
-        check_arity(OP_2D, inputs.len(), 2)?;
-        let d = tape_view::<T, Ix2>(OP_2D, &inputs[0])?;
-        let u = tape_view::<T, Ix3>(OP_2D, &inputs[1])?;
-        Ok(vec![
-            semi_lagrangian_2d(&self.grid, self.dt, d, u)?.into_dyn()
-        ])
+        advection_forward::<T, Ix2, Ix3>(OP_2D, inputs, |d, u| {
+            semi_lagrangian_2d(&self.grid, self.dt, d, u)
+        })
     }
 
     fn backward(
         &self,
         args: &BackwardArgs<'_, T>,
     ) -> diffphys_tape::Result<Vec<Option<ArrayD<T>>>> {
-        let wants = Wants {
-            field: args.needs(0),
-            velocity: args.needs(1),
-        };
-        let g = semi_lagrangian_2d_vjp(
-            &self.grid,
-            self.dt,
-            tape_view::<T, Ix2>(OP_2D, args.input(0))?,
-            tape_view::<T, Ix3>(OP_2D, args.input(1))?,
-            tape_view::<T, Ix2>(OP_2D, args.grad_out())?,
-            wants,
-        )?;
-        Ok(vec![
-            g.field.map(|a| a.into_dyn()),
-            g.velocity.map(|a| a.into_dyn()),
-        ])
+        advection_backward(OP_2D, args, |d, u, g, wants| {
+            semi_lagrangian_2d_vjp(&self.grid, self.dt, d, u, g, wants)
+        })
     }
 }
 

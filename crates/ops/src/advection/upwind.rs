@@ -29,8 +29,8 @@ use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, Var};
 use ndarray::{Array1, Array2, Array3, ArrayView1, ArrayView2, ArrayView3, Ix1, Ix2, Ix3};
 
 use super::{
-    check_arity, check_finite_velocity, check_shape, tape_view, AdvectionGrads, AdvectionParams,
-    Wants,
+    advection_backward, advection_forward, check_finite_velocity, check_shape, AdvectionGrads,
+    AdvectionParams, Wants,
 };
 use crate::stencil::{edge_indices, next, prev, Ghost, Neighbour};
 use crate::{Boundary, Grid1, Grid2, OpsError, Result};
@@ -380,32 +380,18 @@ impl<T: Real> Op<T> for Upwind1dOp {
     }
 
     fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
-        check_arity(OP_1D, inputs.len(), 2)?;
-        let d = tape_view::<T, Ix1>(OP_1D, &inputs[0])?;
-        let u = tape_view::<T, Ix1>(OP_1D, &inputs[1])?;
-        Ok(vec![upwind_1d(&self.grid, &self.params, d, u)?.into_dyn()])
+        advection_forward::<T, Ix1, Ix1>(OP_1D, inputs, |d, u| {
+            upwind_1d(&self.grid, &self.params, d, u)
+        })
     }
 
     fn backward(
         &self,
         args: &BackwardArgs<'_, T>,
     ) -> diffphys_tape::Result<Vec<Option<ArrayD<T>>>> {
-        let wants = Wants {
-            field: args.needs(0),
-            velocity: args.needs(1),
-        };
-        let g = upwind_1d_vjp(
-            &self.grid,
-            &self.params,
-            tape_view::<T, Ix1>(OP_1D, args.input(0))?,
-            tape_view::<T, Ix1>(OP_1D, args.input(1))?,
-            tape_view::<T, Ix1>(OP_1D, args.grad_out())?,
-            wants,
-        )?;
-        Ok(vec![
-            g.field.map(|a| a.into_dyn()),
-            g.velocity.map(|a| a.into_dyn()),
-        ])
+        advection_backward(OP_1D, args, |d, u, g, wants| {
+            upwind_1d_vjp(&self.grid, &self.params, d, u, g, wants)
+        })
     }
 }
 
@@ -425,32 +411,18 @@ impl<T: Real> Op<T> for Upwind2dOp {
     }
 
     fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
-        check_arity(OP_2D, inputs.len(), 2)?;
-        let d = tape_view::<T, Ix2>(OP_2D, &inputs[0])?;
-        let u = tape_view::<T, Ix3>(OP_2D, &inputs[1])?;
-        Ok(vec![upwind_2d(&self.grid, &self.params, d, u)?.into_dyn()])
+        advection_forward::<T, Ix2, Ix3>(OP_2D, inputs, |d, u| {
+            upwind_2d(&self.grid, &self.params, d, u)
+        })
     }
 
     fn backward(
         &self,
         args: &BackwardArgs<'_, T>,
     ) -> diffphys_tape::Result<Vec<Option<ArrayD<T>>>> {
-        let wants = Wants {
-            field: args.needs(0),
-            velocity: args.needs(1),
-        };
-        let g = upwind_2d_vjp(
-            &self.grid,
-            &self.params,
-            tape_view::<T, Ix2>(OP_2D, args.input(0))?,
-            tape_view::<T, Ix3>(OP_2D, args.input(1))?,
-            tape_view::<T, Ix2>(OP_2D, args.grad_out())?,
-            wants,
-        )?;
-        Ok(vec![
-            g.field.map(|a| a.into_dyn()),
-            g.velocity.map(|a| a.into_dyn()),
-        ])
+        advection_backward(OP_2D, args, |d, u, g, wants| {
+            upwind_2d_vjp(&self.grid, &self.params, d, u, g, wants)
+        })
     }
 }
 

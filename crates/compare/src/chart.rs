@@ -27,6 +27,7 @@ use std::path::Path;
 
 use ndarray::ArrayView2;
 use plotters::coord::ranged1d::{DefaultFormatting, KeyPointHint, Ranged};
+use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
@@ -670,17 +671,7 @@ pub fn heatmap_svg_string_with_axes(
             .y_label_area_size(55)
             .build_cartesian_2d(0.0..nx as f64, 0.0..ny as f64)
             .map_err(chart_err)?;
-        let fmt = |t: &f64| format_value(*t);
-        ctx.configure_mesh()
-            .disable_mesh()
-            .x_desc(axes[0])
-            .y_desc(axes[1])
-            .x_label_formatter(&fmt)
-            .y_label_formatter(&fmt)
-            .axis_desc_style((FONT, 15))
-            .label_style((FONT, 12))
-            .draw()
-            .map_err(chart_err)?;
+        draw_cell_axes(&mut ctx, axes)?;
         let (mx, my) = blocks.dim();
         let cells = (0..mx).flat_map(|i| (0..my).map(move |j| (i, j)));
         ctx.draw_series(cells.map(|(i, j)| {
@@ -698,6 +689,25 @@ pub fn heatmap_svg_string_with_axes(
         root.present().map_err(chart_err)?;
     }
     Ok(buf)
+}
+
+/// The axes of a field drawn over its cells (heat maps, quiver plots): no mesh,
+/// named axes, values as [`format_value`] prints them.
+fn draw_cell_axes(
+    ctx: &mut ChartContext<'_, SVGBackend<'_>, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
+    axes: [&str; 2],
+) -> Result<()> {
+    let fmt = |t: &f64| format_value(*t);
+    ctx.configure_mesh()
+        .disable_mesh()
+        .x_desc(axes[0])
+        .y_desc(axes[1])
+        .x_label_formatter(&fmt)
+        .y_label_formatter(&fmt)
+        .axis_desc_style((FONT, 15))
+        .label_style((FONT, 12))
+        .draw()
+        .map_err(chart_err)
 }
 
 fn draw_color_bar(area: &DrawingArea<SVGBackend<'_>, Shift>, scale: ColorScale) -> Result<()> {
@@ -800,17 +810,7 @@ pub fn quiver_svg_string(
             .y_label_area_size(55)
             .build_cartesian_2d(0.0..nx as f64, 0.0..ny as f64)
             .map_err(chart_err)?;
-        let fmt = |t: &f64| format_value(*t);
-        ctx.configure_mesh()
-            .disable_mesh()
-            .x_desc("x (cell)")
-            .y_desc("y (cell)")
-            .x_label_formatter(&fmt)
-            .y_label_formatter(&fmt)
-            .axis_desc_style((FONT, 15))
-            .label_style((FONT, 12))
-            .draw()
-            .map_err(chart_err)?;
+        draw_cell_axes(&mut ctx, ["x (cell)", "y (cell)"])?;
         let arrow_color = RGBColor(30, 30, 30);
         for &(x, y, a, b) in &samples {
             if !(a.is_finite() && b.is_finite()) {

@@ -8,7 +8,7 @@
 //! field and the velocity of the backtrace) with linear interpolation. The unknown
 //! is the initial state, starting from zero; the loss is the mean squared
 //! difference between the state after step 16 and the reference of
-//! `../shared/data/burgers_t16_reference.json`; plain gradient descent with
+//! `data/burgers_t16_reference.json` (in the repository); plain gradient descent with
 //! learning rate 5.
 //!
 //! Tutorial: docs/02-advection-inverse-problems.md. Run:
@@ -98,14 +98,14 @@ impl Burgers {
     }
 }
 
-/// The reference state at t = 0.5, from `shared/data` beside the repository.
+/// The reference state at t = 0.5, from `data/` in the repository.
 fn load_reference() -> Result<Array1<f64>, BoxError> {
     let path =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/burgers_t16_reference.json");
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/burgers_t16_reference.json");
     let text = std::fs::read_to_string(&path).map_err(|e| {
         format!(
-            "cannot read the Burgers reference {}: {e}; the scene expects the shared/ \
-             folder beside the repository (shared/data/burgers_t16_reference.json)",
+            "cannot read the Burgers reference {}: {e} (it ships with the repository \
+             as data/burgers_t16_reference.json)",
             path.display()
         )
     })?;

@@ -273,6 +273,13 @@ pub struct Bound<'t, T: Real> {
 }
 
 impl<'t, T: Real> Bound<'t, T> {
+    /// Parameters given as variables already recorded, in the order of the
+    /// [`Params`] they stand for (for gradient checks, which create their own
+    /// variables).
+    pub fn from_vars(vars: Vec<Var<'t, T>>) -> Self {
+        Bound { vars }
+    }
+
     /// The variable of a parameter.
     pub fn get(&self, id: ParamId) -> Var<'t, T> {
         self.vars[id.0]

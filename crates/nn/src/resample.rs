@@ -82,7 +82,7 @@ pub fn resample_forward<T: Real>(
             let m = T::from_usize(if rank == 3 { 2 } else { 4 });
             let mut out = vec![T::zero(); xs.len() / if rank == 3 { 2 } else { 4 }];
             for_each_pair(rank, coarse, |c, f| out[c] += xs[f]);
-            out.iter_mut().for_each(|v| *v = *v / m);
+            out.iter_mut().for_each(|v| *v /= m);
             Ok(ArrayD::from_shape_vec(IxDyn(&shape), out).expect("sizes match"))
         }
         Direction::Upsample => {

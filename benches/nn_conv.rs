@@ -1,0 +1,124 @@
+//! `Conv2d` forward + backward as the fused op (im2col and a matrix product, one
+//! node, adjoint by hand) against the same convolution built from tape
+//! primitives (per kernel tap: roll, broadcast multiply, sum over input
+//! channels, add), at batch 8, 16 → 16 channels, 3×3 kernel, 64² cells, periodic
+//! padding, gradients in the input, the kernel and the bias.
+//!
+//! Run: `cargo bench --bench nn_conv` (`-- --quick` for a short run). Before
+//! timing it prints, for both variants, the tape's peak bytes, the best of five
+//! forward + backward times, their ratios, and the largest gradient difference.
+
+use std::hint::black_box;
+use std::time::Instant;
+
+use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use diffphys::nn::reference::conv_from_primitives;
+use diffphys::nn::{ConvOp, Padding};
+use diffphys::{test_array, ArrayD, Tape, TapeStats};
+
+const BATCH: usize = 8;
+const CHANNELS: usize = 16;
+const KERNEL: usize = 3;
+const N: usize = 64;
+
+#[derive(Clone, Copy, Debug)]
+enum Variant {
+    Op,
+    Primitives,
+}
+
+struct Inputs {
+    x: ArrayD<f64>,
+    w: ArrayD<f64>,
+    b: ArrayD<f64>,
+    seed: ArrayD<f64>,
+}
+
+fn inputs() -> Inputs {
+    Inputs {
+        x: test_array(&[BATCH, CHANNELS, N, N], 1),
+        w: test_array(&[CHANNELS, CHANNELS, KERNEL, KERNEL], 2),
+        b: test_array(&[CHANNELS], 3),
+        seed: test_array(&[BATCH, CHANNELS, N, N], 4),
+    }
+}
+
+/// Forward and backward once; the three gradients and the tape's statistics.
+fn run(variant: Variant, inp: &Inputs) -> ([ArrayD<f64>; 3], TapeStats) {
+    let tape = Tape::<f64>::new();
+    let (x, w, b) = (
+        tape.var(inp.x.clone()),
+        tape.var(inp.w.clone()),
+        tape.var(inp.b.clone()),
+    );
+    let y = match variant {
+        Variant::Op => tape.apply1(
+            ConvOp {
+                name: "conv2d".into(),
+                padding: Padding::Periodic,
+            },
+            &[x, w, b],
+        ),
+        Variant::Primitives => conv_from_primitives(x, w, b, Padding::Periodic),
+    }
+    .expect("the convolution records");
+    let grads = tape
+        .backward_with_seed(y, inp.seed.clone(), &[x, w, b])
+        .expect("backward");
+    let g = [x, w, b].map(|v| grads.get(v).expect("a gradient").clone());
+    (g, tape.stats())
+}
+
+fn best_seconds(variant: Variant, inp: &Inputs) -> f64 {
+    (0..5)
+        .map(|_| {
+            let start = Instant::now();
+            black_box(run(variant, inp));
+            start.elapsed().as_secs_f64()
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+fn report(inp: &Inputs) {
+    let (g_op, s_op) = run(Variant::Op, inp);
+    let (g_prim, s_prim) = run(Variant::Primitives, inp);
+    let diff = g_op
+        .iter()
+        .zip(&g_prim)
+        .flat_map(|(a, b)| a.iter().zip(b).map(|(p, q)| (p - q).abs()))
+        .fold(0.0, f64::max);
+    let (t_op, t_prim) = (
+        best_seconds(Variant::Op, inp),
+        best_seconds(Variant::Primitives, inp),
+    );
+    println!(
+        "conv2d batch {BATCH}, {CHANNELS}→{CHANNELS}, {KERNEL}×{KERNEL}, {N}²: op {:.2} ms, {} B, {} nodes; \
+         primitives {:.2} ms, {} B, {} nodes; primitives/op time {:.1}, bytes {:.1}; \
+         max |grad difference| {diff:.1e}",
+        t_op * 1e3,
+        s_op.peak_bytes,
+        s_op.nodes,
+        t_prim * 1e3,
+        s_prim.peak_bytes,
+        s_prim.nodes,
+        t_prim / t_op,
+        s_prim.peak_bytes as f64 / s_op.peak_bytes as f64,
+    );
+}
+
+fn bench(c: &mut Criterion) {
+    let inp = inputs();
+    report(&inp);
+    let mut group = c.benchmark_group("conv2d_forward_backward");
+    group.throughput(Throughput::Elements((BATCH * CHANNELS * N * N) as u64));
+    group.sample_size(10);
+    for variant in [Variant::Op, Variant::Primitives] {
+        group.bench_function(format!("{variant:?}").to_lowercase(), |bench| {
+            bench.iter(|| black_box(run(variant, &inp)))
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

@@ -19,6 +19,7 @@
 #![warn(missing_docs)]
 
 mod backward;
+pub mod checkpoint;
 mod error;
 pub mod gradcheck;
 mod op;
@@ -28,6 +29,7 @@ mod real;
 mod tape;
 
 pub use backward::Gradients;
+pub use checkpoint::{checkpointed_steps, Schedule, SegmentFn, StepFn};
 pub use error::{Pass, Result, TapeError};
 pub use gradcheck::{
     check_adjoint, check_gradient, test_array, AdjointReport, GradCheckOptions, GradCheckReport,

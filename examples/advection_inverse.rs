@@ -123,6 +123,8 @@ struct Run {
     losses: Vec<f64>,
     u: ArrayD<f64>,
     final_density: ArrayD<f64>,
+    /// The op's gradient at the last iterate that took a step.
+    grad: ArrayD<f64>,
     /// `max |grad_op − grad_primitives|` and `max |grad_op|` over all iterates.
     grad_diff: f64,
     grad_max: f64,
@@ -144,6 +146,7 @@ fn descend(
         losses: Vec::new(),
         u: u.clone(),
         final_density: scene.d0.clone(),
+        grad: ArrayD::zeros(u0.raw_dim()),
         grad_diff: 0.0,
         grad_max: 0.0,
         peak_bytes: (0, 0),
@@ -173,6 +176,7 @@ fn descend(
             run.grad_max = run.grad_max.max(a.abs());
         }
         u.scaled_add(-learning_rate, &op.grad);
+        run.grad = op.grad;
     }
     run.u = u;
     Ok(run)
@@ -274,6 +278,25 @@ fn main() -> Result<(), BoxError> {
     for f in write_charts(&args.out, &scene, &run)? {
         println!("wrote {}", f.display());
     }
+    args.write_npy(&[
+        ("d0", scene.d0.view(), "the initial density [n]"),
+        ("target", scene.target.view(), "the target density [n]"),
+        (
+            "u_final",
+            run.u.view(),
+            "the velocity after gradient descent [n]",
+        ),
+        (
+            "d_final",
+            run.final_density.view(),
+            "the density the final velocity carries d0 to [n]",
+        ),
+        (
+            "grad_u_last",
+            run.grad.view(),
+            "the loss gradient in u at the last step taken [n]",
+        ),
+    ])?;
     if grad_diff > 1e-10 {
         return Err(format!("op and primitive gradients differ by {grad_diff:e} > 1e-10").into());
     }

@@ -203,6 +203,7 @@ fn main() -> Result<(), BoxError> {
 
     let mut u0 = ArrayD::zeros(vec![N]);
     let mut losses = Vec::with_capacity(iterations);
+    let mut last_grad = ArrayD::zeros(vec![N]);
     let start = Instant::now();
     for it in 0..iterations {
         let (loss, grad) = scene.loss_and_gradient(&u0)?;
@@ -215,6 +216,7 @@ fn main() -> Result<(), BoxError> {
             None => println!("iteration {it:2}: loss {loss:.6}"),
         }
         u0.scaled_add(-LEARNING_RATE, &grad);
+        last_grad = grad;
     }
     let seconds_per_iteration = start.elapsed().as_secs_f64() / iterations.max(1) as f64;
     let worst = losses
@@ -231,6 +233,29 @@ fn main() -> Result<(), BoxError> {
     for f in write_charts(&args.out, &scene, &u0, &losses)? {
         println!("wrote {}", f.display());
     }
+    let trajectory = scene.trajectory(&u0)?.into_dyn();
+    args.write_npy(&[
+        (
+            "u0_final",
+            u0.view(),
+            "the reconstructed initial state [128]",
+        ),
+        (
+            "target_t16",
+            scene.target.view(),
+            "the reference state at step 16 [128]",
+        ),
+        (
+            "trajectory",
+            trajectory.view(),
+            "all 33 states from u0_final [33, 128]",
+        ),
+        (
+            "grad_u0_last",
+            last_grad.view(),
+            "the loss gradient of the last iteration [128]",
+        ),
+    ])?;
     if worst > 0.005 {
         return Err(format!(
             "losses deviate from the published ones by {:.3}% (> 0.5%)",

@@ -240,6 +240,26 @@ fn main() -> Result<(), BoxError> {
         },
     )?;
     println!("chart written to {}", args.out.join("loss.svg").display());
+    let amplitudes = ndarray::Array1::from(a_tape.clone()).into_dyn();
+    let amplitudes_candle =
+        ndarray::Array1::from(a_candle.as_tensor().flatten_all()?.to_vec1::<f64>()?).into_dyn();
+    args.write_npy(&[
+        (
+            "observed",
+            scene.observed.view(),
+            "the observed potential x_obs [n, n]",
+        ),
+        (
+            "amplitudes_tape",
+            amplitudes.view(),
+            "the trained source amplitudes, tape [16]",
+        ),
+        (
+            "amplitudes_candle",
+            amplitudes_candle.view(),
+            "the trained source amplitudes, candle [16]",
+        ),
+    ])?;
 
     common::print_json_line(&serde_json::json!({
         "n": n,

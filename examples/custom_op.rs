@@ -265,6 +265,20 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     if !report.passed || !adjoint.passes(1e-12) || max_diff > 1e-10 {
         return Err("the plugin disagrees with its references".into());
     }
+    args.write_npy(&[
+        ("u0", u0.view(), "the initial field [n]"),
+        ("target", target.view(), "the target of the loss [n]"),
+        (
+            "grad_u0_plugin",
+            plugin.grad_u0.view(),
+            "∂loss/∂u₀ through the plugin op [n]",
+        ),
+        (
+            "grad_u0_primitives",
+            reference.grad_u0.view(),
+            "∂loss/∂u₀ through the primitive chain [n]",
+        ),
+    ])?;
 
     common::print_json_line(&serde_json::json!({
         "example": "custom_op",

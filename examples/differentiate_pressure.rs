@@ -154,6 +154,7 @@ struct Step {
     loss: f64,
     grad: Faces,
     projected: Faces,
+    pressure: ArrayD<f64>,
     seconds: f64,
 }
 
@@ -164,7 +165,7 @@ fn gradient_step(scene: &Scene, op: ProjectionOp<f64>, v: &Faces) -> Result<Step
     let (vx, vy) = (tape.var(v.x.clone()), tape.var(v.y.clone()));
     let ux = vx.mul(tape.constant(scene.left.x.clone()))?;
     let uy = vy.mul(tape.constant(scene.left.y.clone()))?;
-    let [px, py, _pressure] = project_tape(op, ux, uy)?;
+    let [px, py, pressure] = project_tape(op, ux, uy)?;
     let ex = px
         .sub(tape.constant(scene.target.x.clone()))?
         .mul(tape.constant(scene.right.x.clone()))?;
@@ -189,6 +190,7 @@ fn gradient_step(scene: &Scene, op: ProjectionOp<f64>, v: &Faces) -> Result<Step
             x: px.to_array(),
             y: py.to_array(),
         },
+        pressure: pressure.to_array(),
         seconds,
     })
 }
@@ -362,6 +364,63 @@ fn main() -> Result<(), BoxError> {
     );
     write_charts(&args.out, &scene, &last, &first_grad, &losses)?;
     println!("charts written to {}", args.out.display());
+    args.write_npy(&[
+        (
+            "v_final_x",
+            v.x.view(),
+            "the optimised velocity, x-faces [79, 64]",
+        ),
+        (
+            "v_final_y",
+            v.y.view(),
+            "the optimised velocity, y-faces [80, 63]",
+        ),
+        (
+            "target_x",
+            scene.target.x.view(),
+            "the target velocity, x-faces",
+        ),
+        (
+            "target_y",
+            scene.target.y.view(),
+            "the target velocity, y-faces",
+        ),
+        (
+            "projected_x",
+            last.projected.x.view(),
+            "the projected velocity of the last step, x-faces",
+        ),
+        (
+            "projected_y",
+            last.projected.y.view(),
+            "the projected velocity of the last step, y-faces",
+        ),
+        (
+            "pressure",
+            last.pressure.view(),
+            "the pressure of the last step's projection [80, 64]",
+        ),
+        (
+            "grad_x_last",
+            last.grad.x.view(),
+            "the loss gradient of the last step, x-faces",
+        ),
+        (
+            "grad_y_last",
+            last.grad.y.view(),
+            "the loss gradient of the last step, y-faces",
+        ),
+        (
+            "grad_x_exact_first",
+            exact.x.view(),
+            "the first gradient by sparse Cholesky, x-faces",
+        ),
+        (
+            "grad_y_exact_first",
+            exact.y.view(),
+            "the first gradient by sparse Cholesky, y-faces",
+        ),
+    ])?;
     common::print_json_line(&serde_json::json!({
         "example": "differentiate_pressure",
         "losses": losses,

@@ -155,6 +155,47 @@ fn main() -> Result<(), BoxError> {
     )?;
     println!("chart written to {}", chart.display());
 
+    if args.npy {
+        let stop = Stop::Tolerance {
+            rtol: RTOL,
+            max_iters: 20_000,
+        };
+        let naive_grad = naive.run(&problem, stop)?.gradient.into_dyn();
+        let implicit_grad = ImplicitSolve.run(&problem, stop)?.gradient.into_dyn();
+        let (b, target, exact) = (
+            problem.b.clone().into_dyn(),
+            problem.target.clone().into_dyn(),
+            exact.clone().into_dyn(),
+        );
+        args.write_npy(&[
+            (
+                "b",
+                b.view(),
+                "the right-hand side, the leaf of the gradient [n, n]",
+            ),
+            (
+                "target",
+                target.view(),
+                "the target potential p* of the loss ½‖p − p*‖² [n, n]",
+            ),
+            (
+                "grad_exact",
+                exact.view(),
+                "∂L/∂b by sparse Cholesky [n, n]",
+            ),
+            (
+                "grad_naive",
+                naive_grad.view(),
+                "∂L/∂b through CG unrolled on the tape, rtol 1e-8",
+            ),
+            (
+                "grad_implicit",
+                implicit_grad.view(),
+                "∂L/∂b by one adjoint CG solve, rtol 1e-8",
+            ),
+        ])?;
+    }
+
     common::print_json_line(&serde_json::json!({
         "example": "naive_vs_implicit",
         "n": n,

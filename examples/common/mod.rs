@@ -14,6 +14,8 @@ pub struct ExampleArgs {
     pub out: PathBuf,
     /// Overrides the number of optimisation iterations.
     pub iterations: Option<usize>,
+    /// Write the fields and gradients as `.npy` files under `OUT/npy`.
+    pub npy: bool,
 }
 
 impl ExampleArgs {
@@ -24,11 +26,13 @@ impl ExampleArgs {
             small: false,
             out: PathBuf::from("out").join(default_out),
             iterations: None,
+            npy: false,
         };
         let mut it = std::env::args().skip(1);
         while let Some(arg) = it.next() {
             match arg.as_str() {
                 "--small" => args.small = true,
+                "--npy" => args.npy = true,
                 "--out" => args.out = it.next().ok_or("--out needs a folder")?.into(),
                 "--iterations" => {
                     let n = it.next().ok_or("--iterations needs a number")?;
@@ -38,7 +42,10 @@ impl ExampleArgs {
                     );
                 }
                 "-h" | "--help" => {
-                    println!("options: --small (CI size), --out DIR (charts), --iterations N");
+                    println!(
+                        "options: --small (CI size), --out DIR (charts), --iterations N, \
+                         --npy (fields and gradients as .npy files under DIR/npy)"
+                    );
                     std::process::exit(0);
                 }
                 other => return Err(format!("unknown argument {other:?}; try --help")),
@@ -47,6 +54,23 @@ impl ExampleArgs {
         std::fs::create_dir_all(&args.out)
             .map_err(|e| format!("cannot create {}: {e}", args.out.display()))?;
         Ok(args)
+    }
+
+    /// With `--npy`, writes each `(name, array, meaning)` as `OUT/npy/{name}.npy`
+    /// and an `index.json` naming them; without it, nothing.
+    pub fn write_npy(
+        &self,
+        arrays: &[(&str, ndarray::ArrayViewD<'_, f64>, &str)],
+    ) -> Result<(), diffphys::compare::CompareError> {
+        if !self.npy {
+            return Ok(());
+        }
+        let mut npy = diffphys::compare::npy::NpyWriter::new(self.out.join("npy"))?;
+        for (name, array, meaning) in arrays {
+            npy.write(name, array.view(), meaning)?;
+        }
+        println!("wrote {}", npy.finish()?.display());
+        Ok(())
     }
 
     /// `small` if running small, else `full`.

@@ -30,6 +30,7 @@ pub mod chart;
 mod error;
 pub mod harness;
 pub mod methods;
+pub mod npy;
 pub mod problem;
 pub mod report;
 pub mod stability;

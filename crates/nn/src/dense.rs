@@ -72,13 +72,7 @@ impl<T: Real> Op<T> for DenseOp {
     }
 
     fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> Result<Vec<ArrayD<T>>> {
-        if inputs.len() != 3 {
-            return Err(TapeError::Arity {
-                op: self.name.clone(),
-                expected: 3,
-                found: inputs.len(),
-            });
-        }
+        TapeError::check_arity(&self.name, 3, inputs.len())?;
         Ok(vec![dense_forward(
             &self.name,
             inputs[0].view(),

@@ -138,13 +138,7 @@ impl<T: Real> Op<T> for Resample {
     }
 
     fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> Result<Vec<ArrayD<T>>> {
-        if inputs.len() != 1 {
-            return Err(TapeError::Arity {
-                op: self.name.clone(),
-                expected: 1,
-                found: inputs.len(),
-            });
-        }
+        TapeError::check_arity(&self.name, 1, inputs.len())?;
         Ok(vec![resample_forward(
             &self.name,
             self.direction,

@@ -28,6 +28,18 @@ impl<T: Real> Gradients<T> {
         self.grads.get(&v.index)
     }
 
+    /// The gradient with respect to `v`.
+    ///
+    /// # Errors
+    /// [`TapeError::NoGradient`] if `v` was not requested or belongs to another
+    /// tape.
+    pub fn try_get(&self, v: Var<'_, T>) -> Result<&ArrayD<T>> {
+        self.get(v).ok_or(TapeError::NoGradient {
+            index: v.index,
+            tape: v.tape.id(),
+        })
+    }
+
     /// Takes the gradient with respect to `v` out of the container.
     pub fn take(&mut self, v: Var<'_, T>) -> Option<ArrayD<T>> {
         if v.tape.id() != self.tape_id {

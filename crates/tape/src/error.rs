@@ -88,6 +88,14 @@ pub enum TapeError {
         /// The op.
         op: String,
     },
+    /// [`crate::Gradients::try_get`] was asked for a variable it holds no gradient of.
+    #[error("no gradient for variable {index} of tape {tape}: it was not requested from backward, or it is on another tape")]
+    NoGradient {
+        /// The variable's index on its tape.
+        index: usize,
+        /// The variable's tape.
+        tape: u64,
+    },
     /// A plugin op failed for a reason of its own (a solver that did not converge, say).
     #[error("{op} failed: {source}")]
     Op {
@@ -99,7 +107,72 @@ pub enum TapeError {
     },
 }
 
+/// What kind of error a [`TapeError`] is, for callers that branch on it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[non_exhaustive]
+pub enum ErrorKind {
+    /// Shapes that had to agree did not.
+    Shape,
+    /// An argument out of range, or the wrong number of inputs.
+    InvalidArgument,
+    /// A non-scalar loss without a seed.
+    NonScalarLoss,
+    /// A variable of another tape.
+    ForeignVar,
+    /// NaN or infinity in a value or a gradient.
+    NonFinite,
+    /// An op without a backward was asked for one.
+    BackwardNotSupported,
+    /// A gradient that was not computed was asked for.
+    NoGradient,
+    /// A plugin op's own failure.
+    Op,
+}
+
 impl TapeError {
+    /// What kind of error this is.
+    pub fn kind(&self) -> ErrorKind {
+        match self {
+            TapeError::ShapeMismatch { .. } => ErrorKind::Shape,
+            TapeError::InvalidArgument { .. } | TapeError::Arity { .. } => {
+                ErrorKind::InvalidArgument
+            }
+            TapeError::NonScalarLoss { .. } => ErrorKind::NonScalarLoss,
+            TapeError::ForeignVar { .. } => ErrorKind::ForeignVar,
+            TapeError::NonFinite { .. } => ErrorKind::NonFinite,
+            TapeError::BackwardNotSupported { .. } => ErrorKind::BackwardNotSupported,
+            TapeError::NoGradient { .. } => ErrorKind::NoGradient,
+            TapeError::Op { .. } => ErrorKind::Op,
+        }
+    }
+
+    /// Whether a NaN or infinity caused this error: a [`TapeError::NonFinite`],
+    /// or a plugin's error whose chain of sources holds one.
+    pub fn is_non_finite(&self) -> bool {
+        let mut source: Option<&(dyn std::error::Error + 'static)> = Some(self);
+        while let Some(e) = source {
+            if let Some(TapeError::NonFinite { .. }) = e.downcast_ref::<TapeError>() {
+                return true;
+            }
+            source = e.source();
+        }
+        false
+    }
+
+    /// `Ok` if an op that takes `expected` inputs got `found`, else
+    /// [`TapeError::Arity`] naming `op`: the one check every op's forward starts with.
+    pub fn check_arity(op: &str, expected: usize, found: usize) -> Result<()> {
+        if expected == found {
+            Ok(())
+        } else {
+            Err(TapeError::Arity {
+                op: op.to_string(),
+                expected,
+                found,
+            })
+        }
+    }
+
     /// A [`TapeError::ShapeMismatch`] for `op` between two shapes.
     pub fn shape(op: &str, lhs: &[usize], rhs: &[usize]) -> Self {
         TapeError::ShapeMismatch {

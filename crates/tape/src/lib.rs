@@ -23,6 +23,7 @@ pub mod checkpoint;
 mod error;
 pub mod gradcheck;
 mod op;
+mod operators;
 pub mod optim;
 pub mod primitives;
 mod real;
@@ -30,7 +31,7 @@ mod tape;
 
 pub use backward::Gradients;
 pub use checkpoint::{checkpointed_steps, Schedule, SegmentFn, StepFn};
-pub use error::{Pass, Result, TapeError};
+pub use error::{ErrorKind, Pass, Result, TapeError};
 pub use gradcheck::{
     check_adjoint, check_gradient, test_array, AdjointReport, GradCheckOptions, GradCheckReport,
 };

@@ -1,6 +1,7 @@
 //! The tape: an append-only arena of values and the op nodes that produced them.
 
-use std::cell::{Ref, RefCell};
+use std::cell::RefCell;
+use std::rc::Rc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use ndarray::{ArrayD, ArrayViewD, IxDyn};
@@ -12,7 +13,9 @@ static NEXT_TAPE_ID: AtomicU64 = AtomicU64::new(1);
 
 /// One value held by the tape.
 pub(crate) struct Slot<T: Real> {
-    pub(crate) data: ArrayD<T>,
+    /// Shared, so that [`Var::value`] hands out the value without holding a
+    /// borrow of the tape.
+    pub(crate) data: Rc<ArrayD<T>>,
     /// True for variables and for everything computed from one.
     pub(crate) requires_grad: bool,
 }
@@ -283,7 +286,7 @@ impl<T: Real> Inner<T> {
     fn push_slot(&mut self, data: ArrayD<T>, requires_grad: bool) -> usize {
         self.value_bytes += bytes_of(&data);
         self.slots.push(Slot {
-            data,
+            data: Rc::new(data),
             requires_grad,
         });
         self.update_peak();
@@ -318,16 +321,18 @@ impl<'t, T: Real> Var<'t, T> {
             .to_vec()
     }
 
-    /// Borrows its value. Drop the borrow before recording further ops.
-    pub fn value(&self) -> Ref<'t, ArrayD<T>> {
-        Ref::map(self.tape.inner.borrow(), |inner| {
-            &inner.slots[self.index].data
-        })
+    /// Its value, shared with the tape (no copy). Holding it does not block
+    /// recording: values on a tape never change.
+    pub fn value(&self) -> Rc<ArrayD<T>> {
+        Rc::clone(&self.tape.inner.borrow().slots[self.index].data)
     }
 
     /// A copy of its value.
     pub fn to_array(&self) -> ArrayD<T> {
-        self.value().clone()
+        self.tape.inner.borrow().slots[self.index]
+            .data
+            .as_ref()
+            .clone()
     }
 
     /// Its value if it holds exactly one element.

@@ -375,3 +375,45 @@ fn a_plugin_error_keeps_its_source() {
     assert!(matches!(&err, TapeError::Op { op, .. } if op == "solver"));
     assert_mentions(&err, &["diverged after 7 iterations"]);
 }
+
+#[test]
+fn holding_a_value_while_recording_is_not_a_panic() {
+    let tape = Tape::<f64>::new();
+    let x = tape.var(diffphys_tape::arr_dyn(&[1.0, 2.0]));
+    let held = x.value();
+    let y = x.mul(x).unwrap(); // used to panic: the value borrowed the tape
+    let z = tape.var(held.mapv(|v| v + 1.0));
+    assert_eq!(held[[1]], 2.0);
+    assert_eq!(y.value()[[1]], 4.0);
+    assert_eq!(z.value()[[0]], 2.0);
+}
+
+#[test]
+fn a_missing_gradient_is_a_typed_error_and_errors_classify_themselves() {
+    use diffphys_tape::ErrorKind;
+    let tape = Tape::<f64>::new();
+    let x = tape.var(diffphys_tape::arr_dyn(&[1.0, 2.0]));
+    let w = tape.var(diffphys_tape::arr_dyn(&[3.0, 4.0]));
+    let loss = x.mul(w).unwrap().sum().unwrap();
+    let grads = tape.backward(loss, &[x]).unwrap();
+    assert_eq!(grads.try_get(x).unwrap()[[0]], 3.0);
+    let err = grads.try_get(w).unwrap_err();
+    assert_eq!(err.kind(), ErrorKind::NoGradient);
+    assert!(err.to_string().contains("not requested"), "{err}");
+
+    let nan = tape
+        .var(diffphys_tape::arr_dyn(&[-1.0]))
+        .sqrt()
+        .unwrap_err();
+    assert_eq!(nan.kind(), ErrorKind::NonFinite);
+    assert!(nan.is_non_finite());
+    let wrapped = TapeError::op("solver", nan);
+    assert_eq!(wrapped.kind(), ErrorKind::Op);
+    assert!(wrapped.is_non_finite());
+    assert!(!TapeError::invalid("x", "y").is_non_finite());
+    assert!(TapeError::check_arity("op", 2, 2).is_ok());
+    assert_eq!(
+        TapeError::check_arity("op", 2, 3).unwrap_err().kind(),
+        ErrorKind::InvalidArgument
+    );
+}

@@ -515,6 +515,47 @@ fn main() -> Result<(), BoxError> {
     )? {
         println!("wrote {}", f.display());
     }
+    let stacked = |rows: &[Array1<f64>]| -> Result<ArrayD<f64>, BoxError> {
+        let views: Vec<_> = rows.iter().map(|r| r.view()).collect();
+        Ok(ndarray::stack(ndarray::Axis(0), &views)?.into_dyn())
+    };
+    let npy = [
+        (
+            "heldout_u0",
+            stacked(&heldout.u0)?,
+            "held-out true initial states [cases, 128]",
+        ),
+        (
+            "heldout_observed",
+            stacked(&heldout.obs)?,
+            "held-out observed states at step 16 [cases, 128]",
+        ),
+        (
+            "u0_network_dp",
+            stacked(&dp_u0)?,
+            "initial states from the network trained through the solver",
+        ),
+        (
+            "u0_network_supervised",
+            stacked(&supervised_u0)?,
+            "initial states from the supervised network",
+        ),
+        (
+            "u0_per_instance",
+            stacked(&per_instance_u0)?,
+            "initial states after 50 gradient steps from zero",
+        ),
+        (
+            "u0_warm_started",
+            stacked(&warm_u0)?,
+            "the solver-trained network's states refined by 5 gradient steps",
+        ),
+    ];
+    args.write_npy(
+        &npy.iter()
+            .map(|(n, a, m)| (*n, a.view(), *m))
+            .collect::<Vec<_>>(),
+    )?;
 
     common::print_json_line(&serde_json::json!({
         "example": "nn_control_burgers",

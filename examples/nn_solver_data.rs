@@ -23,7 +23,7 @@ use burgers_scene::{
 use diffphys::compare::chart::{line_chart_svg, LineChart, Series};
 use diffphys::compare::harness::progress_bar;
 use diffphys::nn::{check_loss, Layer, Params, UNet};
-use diffphys::{Adam, Tape};
+use diffphys::{Adam, ArrayD, Tape};
 use ndarray::Array1;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
@@ -122,6 +122,8 @@ struct Run {
     /// Of `seconds_data`, the seconds in the solver (on the fly only).
     seconds_solver: f64,
     samples_seen: usize,
+    /// The trained network's outputs on the held-out inputs, `[cases, 1, N]`.
+    predictions: ArrayD<f64>,
 }
 
 /// The mean squared error of the network over `pairs`.
@@ -163,6 +165,7 @@ fn train(
         seconds_data: 0.0,
         seconds_solver: 0.0,
         samples_seen: 0,
+        predictions: ArrayD::zeros(vec![0]),
     };
     let mut window = (0.0, 0usize);
     let bar = progress_bar(budget.steps, &source.label());
@@ -226,6 +229,9 @@ fn train(
         bar.inc(1);
     }
     bar.finish_and_clear();
+    let tape = Tape::new();
+    let x = tape.constant(batch_of(&heldout.input.iter().collect::<Vec<_>>()));
+    run.predictions = net.forward(&params.bind(&tape), x)?.to_array();
     Ok(run)
 }
 
@@ -369,6 +375,43 @@ fn main() -> Result<(), BoxError> {
             Source::OnTheFly => None,
         })
         .collect();
+    let stacked = |rows: &[Array1<f64>]| -> Result<ArrayD<f64>, BoxError> {
+        let views: Vec<_> = rows.iter().map(|r| r.view()).collect();
+        Ok(ndarray::stack(ndarray::Axis(0), &views)?.into_dyn())
+    };
+    let (inputs, targets) = (stacked(&heldout.input)?, stacked(&heldout.target)?);
+    let mut npy = vec![
+        (
+            "heldout_u0",
+            inputs.view(),
+            "held-out initial states [cases, 128]".to_string(),
+        ),
+        (
+            "heldout_u16",
+            targets.view(),
+            "their solver states at step 16 [cases, 128]".to_string(),
+        ),
+    ];
+    let names: Vec<String> = runs
+        .iter()
+        .map(|r| format!("prediction_{}", r.source.label().replace(' ', "_")))
+        .collect();
+    for (r, name) in runs.iter().zip(&names) {
+        npy.push((
+            name.as_str(),
+            r.predictions.view(),
+            format!(
+                "the network trained on {} data, on the held-out states [cases, 1, 128]",
+                r.source.label()
+            ),
+        ));
+    }
+    args.write_npy(
+        &npy.iter()
+            .map(|(n, a, m)| (*n, a.view(), m.as_str()))
+            .collect::<Vec<_>>(),
+    )?;
+
     common::print_json_line(&serde_json::json!({
         "example": "nn_solver_data",
         "training_steps": budget.steps,

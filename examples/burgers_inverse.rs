@@ -100,8 +100,7 @@ impl Burgers {
 
 /// The reference state at t = 0.5, from `data/` in the repository.
 fn load_reference() -> Result<Array1<f64>, BoxError> {
-    let path =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/burgers_t16_reference.json");
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/burgers_t16_reference.json");
     let text = std::fs::read_to_string(&path).map_err(|e| {
         format!(
             "cannot read the Burgers reference {}: {e} (it ships with the repository \

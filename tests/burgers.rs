@@ -20,8 +20,7 @@ const LOSS_STEP: usize = 16;
 const PUBLISHED: [f64; 5] = [0.382915, 0.326882, 0.281032, 0.242804, 0.210666];
 
 fn reference() -> ArrayD<f64> {
-    let path =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/burgers_t16_reference.json");
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/burgers_t16_reference.json");
     let text = std::fs::read_to_string(&path).unwrap_or_else(|e| {
         panic!(
             "the Burgers test needs {} (shipped in data/): {e}",

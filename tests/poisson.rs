@@ -98,14 +98,23 @@ fn f32_gradient_on_64x64_is_within_1e_4_of_exact() {
         let p_exact = exact.solve(b.view()).unwrap();
         let g_exact = exact.solve((&p_exact - &target).view()).unwrap();
 
-        let params = CgParams::default().with_rel_tol(1e-5).with_null_space(ns);
+        // 1e-5 lies near f32's rounding floor here: a solve may stop at the
+        // floor (flagged), not at the cap.
+        let params = CgParams::default()
+            .with_rel_tol(1e-5)
+            .with_null_space(ns)
+            .with_require_convergence(false);
         let solve = PoissonSolve::<f32, _>::new(Arc::new(a), params);
+        let log = solve.log();
         let tape = Tape::<f32>::new();
         let bv = tape.var(b.mapv(|v| v as f32));
         let p = poisson_solve_tape(solve, bv).unwrap();
         let d = p.sub(tape.constant(target.mapv(|v| v as f32))).unwrap();
         let loss = d.mul(d).unwrap().sum().unwrap().mul_scalar(0.5).unwrap();
         let grads = tape.backward(loss, &[bv]).unwrap();
+        for info in [log.last_forward(), log.last_adjoint()] {
+            assert!(!info.as_ref().unwrap().reached_cap(), "{info:?}");
+        }
         let err = rel_err(grads.get(bv).unwrap(), &g_exact);
         assert!(err < 1e-4, "{err:.3e}");
     }

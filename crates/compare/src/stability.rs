@@ -975,7 +975,7 @@ pub fn findings(r: &StabilityResults) -> Vec<String> {
         .rows
         .iter()
         .filter(|x| x.study == "unconverged" && x.variant.as_deref() == Some("adjoint tight"))
-        .filter_map(|x| Some(x.row.grad_rel_err? / x.row.forward_residual?))
+        .filter_map(|x| Some(x.row.grad_rel_err? / x.row.reached_relative_residual?))
         .filter(|v| v.is_finite())
         .collect();
     if !ratios.is_empty() {
@@ -1117,13 +1117,13 @@ pub fn write_stability_charts(
             .rows
             .iter()
             .filter(|r| r.study == "unconverged" && r.variant.as_deref() == Some(variant))
-            .filter_map(|r| Some((r.row.forward_residual?, r.row.grad_rel_err?)))
+            .filter_map(|r| Some((r.row.reached_relative_residual?, r.row.grad_rel_err?)))
             .collect();
         series.push(Series::new(format!("implicit, {variant}"), sorted(pts)));
     }
     let pts = study(&results.rows, "unconverged")
         .filter(|r| r.method == "naive")
-        .filter_map(|r| Some((r.forward_residual?, r.grad_rel_err?)))
+        .filter_map(|r| Some((r.reached_relative_residual?, r.grad_rel_err?)))
         .collect();
     series.push(Series::new("naive (fixed iterations)", sorted(pts)));
     series.push(Series::new(
@@ -1446,7 +1446,7 @@ pub fn stability_key_figures(
         .rows
         .iter()
         .filter(|x| x.study == "unconverged" && x.variant.as_deref() == Some("adjoint tight"))
-        .filter_map(|x| Some(x.row.grad_rel_err? / x.row.forward_residual?))
+        .filter_map(|x| Some(x.row.grad_rel_err? / x.row.reached_relative_residual?))
         .collect();
     if let Some(o) = v.as_object_mut() {
         o.insert("mode".into(), "stability".into());

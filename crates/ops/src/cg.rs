@@ -25,7 +25,9 @@
 //! One iteration makes three passes over memory: `q = A p` fused with `<p, q>`
 //! ([`LinearOperator::apply_into_dot`]); `r −= α q` fused with `<r, r>` (and the
 //! preconditioned residual and the null-space sums); `x += α p` fused with
-//! `p = z + β p`. Dot products accumulate in `f64` over four lanes. All vectors
+//! `p = z + β p`. Every dot product accumulates in `f64`: the solver's own
+//! over four lanes, the curvature inside the operator's kernel
+//! ([`LinearOperator::apply_into_dot`] returns it as `f64`). All vectors
 //! are allocated before the first iteration; the loop allocates nothing.
 //!
 //! The system is solved in normalised form, `A x̂ = b / ‖b‖`, and scaled back,
@@ -57,6 +59,7 @@ use diffphys_tape::Real;
 use ndarray::{ArrayD, ArrayViewD, ArrayViewMutD, IxDyn};
 use thiserror::Error;
 
+use crate::linear::wide;
 use crate::{CellMask, LinearOperator};
 
 /// The preconditioner `M ≈ A` that CG applies as `z = M⁻¹ r`.
@@ -477,13 +480,6 @@ fn validate<T: Real, A: LinearOperator<T> + ?Sized>(
 
 const LANES: usize = 4;
 
-/// `x` in f64 for the reductions. (`Real::as_f64` is not `#[inline]` across
-/// crates, which keeps these loops from vectorising; num-traits' conversion is.)
-#[inline(always)]
-fn wide<T: Real>(x: T) -> f64 {
-    x.to_f64().unwrap_or(f64::NAN)
-}
-
 /// A restart needs the true residual above this multiple of its estimated
 /// rounding floor. Measured on 64² Laplacians: when the recurrence converges in
 /// `f32`, the true residual sits at 3–7 times the estimate, and a restart lowers
@@ -788,8 +784,8 @@ impl<'a, T: Real, A: LinearOperator<T> + ?Sized> Solver<'a, T, A> {
         self.kk > 0.0
     }
 
-    /// `y = A x` on slices.
-    fn apply(&self, x: &[T], y: &mut [T]) -> T {
+    /// `y = A x` on slices, returning `<x, A x>` (in f64).
+    fn apply(&self, x: &[T], y: &mut [T]) -> f64 {
         let xv = ArrayViewD::from_shape(IxDyn(&self.shape), x).expect("length matches shape");
         let yv = ArrayViewMutD::from_shape(IxDyn(&self.shape), y).expect("length matches shape");
         self.op.apply_into_dot(xv, yv)
@@ -894,7 +890,7 @@ impl<'a, T: Real, A: LinearOperator<T> + ?Sized> Solver<'a, T, A> {
         while self.iterations < self.max_iters {
             let it = self.iterations;
             let mut q = std::mem::take(&mut self.q);
-            let pq = self.apply(&self.p, &mut q).as_f64();
+            let pq = self.apply(&self.p, &mut q);
             self.q = q;
             if !pq.is_finite() {
                 return Err(CgError::non_finite(it, "the curvature <p, A p>"));

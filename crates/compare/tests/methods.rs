@@ -180,3 +180,39 @@ fn fixed_iterations_truncate_both_methods_alike_in_the_forward() {
     let diff = rel_err(&naive.gradient, &implicit.gradient);
     assert!(diff > 1e-3, "gradients unexpectedly close: {diff:e}");
 }
+
+/// The naive tape holds seven grid arrays per CG iteration (`A p`, `α p`,
+/// `x`, `α A p`, `r`, `β p`, `p`) plus its scalars (`<p, A p>`, `α`, `‖r‖²`,
+/// `β`), so its bytes grow linearly in the iteration count, by between 7 arrays
+/// and 7 arrays + 8 scalars per iteration; the implicit tape holds the same
+/// few arrays whatever the count.
+#[test]
+fn naive_tape_grows_seven_arrays_per_iteration_and_implicit_does_not() {
+    use diffphys_compare::harness::naive_bytes_per_iteration;
+    use diffphys_compare::methods::implicit::ImplicitSolve;
+    let n = 16;
+    let problem = Problem::<f64>::new(ProblemSpec::laplacian(n)).unwrap();
+    let scalar = std::mem::size_of::<f64>();
+    let array = n * n * scalar;
+    assert_eq!(naive_bytes_per_iteration::<f64>(n), 7 * array);
+    let counts = [10, 20, 40];
+    let tape =
+        |m: &dyn GradientMethod<f64>, k| m.run(&problem, Stop::Iterations(k)).unwrap().tape_bytes;
+    let naive: Vec<usize> = counts
+        .iter()
+        .map(|&k| tape(&NaiveUnrolled::default(), k))
+        .collect();
+    let implicit: Vec<usize> = counts.iter().map(|&k| tape(&ImplicitSolve, k)).collect();
+    for (a, b) in [(0, 1), (1, 2)] {
+        let per_iteration = (naive[b] - naive[a]) / (counts[b] - counts[a]);
+        assert!(
+            (7 * array..=7 * array + 8 * scalar).contains(&per_iteration),
+            "naive: {per_iteration} bytes per iteration, {array} per array ({naive:?})"
+        );
+    }
+    assert!(
+        implicit.iter().all(|&b| b == implicit[0]),
+        "implicit tape depends on the iteration count: {implicit:?}"
+    );
+    assert!(implicit[0] < 7 * array, "{implicit:?}");
+}

@@ -170,6 +170,11 @@ fn initial_guess_gradient_is_zero_for_implicit_and_not_for_naive() {
         );
         assert!(gb.iter().any(|&v| v != 0.0));
     }
+    // Solved to a tolerance from the initial guess, ∂L/∂b is the exact gradient.
+    let exact = ExactCholesky.run(&problem, Stop::Iterations(0)).unwrap();
+    let (_, gb, _) = implicit_initial_guess_gradient(&problem, tol(1e-10), &x0).unwrap();
+    let err = relative_error(&gb, &exact.gradient).unwrap();
+    assert!(err < 1e-8, "warm-started implicit ∂L/∂b vs exact: {err:e}");
     // Naive: the derivative of the truncated iteration, non-zero, and it agrees
     // with a central difference of the naive loss in x0.
     let stop = Stop::Iterations(5);

@@ -26,7 +26,7 @@
 use std::path::Path;
 
 use diffphys_ops::advection::{upwind_1d_tape, AdvectionParams};
-use diffphys_ops::cg::{cg_solve, CgParams};
+use diffphys_ops::cg::{cg_solve, CgInfo, CgParams};
 use diffphys_ops::{Boundary, Grid1, OpsError};
 use diffphys_tape::{Real, Tape, TapeError, Var};
 use indicatif::ProgressBar;
@@ -209,6 +209,10 @@ pub struct ConvergenceCount {
     pub rtol: f64,
     /// Iterations the solver of the implicit path needed; `None` if it failed.
     pub iterations: Option<usize>,
+    /// The relative residual it reached (above `rtol` where that lies below the
+    /// precision's rounding floor); `None` if it failed.
+    #[serde(default)]
+    pub reached_relative_residual: Option<f64>,
     /// Its error, if it failed.
     pub error: Option<String>,
 }
@@ -297,29 +301,45 @@ fn norm<T: Real>(a: impl IntoIterator<Item = T> + Clone) -> f64 {
             .sqrt()
 }
 
-/// Iterations the solver of the implicit path needs on `problem` to reach
-/// [`converged_rtol`].
+/// Iterations the solver of the implicit path needs on `problem` to converge:
+/// to reach [`converged_rtol`], or, where that lies below the rounding floor of
+/// `T` (f32 on 64² and larger), to stall at the floor
+/// ([`diffphys_ops::cg::CgInfo::rounding_floor`]): either way the iterate is
+/// converged to what `T` resolves.
 ///
 /// # Errors
-/// The solver's error.
+/// The solver's error, and [`diffphys_ops::cg::CgError::NoConvergence`] if it
+/// ran into [`TOLERANCE_CAP`].
 pub fn convergence_iterations<T: Real>(problem: &Problem<T>) -> Result<usize> {
+    convergence_solve(problem).map(|info| info.iterations)
+}
+
+/// The solve behind [`convergence_iterations`].
+fn convergence_solve<T: Real>(problem: &Problem<T>) -> Result<CgInfo> {
     let params = CgParams::default()
         .with_rel_tol(converged_rtol::<T>())
         .with_max_iters(TOLERANCE_CAP)
-        .with_null_space(problem.spec.operator.null_space());
+        .with_null_space(problem.spec.operator.null_space())
+        .with_require_convergence(false);
     let (_, info) = cg_solve(&problem.operator, problem.b.view().into_dyn(), &params)
         .map_err(OpsError::from)?;
-    Ok(info.iterations)
+    if info.reached_cap() {
+        if let Some(e) = info.failure(T::NAME) {
+            return Err(OpsError::from(e).into());
+        }
+    }
+    Ok(info)
 }
 
 fn convergence_row<T: Real>(problem: &Problem<T>) -> ConvergenceCount {
-    let result = convergence_iterations(problem);
+    let result = convergence_solve(problem);
     ConvergenceCount {
         n: problem.spec.n,
         operator: problem.spec.operator.label(),
         precision: T::NAME.to_string(),
         rtol: converged_rtol::<T>(),
-        iterations: result.as_ref().ok().copied(),
+        iterations: result.as_ref().ok().map(|i| i.iterations),
+        reached_relative_residual: result.as_ref().ok().map(|i| i.relative_residual),
         error: result.err().map(|e| e.to_string()),
     }
 }

@@ -216,3 +216,49 @@ fn naive_tape_grows_seven_arrays_per_iteration_and_implicit_does_not() {
     );
     assert!(implicit[0] < 7 * array, "{implicit:?}");
 }
+
+/// A tolerance below f32's rounding floor is measured, not failed, and its row
+/// carries the residual reached; f64 reaches the same tolerance; a solve that
+/// runs into the iteration cap is still a failed row.
+#[test]
+fn tolerance_rows_report_the_residual_reached() {
+    use diffphys_compare::harness::measure;
+    use diffphys_compare::methods::implicit::ImplicitSolve;
+    let stop = |max_iters| Stop::Tolerance {
+        rtol: 1e-8,
+        max_iters,
+    };
+    let spec = ProblemSpec::laplacian(64);
+    let (row, _) = measure(
+        &ImplicitSolve,
+        &Problem::<f32>::new(spec).unwrap(),
+        Some(stop(20_000)),
+        None,
+        None,
+    );
+    assert!(row.error.is_none(), "{row:?}");
+    assert_eq!(row.rtol, Some(1e-8));
+    let reached = row.reached_relative_residual.unwrap();
+    assert!(reached > 1e-6, "f32 at 64² cannot reach 1e-8: {reached:e}");
+    let (row, _) = measure(
+        &ImplicitSolve,
+        &Problem::<f64>::new(spec).unwrap(),
+        Some(stop(20_000)),
+        None,
+        None,
+    );
+    let reached = row.reached_relative_residual.unwrap();
+    assert!(reached <= 1.01e-8, "f64 reaches 1e-8: {reached:e}");
+    let (row, _) = measure(
+        &ImplicitSolve,
+        &Problem::<f64>::new(spec).unwrap(),
+        Some(stop(5)),
+        None,
+        None,
+    );
+    let error = row.error.unwrap_or_default();
+    assert!(
+        error.contains("did not converge in 5 iterations"),
+        "{error}"
+    );
+}

@@ -1,15 +1,16 @@
 //! Upwind and semi-Lagrangian advection through the facade: each fused op against
 //! the same scheme written in tape primitives (its reference), finite-difference
 //! gradient checks for both inputs on both boundary kinds with positive, negative
-//! and mixed velocities, the dot-product test of the field adjoints, and CFL errors.
+//! and mixed velocities (2D upwind also with closed walls in y), the dot-product
+//! test of the field adjoints (1D and 2D, both schemes), and CFL errors.
 
 mod common;
 
 use common::*;
 use diffphys::ops::advection::{
-    semi_lagrangian_1d, semi_lagrangian_1d_tape, semi_lagrangian_2d, semi_lagrangian_2d_tape,
-    semi_lagrangian_2d_vjp, upwind_1d, upwind_1d_tape, upwind_1d_vjp, upwind_2d, upwind_2d_tape,
-    AdvectionParams, Wants,
+    semi_lagrangian_1d, semi_lagrangian_1d_tape, semi_lagrangian_1d_vjp, semi_lagrangian_2d,
+    semi_lagrangian_2d_tape, semi_lagrangian_2d_vjp, upwind_1d, upwind_1d_tape, upwind_1d_vjp,
+    upwind_2d, upwind_2d_tape, upwind_2d_vjp, AdvectionParams, Wants,
 };
 use diffphys::{Boundary, Grid1, Grid2, OpsError};
 use ndarray::{Array1, Array3, ArrayViewD, Ix1, Ix2, Ix3};
@@ -179,10 +180,76 @@ fn upwind_field_adjoint_passes_the_dot_product_test<T: Real>() {
     }
 }
 
+/// The 2D upwind field adjoint by the dot-product test, on every boundary kind
+/// and with closed walls in y only (periodic in x).
+fn upwind_2d_field_adjoint_passes_the_dot_product_test<T: Real>() {
+    let grids = [
+        Grid2::new(7, 5, 0.1, 0.15, Boundary::Periodic).unwrap(),
+        Grid2::new(7, 5, 0.1, 0.15, Boundary::ZeroDirichlet).unwrap(),
+        Grid2::new(7, 5, 0.1, 0.15, Boundary::Closed).unwrap(),
+        Grid2::new(7, 5, 0.1, 0.15, Boundary::Periodic)
+            .unwrap()
+            .with_boundaries(Boundary::Periodic, Boundary::Closed),
+    ];
+    for grid in grids {
+        let p = AdvectionParams::new(0.03);
+        let u = velocity::<T>(&[2, 7, 5], 40, 0.0, 1.5)
+            .into_dimensionality::<Ix3>()
+            .unwrap();
+        let apply = |x: ArrayViewD<'_, T>| {
+            upwind_2d(&grid, &p, x.into_dimensionality().unwrap(), u.view())
+                .unwrap()
+                .into_dyn()
+        };
+        let transpose = |y: ArrayViewD<'_, T>| {
+            let z = ndarray::Array2::zeros((7, 5));
+            let wants = Wants {
+                field: true,
+                velocity: false,
+            };
+            let y = y.into_dimensionality::<Ix2>().unwrap();
+            upwind_2d_vjp(&grid, &p, z.view(), u.view(), y, wants)
+                .unwrap()
+                .field
+                .unwrap()
+                .into_dyn()
+        };
+        let x = random_field::<T>(&[7, 5], 41);
+        let y = random_field::<T>(&[7, 5], 42);
+        let report = check_adjoint(apply, transpose, x.view(), y.view()).unwrap();
+        assert_adjoint_ok::<T>(&report);
+    }
+}
+
 both_precisions!(
     upwind_op_matches_its_primitive_chain,
-    upwind_field_adjoint_passes_the_dot_product_test
+    upwind_field_adjoint_passes_the_dot_product_test,
+    upwind_2d_field_adjoint_passes_the_dot_product_test
 );
+
+/// 2D upwind with closed walls in y (zero flux through them) and periodic or
+/// closed in x: gradients in the field and the velocity against finite
+/// differences, for velocities of each sign.
+#[test]
+fn upwind_2d_with_closed_walls_in_y_matches_finite_differences() {
+    for bx in [Boundary::Periodic, Boundary::Closed] {
+        for sign in [1.0, -1.0, 0.0] {
+            let grid = Grid2::new(6, 5, 0.1, 0.15, bx)
+                .unwrap()
+                .with_boundaries(bx, Boundary::Closed);
+            let p = AdvectionParams::new(0.04);
+            let d = random_field::<f64>(&[6, 5], 43);
+            let u = velocity::<f64>(&[2, 6, 5], 44, sign, 1.5);
+            assert_gradient(
+                |_, v| {
+                    let d1 = upwind_2d_tape(&grid, &p, v[0], v[1])?;
+                    upwind_2d_tape(&grid, &p, d1, v[1]).map_err(Into::into)
+                },
+                &[d, u],
+            );
+        }
+    }
+}
 
 #[test]
 fn upwind_gradients_match_finite_differences() {
@@ -302,7 +369,48 @@ fn semi_lagrangian_field_adjoint_passes_the_dot_product_test<T: Real>() {
     }
 }
 
-both_precisions!(semi_lagrangian_field_adjoint_passes_the_dot_product_test);
+/// The 1D semi-Lagrangian field adjoint by the dot-product test, on every
+/// boundary kind, with displacements of several cells either way.
+fn semi_lagrangian_1d_field_adjoint_passes_the_dot_product_test<T: Real>() {
+    for b in [
+        Boundary::Periodic,
+        Boundary::Closed,
+        Boundary::ZeroDirichlet,
+    ] {
+        let grid = Grid1::new(15, 0.2, 0.0, b).unwrap();
+        let u = velocity::<T>(&[15], 50, 0.0, 1.3)
+            .into_dimensionality::<Ix1>()
+            .unwrap();
+        let dt = 0.5; // up to 3.25 cells
+        let apply = |x: ArrayViewD<'_, T>| {
+            semi_lagrangian_1d(&grid, dt, x.into_dimensionality().unwrap(), u.view())
+                .unwrap()
+                .into_dyn()
+        };
+        let transpose = |y: ArrayViewD<'_, T>| {
+            let z = Array1::zeros(15);
+            let wants = Wants {
+                field: true,
+                velocity: false,
+            };
+            let y = y.into_dimensionality::<Ix1>().unwrap();
+            semi_lagrangian_1d_vjp(&grid, dt, z.view(), u.view(), y, wants)
+                .unwrap()
+                .field
+                .unwrap()
+                .into_dyn()
+        };
+        let x = random_field::<T>(&[15], 51);
+        let y = random_field::<T>(&[15], 52);
+        let report = check_adjoint(apply, transpose, x.view(), y.view()).unwrap();
+        assert_adjoint_ok::<T>(&report);
+    }
+}
+
+both_precisions!(
+    semi_lagrangian_field_adjoint_passes_the_dot_product_test,
+    semi_lagrangian_1d_field_adjoint_passes_the_dot_product_test
+);
 
 #[test]
 fn upwind_at_courant_one_and_semi_lagrangian_at_whole_cells_shift_exactly() {

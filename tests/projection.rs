@@ -139,7 +139,7 @@ fn pressure_operator_is_minus_div_grad<T: Real>() {
         assert_adjoint_ok::<T>(&report);
         // <p, A p> = ‖G p‖² ≥ 0 (the fused dot agrees).
         let mut out = ArrayD::zeros(IxDyn(&mac.cell_shape()));
-        let curvature = a.apply_into_dot(p.view(), out.view_mut()).as_f64();
+        let curvature = a.apply_into_dot(p.view(), out.view_mut());
         let grad_sq = dot(&gx, &gx) + dot(&gy, &gy);
         let inactive: f64 = mac.mask().map_or(0.0, |m| {
             p.iter()

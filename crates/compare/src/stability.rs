@@ -26,7 +26,7 @@
 use std::path::Path;
 
 use diffphys_ops::advection::{upwind_1d_tape, AdvectionParams};
-use diffphys_ops::cg::{cg_solve, CgParams};
+use diffphys_ops::cg::{cg_solve, CgInfo, CgParams};
 use diffphys_ops::{Boundary, Grid1, OpsError};
 use diffphys_tape::{Real, Tape, TapeError, Var};
 use indicatif::ProgressBar;
@@ -209,6 +209,10 @@ pub struct ConvergenceCount {
     pub rtol: f64,
     /// Iterations the solver of the implicit path needed; `None` if it failed.
     pub iterations: Option<usize>,
+    /// The relative residual it reached (above `rtol` where that lies below the
+    /// precision's rounding floor); `None` if it failed.
+    #[serde(default)]
+    pub reached_relative_residual: Option<f64>,
     /// Its error, if it failed.
     pub error: Option<String>,
 }
@@ -297,29 +301,45 @@ fn norm<T: Real>(a: impl IntoIterator<Item = T> + Clone) -> f64 {
             .sqrt()
 }
 
-/// Iterations the solver of the implicit path needs on `problem` to reach
-/// [`converged_rtol`].
+/// Iterations the solver of the implicit path needs on `problem` to converge:
+/// to reach [`converged_rtol`], or, where that lies below the rounding floor of
+/// `T` (f32 on 64² and larger), to stall at the floor
+/// ([`diffphys_ops::cg::CgInfo::rounding_floor`]): either way the iterate is
+/// converged to what `T` resolves.
 ///
 /// # Errors
-/// The solver's error.
+/// The solver's error, and [`diffphys_ops::cg::CgError::NoConvergence`] if it
+/// ran into [`TOLERANCE_CAP`].
 pub fn convergence_iterations<T: Real>(problem: &Problem<T>) -> Result<usize> {
+    convergence_solve(problem).map(|info| info.iterations)
+}
+
+/// The solve behind [`convergence_iterations`].
+fn convergence_solve<T: Real>(problem: &Problem<T>) -> Result<CgInfo> {
     let params = CgParams::default()
         .with_rel_tol(converged_rtol::<T>())
         .with_max_iters(TOLERANCE_CAP)
-        .with_null_space(problem.spec.operator.null_space());
+        .with_null_space(problem.spec.operator.null_space())
+        .with_require_convergence(false);
     let (_, info) = cg_solve(&problem.operator, problem.b.view().into_dyn(), &params)
         .map_err(OpsError::from)?;
-    Ok(info.iterations)
+    if info.reached_cap() {
+        if let Some(e) = info.failure(T::NAME) {
+            return Err(OpsError::from(e).into());
+        }
+    }
+    Ok(info)
 }
 
 fn convergence_row<T: Real>(problem: &Problem<T>) -> ConvergenceCount {
-    let result = convergence_iterations(problem);
+    let result = convergence_solve(problem);
     ConvergenceCount {
         n: problem.spec.n,
         operator: problem.spec.operator.label(),
         precision: T::NAME.to_string(),
         rtol: converged_rtol::<T>(),
-        iterations: result.as_ref().ok().copied(),
+        iterations: result.as_ref().ok().map(|i| i.iterations),
+        reached_relative_residual: result.as_ref().ok().map(|i| i.relative_residual),
         error: result.err().map(|e| e.to_string()),
     }
 }
@@ -975,7 +995,7 @@ pub fn findings(r: &StabilityResults) -> Vec<String> {
         .rows
         .iter()
         .filter(|x| x.study == "unconverged" && x.variant.as_deref() == Some("adjoint tight"))
-        .filter_map(|x| Some(x.row.grad_rel_err? / x.row.forward_residual?))
+        .filter_map(|x| Some(x.row.grad_rel_err? / x.row.reached_relative_residual?))
         .filter(|v| v.is_finite())
         .collect();
     if !ratios.is_empty() {
@@ -1117,13 +1137,13 @@ pub fn write_stability_charts(
             .rows
             .iter()
             .filter(|r| r.study == "unconverged" && r.variant.as_deref() == Some(variant))
-            .filter_map(|r| Some((r.row.forward_residual?, r.row.grad_rel_err?)))
+            .filter_map(|r| Some((r.row.reached_relative_residual?, r.row.grad_rel_err?)))
             .collect();
         series.push(Series::new(format!("implicit, {variant}"), sorted(pts)));
     }
     let pts = study(&results.rows, "unconverged")
         .filter(|r| r.method == "naive")
-        .filter_map(|r| Some((r.forward_residual?, r.grad_rel_err?)))
+        .filter_map(|r| Some((r.reached_relative_residual?, r.grad_rel_err?)))
         .collect();
     series.push(Series::new("naive (fixed iterations)", sorted(pts)));
     series.push(Series::new(
@@ -1446,7 +1466,7 @@ pub fn stability_key_figures(
         .rows
         .iter()
         .filter(|x| x.study == "unconverged" && x.variant.as_deref() == Some("adjoint tight"))
-        .filter_map(|x| Some(x.row.grad_rel_err? / x.row.forward_residual?))
+        .filter_map(|x| Some(x.row.grad_rel_err? / x.row.reached_relative_residual?))
         .collect();
     if let Some(o) = v.as_object_mut() {
         o.insert("mode".into(), "stability".into());

@@ -180,3 +180,85 @@ fn fixed_iterations_truncate_both_methods_alike_in_the_forward() {
     let diff = rel_err(&naive.gradient, &implicit.gradient);
     assert!(diff > 1e-3, "gradients unexpectedly close: {diff:e}");
 }
+
+/// The naive tape holds seven grid arrays per CG iteration (`A p`, `α p`,
+/// `x`, `α A p`, `r`, `β p`, `p`) plus its scalars (`<p, A p>`, `α`, `‖r‖²`,
+/// `β`), so its bytes grow linearly in the iteration count, by between 7 arrays
+/// and 7 arrays + 8 scalars per iteration; the implicit tape holds the same
+/// few arrays whatever the count.
+#[test]
+fn naive_tape_grows_seven_arrays_per_iteration_and_implicit_does_not() {
+    use diffphys_compare::harness::naive_bytes_per_iteration;
+    use diffphys_compare::methods::implicit::ImplicitSolve;
+    let n = 16;
+    let problem = Problem::<f64>::new(ProblemSpec::laplacian(n)).unwrap();
+    let scalar = std::mem::size_of::<f64>();
+    let array = n * n * scalar;
+    assert_eq!(naive_bytes_per_iteration::<f64>(n), 7 * array);
+    let counts = [10, 20, 40];
+    let tape =
+        |m: &dyn GradientMethod<f64>, k| m.run(&problem, Stop::Iterations(k)).unwrap().tape_bytes;
+    let naive: Vec<usize> = counts
+        .iter()
+        .map(|&k| tape(&NaiveUnrolled::default(), k))
+        .collect();
+    let implicit: Vec<usize> = counts.iter().map(|&k| tape(&ImplicitSolve, k)).collect();
+    for (a, b) in [(0, 1), (1, 2)] {
+        let per_iteration = (naive[b] - naive[a]) / (counts[b] - counts[a]);
+        assert!(
+            (7 * array..=7 * array + 8 * scalar).contains(&per_iteration),
+            "naive: {per_iteration} bytes per iteration, {array} per array ({naive:?})"
+        );
+    }
+    assert!(
+        implicit.iter().all(|&b| b == implicit[0]),
+        "implicit tape depends on the iteration count: {implicit:?}"
+    );
+    assert!(implicit[0] < 7 * array, "{implicit:?}");
+}
+
+/// A tolerance below f32's rounding floor is measured, not failed, and its row
+/// carries the residual reached; f64 reaches the same tolerance; a solve that
+/// runs into the iteration cap is still a failed row.
+#[test]
+fn tolerance_rows_report_the_residual_reached() {
+    use diffphys_compare::harness::measure;
+    use diffphys_compare::methods::implicit::ImplicitSolve;
+    let stop = |max_iters| Stop::Tolerance {
+        rtol: 1e-8,
+        max_iters,
+    };
+    let spec = ProblemSpec::laplacian(64);
+    let (row, _) = measure(
+        &ImplicitSolve,
+        &Problem::<f32>::new(spec).unwrap(),
+        Some(stop(20_000)),
+        None,
+        None,
+    );
+    assert!(row.error.is_none(), "{row:?}");
+    assert_eq!(row.rtol, Some(1e-8));
+    let reached = row.reached_relative_residual.unwrap();
+    assert!(reached > 1e-6, "f32 at 64² cannot reach 1e-8: {reached:e}");
+    let (row, _) = measure(
+        &ImplicitSolve,
+        &Problem::<f64>::new(spec).unwrap(),
+        Some(stop(20_000)),
+        None,
+        None,
+    );
+    let reached = row.reached_relative_residual.unwrap();
+    assert!(reached <= 1.01e-8, "f64 reaches 1e-8: {reached:e}");
+    let (row, _) = measure(
+        &ImplicitSolve,
+        &Problem::<f64>::new(spec).unwrap(),
+        Some(stop(5)),
+        None,
+        None,
+    );
+    let error = row.error.unwrap_or_default();
+    assert!(
+        error.contains("did not converge in 5 iterations"),
+        "{error}"
+    );
+}

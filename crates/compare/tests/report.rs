@@ -128,7 +128,7 @@ fn tiny_sweep_writes_table_json_report_and_charts() {
     assert_eq!(baseline.len(), 4);
     assert!(baseline
         .iter()
-        .all(|r| r.forward_residual.unwrap() <= 1e-6 * 1.0001));
+        .all(|r| r.reached_relative_residual.unwrap() <= 1e-6 * 1.0001));
 
     // The exact and implicit methods ran and were compared with the f64 exact
     // gradient; the f64 exact row is its own reference.
@@ -161,7 +161,7 @@ fn tiny_sweep_writes_table_json_report_and_charts() {
         assert!(text.contains("<svg"), "{file}");
     }
     // Charts without data are notes, not failures.
-    assert_eq!(charts.len() + notes.len(), 4, "{charts:?} {notes:?}");
+    assert_eq!(charts.len() + notes.len(), 5, "{charts:?} {notes:?}");
     assert!(charts.iter().any(|(f, _)| f == "memory_vs_iterations.svg"));
 
     let report = Report {

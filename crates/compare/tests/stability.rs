@@ -126,7 +126,10 @@ fn unconverged_implicit_error_tracks_the_forward_residual() {
     let mut last = f64::INFINITY;
     for rtol in [1e-2, 1e-4, 1e-6, 1e-8] {
         let (row, _) = measure(&tight, &problem, Some(tol(rtol)), None, Some(&g));
-        let (err, res) = (row.grad_rel_err.unwrap(), row.forward_residual.unwrap());
+        let (err, res) = (
+            row.grad_rel_err.unwrap(),
+            row.reached_relative_residual.unwrap(),
+        );
         assert!(res <= rtol * 1.01, "residual {res:e} above rtol {rtol:e}");
         // The error is of the order of the residual: never far above it.
         assert!(
@@ -167,6 +170,11 @@ fn initial_guess_gradient_is_zero_for_implicit_and_not_for_naive() {
         );
         assert!(gb.iter().any(|&v| v != 0.0));
     }
+    // Solved to a tolerance from the initial guess, ∂L/∂b is the exact gradient.
+    let exact = ExactCholesky.run(&problem, Stop::Iterations(0)).unwrap();
+    let (_, gb, _) = implicit_initial_guess_gradient(&problem, tol(1e-10), &x0).unwrap();
+    let err = relative_error(&gb, &exact.gradient).unwrap();
+    assert!(err < 1e-8, "warm-started implicit ∂L/∂b vs exact: {err:e}");
     // Naive: the derivative of the truncated iteration, non-zero, and it agrees
     // with a central difference of the naive loss in x0.
     let stop = Stop::Iterations(5);

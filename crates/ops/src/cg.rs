@@ -25,7 +25,9 @@
 //! One iteration makes three passes over memory: `q = A p` fused with `<p, q>`
 //! ([`LinearOperator::apply_into_dot`]); `r −= α q` fused with `<r, r>` (and the
 //! preconditioned residual and the null-space sums); `x += α p` fused with
-//! `p = z + β p`. Dot products accumulate in `f64` over four lanes. All vectors
+//! `p = z + β p`. Every dot product accumulates in `f64`: the solver's own
+//! over four lanes, the curvature inside the operator's kernel
+//! ([`LinearOperator::apply_into_dot`] returns it as `f64`). All vectors
 //! are allocated before the first iteration; the loop allocates nothing.
 //!
 //! The system is solved in normalised form, `A x̂ = b / ‖b‖`, and scaled back,
@@ -33,7 +35,16 @@
 //! When the recurrence residual meets the tolerance, the true residual
 //! `b − A x` is recomputed; if it has drifted above the tolerance, CG restarts
 //! from it (up to [`CgParams::max_restarts`] times, while restarts still gain at
-//! least a factor 2). [`CgInfo`] reports the true residual.
+//! least a factor 2). [`CgInfo`] reports the true residual, and
+//! [`CgInfo::converged`] says whether that true residual met the tolerance.
+//!
+//! A tolerance below the rounding floor of the precision (about `ε·κ(A)`
+//! relative) cannot be met: the true residual stalls near the floor while the
+//! recurrence keeps falling. Such a solve ends in
+//! [`CgError::BelowRoundingFloor`] when convergence is required, and otherwise
+//! returns with [`CgInfo::converged`] false and [`CgInfo::rounding_floor`] set;
+//! both name the requested tolerance, the reached residual and the estimated
+//! floor.
 //!
 //! # References
 //! - M. R. Hestenes and E. Stiefel, *Methods of conjugate gradients for solving
@@ -48,6 +59,7 @@ use diffphys_tape::Real;
 use ndarray::{ArrayD, ArrayViewD, ArrayViewMutD, IxDyn};
 use thiserror::Error;
 
+use crate::linear::wide;
 use crate::{CellMask, LinearOperator};
 
 /// The preconditioner `M ≈ A` that CG applies as `z = M⁻¹ r`.
@@ -103,8 +115,10 @@ pub struct CgParams {
     /// Keep the residual norm of every iteration in [`CgInfo::history`].
     pub record_history: bool,
     /// If true (the default), reaching the cap without meeting the tolerance is
-    /// [`CgError::NoConvergence`]; if false it returns the last iterate with
-    /// [`CgInfo::converged`] false (for fixed iteration counts).
+    /// [`CgError::NoConvergence`], and a tolerance below the rounding floor is
+    /// [`CgError::BelowRoundingFloor`]; if false both return the last iterate
+    /// with [`CgInfo::converged`] false (and [`CgInfo::rounding_floor`] set for
+    /// the floor), for fixed iteration counts and measurements.
     pub require_convergence: bool,
     /// Restarts from the recomputed residual allowed when the recurrence has
     /// drifted from the true residual (default 1).
@@ -157,6 +171,12 @@ impl CgParams {
         self
     }
 
+    /// With [`CgParams::require_convergence`] set to `require`.
+    pub fn with_require_convergence(mut self, require: bool) -> Self {
+        self.require_convergence = require;
+        self
+    }
+
     /// Recording the residual history.
     pub fn with_history(mut self) -> Self {
         self.record_history = true;
@@ -185,17 +205,61 @@ pub struct CgInfo {
     /// The true residual `‖b − A x‖` of the returned `x`, recomputed at the end
     /// (`b` projected onto the range for a singular operator).
     pub residual_norm: f64,
-    /// `‖b − A x‖ / ‖b‖` (`0` for `b = 0`). It can exceed `rel_tol` after
-    /// convergence only when the tolerance lies below the rounding floor of the
-    /// precision (about `ε·κ(A)`), where restarts no longer help.
+    /// `‖b − A x‖ / ‖b‖` (`0` for `b = 0`): the relative residual reached.
     pub relative_residual: f64,
-    /// Whether the stopping test was met (always true unless
+    /// The relative tolerance that applied, `max(rel_tol, abs_tol/‖b‖)`: the
+    /// relative residual that was asked for.
+    pub tolerance: f64,
+    /// Whether the true residual met the tolerance,
+    /// `relative_residual ≤ tolerance` (always true unless
     /// [`CgParams::require_convergence`] is false).
     pub converged: bool,
+    /// Set when the solve stopped short of the tolerance because the true
+    /// residual stalled near the rounding floor of the precision (the recurrence
+    /// met the tolerance, the recomputed residual did not, and restarting could
+    /// not help): the estimated floor, relative to `‖b‖`. `None` when the
+    /// tolerance was met or the iteration cap was reached.
+    pub rounding_floor: Option<f64>,
     /// Restarts from the recomputed residual.
     pub restarts: usize,
     /// The recurrence residual `‖r_k‖` for `k = 0..=iterations`, if asked for.
     pub history: Option<Vec<f64>>,
+}
+
+impl CgInfo {
+    /// True if the solve ran into the iteration cap: neither converged nor
+    /// stopped at the rounding floor.
+    pub fn reached_cap(&self) -> bool {
+        !self.converged && self.rounding_floor.is_none()
+    }
+
+    /// The error a solve with [`CgParams::require_convergence`] would have
+    /// returned ([`CgError::NoConvergence`] or [`CgError::BelowRoundingFloor`]),
+    /// for a caller that ran without it to inspect the outcome; `None` if the
+    /// solve converged. `precision` names the scalar type in the message.
+    pub fn failure(&self, precision: &str) -> Option<CgError> {
+        if self.converged {
+            return None;
+        }
+        // Not converged: relative_residual > tolerance ≥ 0, so ‖b‖ is recoverable.
+        let b_norm = self.residual_norm / self.relative_residual;
+        Some(match self.rounding_floor {
+            None => CgError::NoConvergence {
+                iterations: self.iterations,
+                residual: self.residual_norm,
+                relative_residual: self.relative_residual,
+                target: self.tolerance * b_norm,
+            },
+            Some(floor) => CgError::BelowRoundingFloor {
+                precision: precision.to_string(),
+                requested: self.tolerance,
+                reached: self.relative_residual,
+                floor,
+                iterations: self.iterations,
+                restarts: self.restarts,
+            },
+        })
+    }
 }
 
 /// Why [`conjugate_gradient`] failed. Every failure is detected and named; CG
@@ -218,6 +282,34 @@ pub enum CgError {
         relative_residual: f64,
         /// The residual that was asked for, `max(rel_tol·‖b‖, abs_tol)`.
         target: f64,
+    },
+    /// The tolerance lies below what the precision can reach on this system:
+    /// the recurrence residual met it, but the true residual `‖b − A x‖`,
+    /// recomputed, stalled above it near the rounding floor, where restarting
+    /// no longer gains. The solution array holds the last iterate, which is
+    /// converged to working precision. Returned only with
+    /// [`CgParams::require_convergence`]; otherwise [`CgInfo::rounding_floor`]
+    /// flags the same outcome.
+    #[error(
+        "conjugate gradient cannot reach the relative residual {requested:.1e} in {precision}: \
+         the true residual stalled at {reached:.3e} after {iterations} iterations ({restarts} \
+         restarts), near the estimated rounding floor {floor:.1e}; ask for a tolerance above \
+         the floor, or solve in higher precision"
+    )]
+    BelowRoundingFloor {
+        /// `f32` or `f64`.
+        precision: String,
+        /// The relative tolerance asked for, `max(rel_tol, abs_tol/‖b‖)`.
+        requested: f64,
+        /// The true relative residual `‖b − A x‖/‖b‖` reached.
+        reached: f64,
+        /// The estimated rounding floor of the relative residual,
+        /// `ε·‖diag(A) ⊙ x‖/‖b‖`.
+        floor: f64,
+        /// Iterations performed.
+        iterations: usize,
+        /// Restarts from the recomputed residual.
+        restarts: usize,
     },
     /// A direction `p` with `<p, A p> ≤ 0` (or a non-positive diagonal entry for
     /// Jacobi): the operator is not positive definite, or it is singular and no
@@ -297,7 +389,9 @@ impl CgError {
 /// (then `x` is untouched); [`CgError::NonFinite`] for NaN or infinity in `b`, in
 /// `x`, or in the recurrences; [`CgError::NotPositiveDefinite`] for a
 /// non-positive curvature; [`CgError::Breakdown`]; [`CgError::NoConvergence`]
-/// when the cap is reached first (then `x` holds the last iterate).
+/// when the cap is reached first and [`CgError::BelowRoundingFloor`] when the
+/// tolerance lies below the precision's rounding floor (both only with
+/// [`CgParams::require_convergence`]; then `x` holds the last iterate).
 pub fn conjugate_gradient<T: Real, A: LinearOperator<T> + ?Sized>(
     op: &A,
     b: ArrayViewD<'_, T>,
@@ -385,13 +479,6 @@ fn validate<T: Real, A: LinearOperator<T> + ?Sized>(
 }
 
 const LANES: usize = 4;
-
-/// `x` in f64 for the reductions. (`Real::as_f64` is not `#[inline]` across
-/// crates, which keeps these loops from vectorising; num-traits' conversion is.)
-#[inline(always)]
-fn wide<T: Real>(x: T) -> f64 {
-    x.to_f64().unwrap_or(f64::NAN)
-}
 
 /// A restart needs the true residual above this multiple of its estimated
 /// rounding floor. Measured on 64² Laplacians: when the recurrence converges in
@@ -596,6 +683,18 @@ enum Stop {
     Cap,
 }
 
+/// How a whole solve (iterations and restarts) ended.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Outcome {
+    /// The true residual met the tolerance.
+    Converged,
+    /// The iteration cap.
+    Cap,
+    /// The recurrence met the tolerance, the true residual stalled above it and
+    /// restarting could not help; the estimated relative rounding floor.
+    Stalled(f64),
+}
+
 /// The working state of one solve: all vectors, allocated once.
 struct Solver<'a, T: Real, A: ?Sized> {
     op: &'a A,
@@ -685,8 +784,8 @@ impl<'a, T: Real, A: LinearOperator<T> + ?Sized> Solver<'a, T, A> {
         self.kk > 0.0
     }
 
-    /// `y = A x` on slices.
-    fn apply(&self, x: &[T], y: &mut [T]) -> T {
+    /// `y = A x` on slices, returning `<x, A x>` (in f64).
+    fn apply(&self, x: &[T], y: &mut [T]) -> f64 {
         let xv = ArrayViewD::from_shape(IxDyn(&self.shape), x).expect("length matches shape");
         let yv = ArrayViewMutD::from_shape(IxDyn(&self.shape), y).expect("length matches shape");
         self.op.apply_into_dot(xv, yv)
@@ -791,7 +890,7 @@ impl<'a, T: Real, A: LinearOperator<T> + ?Sized> Solver<'a, T, A> {
         while self.iterations < self.max_iters {
             let it = self.iterations;
             let mut q = std::mem::take(&mut self.q);
-            let pq = self.apply(&self.p, &mut q).as_f64();
+            let pq = self.apply(&self.p, &mut q);
             self.q = q;
             if !pq.is_finite() {
                 return Err(CgError::non_finite(it, "the curvature <p, A p>"));
@@ -908,7 +1007,9 @@ impl<'a, T: Real, A: LinearOperator<T> + ?Sized> Solver<'a, T, A> {
                 iterations: 0,
                 residual_norm: 0.0,
                 relative_residual: 0.0,
+                tolerance: self.params.rel_tol,
                 converged: true,
+                rounding_floor: None,
                 restarts: 0,
                 history: self.history.take().map(|mut h| {
                     h.push(0.0);
@@ -932,28 +1033,28 @@ impl<'a, T: Real, A: LinearOperator<T> + ?Sized> Solver<'a, T, A> {
             subtract_multiple(x, mx, k);
         }
         x.iter_mut().for_each(|v| *v *= s);
-        let (true_rel, converged, restarts) = outcome?;
-        let residual_norm = true_rel * b_norm;
-        if !converged && self.params.require_convergence {
-            return Err(CgError::NoConvergence {
-                iterations: self.iterations,
-                residual: residual_norm,
-                relative_residual: true_rel,
-                target: tol * b_norm,
-            });
-        }
-        Ok(CgInfo {
+        let (true_rel, outcome, restarts) = outcome?;
+        let info = CgInfo {
             iterations: self.iterations,
-            residual_norm,
+            residual_norm: true_rel * b_norm,
             relative_residual: true_rel,
-            converged,
+            tolerance: tol,
+            converged: outcome == Outcome::Converged,
+            rounding_floor: match outcome {
+                Outcome::Stalled(floor) => Some(floor),
+                _ => None,
+            },
             restarts,
             history: self.history.take(),
-        })
+        };
+        match info.failure(T::NAME) {
+            Some(e) if self.params.require_convergence => Err(e),
+            _ => Ok(info),
+        }
     }
 
     /// The iterations and restarts on the normalised system; returns the true
-    /// relative residual, whether the stopping test was met, and the restarts.
+    /// relative residual, how the solve ended, and the restarts.
     #[allow(clippy::too_many_arguments)]
     fn run(
         &mut self,
@@ -964,14 +1065,14 @@ impl<'a, T: Real, A: LinearOperator<T> + ?Sized> Solver<'a, T, A> {
         x_zero: bool,
         tol: f64,
         b_norm: f64,
-    ) -> Result<(f64, bool, usize), CgError> {
+    ) -> Result<(f64, Outcome, usize), CgError> {
         let mut sums = self.true_residual(b, b_mean, s, x, x_zero);
         let (mut rr, mut rz) = self.checked(sums)?;
         if let Some(h) = &mut self.history {
             h.push(rr.sqrt() * b_norm);
         }
         if rr.sqrt() <= tol || rr == 0.0 {
-            return Ok((rr.sqrt(), true, 0));
+            return Ok((rr.sqrt(), Outcome::Converged, 0));
         }
         let mut restarts = 0;
         let mut last_true = f64::INFINITY;
@@ -982,25 +1083,27 @@ impl<'a, T: Real, A: LinearOperator<T> + ?Sized> Solver<'a, T, A> {
             (rr, rz) = self.checked(sums)?;
             let true_rel = rr.sqrt();
             if true_rel <= tol || rr == 0.0 {
-                return Ok((true_rel, true, restarts));
+                return Ok((true_rel, Outcome::Converged, restarts));
             }
             match stop {
-                Stop::Cap => return Ok((true_rel, false, restarts)),
+                Stop::Cap => return Ok((true_rel, Outcome::Cap, restarts)),
                 Stop::Converged => {
                     // The recurrence met the tolerance, the true residual did not:
-                    // restart from it while that still gains a factor 2 and the
-                    // residual lies clearly above its rounding floor (below that,
-                    // restarting only recomputes rounding errors).
+                    // restart from it while that still gains a factor 2 and either
+                    // the residual lies clearly above its rounding floor or the
+                    // tolerance lies above the floor (below both, restarting only
+                    // recomputes rounding errors).
                     let gaining = true_rel < 0.5 * last_true;
+                    let floor = self.rounding_floor(x);
                     if restarts < self.params.max_restarts
                         && self.iterations < self.max_iters
                         && gaining
-                        && true_rel > RESTART_ABOVE_FLOOR * self.rounding_floor(x)
+                        && (true_rel > RESTART_ABOVE_FLOOR * floor || tol >= floor)
                     {
                         restarts += 1;
                         last_true = true_rel;
                     } else {
-                        return Ok((true_rel, true, restarts));
+                        return Ok((true_rel, Outcome::Stalled(floor), restarts));
                     }
                 }
             }

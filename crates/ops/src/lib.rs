@@ -7,6 +7,7 @@
 
 pub mod advection;
 pub mod cg;
+pub mod conductivity;
 pub mod dense;
 mod error;
 pub mod grid;

@@ -5,6 +5,14 @@ use ndarray::{ArrayD, ArrayViewD, ArrayViewMutD, IxDyn};
 
 use crate::{OpsError, Result};
 
+/// `x` in `f64`, for reductions. (`Real::as_f64` is not `#[inline]` across
+/// crates, which keeps reduction loops from vectorising; num-traits'
+/// conversion is.)
+#[inline(always)]
+pub(crate) fn wide<T: Real>(x: T) -> f64 {
+    x.to_f64().unwrap_or(f64::NAN)
+}
+
 /// A linear map `A: ℝ^{input_shape} → ℝ^{output_shape}` given by its action and the
 /// action of its transpose, never by its matrix.
 ///
@@ -30,14 +38,16 @@ pub trait LinearOperator<T: Real> {
     /// `out = Aᵀ y`, shapes as in [`LinearOperator::apply_into`] but swapped.
     fn apply_transpose_into(&self, y: ArrayViewD<'_, T>, out: ArrayViewMutD<'_, T>);
 
-    /// `out = A x`, returning `<x, A x>`: the curvature that conjugate gradient
-    /// needs each iteration. Stencils override this to compute the dot product in
-    /// the same pass over memory as the stencil; the default applies, then sums.
-    fn apply_into_dot(&self, x: ArrayViewD<'_, T>, mut out: ArrayViewMutD<'_, T>) -> T {
+    /// `out = A x`, returning `<x, A x>` accumulated in `f64` whatever `T`: the
+    /// curvature that conjugate gradient needs each iteration (summed in `T`, an
+    /// `f32` curvature over a large grid loses enough digits to cost CG a fifth
+    /// more iterations). Stencils override this to compute the dot product in the
+    /// same pass over memory as the stencil; the default applies, then sums.
+    fn apply_into_dot(&self, x: ArrayViewD<'_, T>, mut out: ArrayViewMutD<'_, T>) -> f64 {
         self.apply_into(x.view(), out.view_mut());
         ndarray::Zip::from(&x)
             .and(&out)
-            .fold(T::zero(), |acc, &a, &b| acc + a * b)
+            .fold(0.0, |acc, &a, &b| acc + wide(a) * wide(b))
     }
 
     /// True if `A = Aᵀ` (then solvers may use `apply` for both directions).

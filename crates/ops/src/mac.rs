@@ -41,6 +41,7 @@ use diffphys_tape::Real;
 use ndarray::{ArrayD, ArrayViewD, ArrayViewMutD, IxDyn};
 
 use crate::cg::NullSpace;
+use crate::linear::wide;
 use crate::stencil::Laplacian2;
 use crate::{Boundary, CellMask, Grid2, LinearOperator, OpsError, Result};
 
@@ -507,13 +508,14 @@ impl MacPoisson {
         }
     }
 
-    fn apply_slices<T: Real>(&self, x: ArrayViewD<'_, T>, mut out: ArrayViewMutD<'_, T>) -> T {
+    /// `out = A x`, returning `<x, A x>` accumulated in `f64`.
+    fn apply_slices<T: Real>(&self, x: ArrayViewD<'_, T>, mut out: ArrayViewMutD<'_, T>) -> f64 {
         let x = x.as_standard_layout();
         let xs = x.as_slice().expect("standard layout is contiguous");
         let dot = |o: &[T]| {
             xs.iter()
                 .zip(o)
-                .fold(T::zero(), |acc, (&a, &b)| acc + a * b)
+                .fold(0.0, |acc, (&a, &b)| acc + wide(a) * wide(b))
         };
         if let Some(o) = out.as_slice_mut() {
             self.run(xs, o);
@@ -544,7 +546,7 @@ impl<T: Real> LinearOperator<T> for MacPoisson {
     fn apply_transpose_into(&self, y: ArrayViewD<'_, T>, out: ArrayViewMutD<'_, T>) {
         self.apply_slices(y, out);
     }
-    fn apply_into_dot(&self, x: ArrayViewD<'_, T>, out: ArrayViewMutD<'_, T>) -> T {
+    fn apply_into_dot(&self, x: ArrayViewD<'_, T>, out: ArrayViewMutD<'_, T>) -> f64 {
         self.apply_slices(x, out)
     }
     fn is_symmetric(&self) -> bool {
@@ -633,7 +635,7 @@ impl<T: Real> LinearOperator<T> for PressureOperator {
     fn apply_transpose_into(&self, y: ArrayViewD<'_, T>, out: ArrayViewMutD<'_, T>) {
         delegate!(self, a => a.apply_transpose_into(y, out))
     }
-    fn apply_into_dot(&self, x: ArrayViewD<'_, T>, out: ArrayViewMutD<'_, T>) -> T {
+    fn apply_into_dot(&self, x: ArrayViewD<'_, T>, out: ArrayViewMutD<'_, T>) -> f64 {
         delegate!(self, a => a.apply_into_dot(x, out))
     }
     fn is_symmetric(&self) -> bool {

@@ -151,7 +151,7 @@ macro_rules! forward_linear_operator {
             fn apply_transpose_into(&self, y: ArrayViewD<'_, T>, out: ArrayViewMutD<'_, T>) {
                 (**self).apply_transpose_into(y, out)
             }
-            fn apply_into_dot(&self, x: ArrayViewD<'_, T>, out: ArrayViewMutD<'_, T>) -> T {
+            fn apply_into_dot(&self, x: ArrayViewD<'_, T>, out: ArrayViewMutD<'_, T>) -> f64 {
                 (**self).apply_into_dot(x, out)
             }
             fn is_symmetric(&self) -> bool {

@@ -4,6 +4,7 @@ use diffphys_tape::Real;
 use ndarray::{ArrayD, ArrayViewD, ArrayViewMutD, IxDyn};
 
 use super::{edge_indices, next, prev, push_row, with_slices, Ghost, Neighbour};
+use crate::linear::wide;
 use crate::{Grid1, Grid2, LinearOperator};
 
 /// `σ·x + kx·δ²ₓx + ky·δ²ᵧx` on a row-major `nx × ny` array, with
@@ -50,8 +51,9 @@ impl FivePoint {
         self.shift - 2.0 * (self.kx + self.ky)
     }
 
-    /// `out = A x`, returning `<x, A x>` when `DOT` (else zero).
-    pub(crate) fn run<T: Real, const DOT: bool>(&self, x: &[T], out: &mut [T]) -> T {
+    /// `out = A x`, returning `<x, A x>` accumulated in `f64` when `DOT` (else
+    /// zero).
+    pub(crate) fn run<T: Real, const DOT: bool>(&self, x: &[T], out: &mut [T]) -> f64 {
         let (nx, ny) = (self.nx, self.ny);
         assert_eq!(x.len(), nx * ny, "FivePoint: input length");
         assert_eq!(out.len(), nx * ny, "FivePoint: output length");
@@ -70,7 +72,7 @@ impl FivePoint {
                 )
             })
             .collect();
-        let mut dot = T::zero();
+        let mut dot = 0.0;
         for i in 0..nx {
             let (p, q) = (prev(i, nx, self.gx), next(i, nx, self.gx));
             let (wp, wq) = (kx * T::from_f64(p.w), kx * T::from_f64(q.w));
@@ -82,7 +84,7 @@ impl FivePoint {
                 let v = wp * xp[j] + wq * xq[j] + cc * xc[j] + wl * xc[l] + wr * xc[r];
                 o[j] = v;
                 if DOT {
-                    dot += xc[j] * v;
+                    dot += wide(xc[j]) * wide(v);
                 }
             }
             if ny <= 2 {
@@ -94,7 +96,7 @@ impl FivePoint {
                     let v = ky * (w[0] + w[2]) + cc * w[1];
                     *o = v;
                     if DOT {
-                        dot += w[1] * v;
+                        dot += wide(w[1]) * wide(v);
                     }
                 }
             } else {
@@ -102,7 +104,7 @@ impl FivePoint {
                     let v = wp * a + wq * b + ky * (w[0] + w[2]) + cc * w[1];
                     *o = v;
                     if DOT {
-                        dot += w[1] * v;
+                        dot += wide(w[1]) * wide(v);
                     }
                 }
             }
@@ -157,7 +159,7 @@ impl FivePoint {
         &self,
         x: ArrayViewD<'_, T>,
         out: ArrayViewMutD<'_, T>,
-    ) -> T {
+    ) -> f64 {
         with_slices(x, out, |x, o| self.run::<T, DOT>(x, o))
     }
 }
@@ -182,7 +184,7 @@ macro_rules! five_point_operator {
             fn apply_transpose_into(&self, y: ArrayViewD<'_, T>, out: ArrayViewMutD<'_, T>) {
                 self.stencil.apply_view::<T, false>(y, out);
             }
-            fn apply_into_dot(&self, x: ArrayViewD<'_, T>, out: ArrayViewMutD<'_, T>) -> T {
+            fn apply_into_dot(&self, x: ArrayViewD<'_, T>, out: ArrayViewMutD<'_, T>) -> f64 {
                 self.stencil.apply_view::<T, true>(x, out)
             }
             fn is_symmetric(&self) -> bool {

@@ -1072,6 +1072,37 @@ fn main() -> Result<(), BoxError> {
         "all": at_1e1 && at_1e2 && never_worse,
         "goal_learned_below_zero_at_1e-3": lrn.mean(2) < zero.mean(2),
     });
+    if args.npy {
+        let stack = |fields: Vec<ndarray::ArrayView2<'_, f64>>| -> Result<ArrayD<f64>, BoxError> {
+            Ok(ndarray::stack(ndarray::Axis(0), &fields)?.into_dyn())
+        };
+        let b = stack(held_out.iter().map(|s| s.b.view()).collect())?;
+        let x_star = stack(held_out.iter().map(|s| s.x_star.view()).collect())?;
+        let supervised_guess = stack(counts[1].guesses.iter().map(|g| g.view()).collect())?;
+        let learned_guess = stack(counts[2].guesses.iter().map(|g| g.view()).collect())?;
+        args.write_npy(&[
+            (
+                "heldout_b",
+                b.view(),
+                "held-out right-hand sides [cases, n, n]",
+            ),
+            (
+                "heldout_x_star",
+                x_star.view(),
+                "their solutions A⁻¹b [cases, n, n]",
+            ),
+            (
+                "guess_supervised",
+                supervised_guess.view(),
+                "the supervised network's initial guesses",
+            ),
+            (
+                "guess_learned",
+                learned_guess.view(),
+                "the initial guesses of the network trained through k CG iterations",
+            ),
+        ])?;
+    }
     common::print_json_line(&serde_json::json!({
         "example": "learned_cg_guess",
         "n": n,

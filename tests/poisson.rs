@@ -230,7 +230,7 @@ fn solver_failures_surface_as_tape_errors_naming_the_op() {
     let tape = Tape::<f64>::new();
     let b = tape.var(random_field(&[32, 32], 6));
     let err = poisson_solve_tape(solve.clone(), b).unwrap_err();
-    let OpsError::Tape(TapeError::Op { op, source }) = &err else {
+    let OpsError::Tape(TapeError::Op { op, source, .. }) = &err else {
         panic!("expected a tape op error, got {err:?}");
     };
     assert_eq!(op, "poisson_solve");

@@ -411,7 +411,7 @@ fn projection_op_warm_starts_records_and_errors() {
         tape.var(uy.clone()),
     )
     .unwrap_err();
-    let OpsError::Tape(TapeError::Op { op, source }) = &err else {
+    let OpsError::Tape(TapeError::Op { op, source, .. }) = &err else {
         panic!("{err:?}");
     };
     assert_eq!(op, "pressure_projection");

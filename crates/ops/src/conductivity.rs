@@ -416,15 +416,19 @@ impl<T: Real> Op<T> for ConductivitySolve<T> {
                 found: inputs.len(),
             });
         }
-        let a = self
-            .operator(&inputs[1])
-            .map_err(|e| TapeError::op(SOLVE, e))?;
+        let a = self.operator(&inputs[1]).map_err(|e| {
+            let kind = e.kind();
+            TapeError::op_of_kind(SOLVE, e, kind)
+        })?;
         if inputs[0].shape() != a.shape {
             return Err(TapeError::shape(SOLVE, &a.shape, inputs[0].shape()));
         }
         let mut p = ArrayD::zeros(IxDyn(&a.shape));
-        let info = conjugate_gradient(&a, inputs[0].view(), p.view_mut(), &self.forward)
-            .map_err(|e| TapeError::op(SOLVE, OpsError::Cg(e)))?;
+        let info =
+            conjugate_gradient(&a, inputs[0].view(), p.view_mut(), &self.forward).map_err(|e| {
+                let kind = e.kind();
+                TapeError::op_of_kind(SOLVE, OpsError::Cg(e), kind)
+            })?;
         self.log.record_forward(&info, &p, false);
         Ok(vec![p])
     }
@@ -436,9 +440,10 @@ impl<T: Real> Op<T> for ConductivitySolve<T> {
         if !(args.needs(0) || args.needs(1)) {
             return Ok(vec![None, None]);
         }
-        let a = self
-            .operator(args.input(1))
-            .map_err(|e| TapeError::op(SOLVE, e))?;
+        let a = self.operator(args.input(1)).map_err(|e| {
+            let kind = e.kind();
+            TapeError::op_of_kind(SOLVE, e, kind)
+        })?;
         let (lambda, grad_k, info) = conductivity_solve_vjp(
             &a,
             args.output(0).view(),
@@ -446,7 +451,10 @@ impl<T: Real> Op<T> for ConductivitySolve<T> {
             &self.adjoint,
             args.needs(1),
         )
-        .map_err(|e| TapeError::op(SOLVE, e))?;
+        .map_err(|e| {
+            let kind = e.kind();
+            TapeError::op_of_kind(SOLVE, e, kind)
+        })?;
         self.log.record_adjoint(&info, &lambda, false);
         Ok(vec![args.needs(0).then_some(lambda), grad_k])
     }

@@ -1,6 +1,8 @@
 //! The one error type of the operators crate.
 
-use diffphys_tape::TapeError;
+use diffphys_tape::{ErrorKind, TapeError};
+
+use crate::cg::CgError;
 use thiserror::Error;
 
 /// Everything an operator can reject or fail at. Bad input is an error, never a panic.
@@ -61,6 +63,23 @@ impl OpsError {
         }
     }
 
+    /// What kind of error this is, in the tape's vocabulary.
+    pub fn kind(&self) -> ErrorKind {
+        match self {
+            OpsError::ShapeMismatch { .. } => ErrorKind::Shape,
+            OpsError::InvalidArgument { .. } => ErrorKind::InvalidArgument,
+            OpsError::Cfl { .. } => ErrorKind::Unstable,
+            OpsError::NonFinite { .. } => ErrorKind::NonFinite,
+            OpsError::Tape(t) => t.kind(),
+            OpsError::Cg(c) => c.kind(),
+        }
+    }
+
+    /// Whether a NaN or infinity caused this error.
+    pub fn is_non_finite(&self) -> bool {
+        self.kind() == ErrorKind::NonFinite
+    }
+
     /// A [`OpsError::InvalidArgument`].
     pub fn invalid(op: &str, message: impl Into<String>) -> Self {
         OpsError::InvalidArgument {
@@ -85,11 +104,68 @@ impl From<OpsError> for TapeError {
                     OpsError::Cg(_) => "conjugate_gradient".to_string(),
                     OpsError::Tape(_) => unreachable!("handled above"),
                 };
-                TapeError::op(&op, other)
+                let kind = other.kind();
+                TapeError::op_of_kind(&op, other, kind)
             }
         }
     }
 }
 
+impl CgError {
+    /// What kind of error this is, in the tape's vocabulary.
+    pub fn kind(&self) -> ErrorKind {
+        match self {
+            CgError::NoConvergence { .. } | CgError::BelowRoundingFloor { .. } => {
+                ErrorKind::NotConverged
+            }
+            CgError::NotPositiveDefinite { .. } | CgError::Breakdown { .. } => ErrorKind::Unstable,
+            CgError::NonFinite { .. } => ErrorKind::NonFinite,
+            CgError::ShapeMismatch { .. } => ErrorKind::Shape,
+            CgError::InvalidArgument { .. } => ErrorKind::InvalidArgument,
+        }
+    }
+
+    /// Whether a NaN or infinity caused this error.
+    pub fn is_non_finite(&self) -> bool {
+        self.kind() == ErrorKind::NonFinite
+    }
+}
+
+/// Converts a CG error raised inside a plugin's forward or backward into the
+/// tape's error, keeping it as the source and its kind.
+impl From<CgError> for TapeError {
+    fn from(e: CgError) -> Self {
+        let kind = e.kind();
+        TapeError::op_of_kind("conjugate_gradient", e, kind)
+    }
+}
+
 /// Result alias of the operators crate.
 pub type Result<T, E = OpsError> = std::result::Result<T, E>;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn errors_keep_their_kind_through_the_tape() {
+        let cfl = OpsError::Cfl {
+            op: "upwind_1d".into(),
+            courant: 2.0,
+            limit: 1.0,
+        };
+        assert_eq!(cfl.kind(), ErrorKind::Unstable);
+        assert_eq!(TapeError::from(cfl).kind(), ErrorKind::Unstable);
+        let nan = OpsError::NonFinite {
+            op: "poisson".into(),
+            what: "rhs".into(),
+        };
+        let wrapped: TapeError = nan.into();
+        assert!(wrapped.is_non_finite());
+        assert!(OpsError::Tape(wrapped).is_non_finite());
+        let cg = CgError::InvalidArgument {
+            message: "rtol".into(),
+        };
+        assert_eq!(TapeError::from(cg).kind(), ErrorKind::InvalidArgument);
+    }
+}

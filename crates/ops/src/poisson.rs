@@ -394,7 +394,10 @@ impl<T: Real, A: LinearOperator<T>> Op<T> for PoissonSolve<T, A> {
             &self.forward,
             guess.as_ref().map(|g| g.view()),
         )
-        .map_err(|e| TapeError::op(NAME, e))?;
+        .map_err(|e| {
+            let kind = e.kind();
+            TapeError::op_of_kind(NAME, e, kind)
+        })?;
         self.log.record_forward(&info, &p, self.warm_start.forward);
         Ok(vec![p])
     }
@@ -415,7 +418,10 @@ impl<T: Real, A: LinearOperator<T>> Op<T> for PoissonSolve<T, A> {
             &self.adjoint,
             guess.as_ref().map(|g| g.view()),
         )
-        .map_err(|e| TapeError::op(NAME, e))?;
+        .map_err(|e| {
+            let kind = e.kind();
+            TapeError::op_of_kind(NAME, e, kind)
+        })?;
         self.log
             .record_adjoint(&info, &grad_b, self.warm_start.adjoint);
         Ok(vec![Some(grad_b)])

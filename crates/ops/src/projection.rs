@@ -268,7 +268,10 @@ const NAME: &str = "pressure_projection";
 /// the [`CgError`](crate::cg::CgError) itself as source, the rest through [`OpsError`]'s conversion.
 fn tape_error(e: OpsError) -> TapeError {
     match e {
-        OpsError::Cg(cg) => TapeError::op(NAME, cg),
+        OpsError::Cg(cg) => {
+            let kind = cg.kind();
+            TapeError::op_of_kind(NAME, cg, kind)
+        }
         other => other.into(),
     }
 }

@@ -27,14 +27,14 @@ impl std::fmt::Display for Pass {
 #[non_exhaustive]
 pub enum TapeError {
     /// Two shapes that had to agree (or broadcast) did not.
-    #[error("shape mismatch in {op}: lhs {lhs:?}, rhs {rhs:?}")]
+    #[error("shape mismatch in {op}: expected {expected:?}, found {found:?}")]
     ShapeMismatch {
         /// The op that checked the shapes.
         op: String,
-        /// The first shape.
-        lhs: Vec<usize>,
-        /// The second shape.
-        rhs: Vec<usize>,
+        /// The shape it needed (for a binary op, the left operand's).
+        expected: Vec<usize>,
+        /// The shape it was given (for a binary op, the right operand's).
+        found: Vec<usize>,
     },
     /// An argument other than a shape is out of range (an axis, a slice bound, a length).
     #[error("invalid argument to {op}: {message}")]
@@ -104,6 +104,9 @@ pub enum TapeError {
         /// The op's own error.
         #[source]
         source: Box<dyn std::error::Error + Send + Sync + 'static>,
+        /// What kind of failure the source is, as its crate classified it
+        /// ([`ErrorKind::Op`] when it did not).
+        kind: ErrorKind,
     },
 }
 
@@ -125,7 +128,13 @@ pub enum ErrorKind {
     BackwardNotSupported,
     /// A gradient that was not computed was asked for.
     NoGradient,
-    /// A plugin op's own failure.
+    /// An iterative solver did not reach its tolerance (out of iterations, or
+    /// asked for less than its precision's rounding floor).
+    NotConverged,
+    /// A scheme or solver met input it is unstable on: a CFL violation, an
+    /// operator that is not positive definite, a breakdown.
+    Unstable,
+    /// A plugin op's own failure, not classified further.
     Op,
 }
 
@@ -142,21 +151,14 @@ impl TapeError {
             TapeError::NonFinite { .. } => ErrorKind::NonFinite,
             TapeError::BackwardNotSupported { .. } => ErrorKind::BackwardNotSupported,
             TapeError::NoGradient { .. } => ErrorKind::NoGradient,
-            TapeError::Op { .. } => ErrorKind::Op,
+            TapeError::Op { kind, .. } => *kind,
         }
     }
 
     /// Whether a NaN or infinity caused this error: a [`TapeError::NonFinite`],
-    /// or a plugin's error whose chain of sources holds one.
+    /// or a plugin's error that its crate classified so.
     pub fn is_non_finite(&self) -> bool {
-        let mut source: Option<&(dyn std::error::Error + 'static)> = Some(self);
-        while let Some(e) = source {
-            if let Some(TapeError::NonFinite { .. }) = e.downcast_ref::<TapeError>() {
-                return true;
-            }
-            source = e.source();
-        }
-        false
+        self.kind() == ErrorKind::NonFinite
     }
 
     /// `Ok` if an op that takes `expected` inputs got `found`, else
@@ -173,12 +175,12 @@ impl TapeError {
         }
     }
 
-    /// A [`TapeError::ShapeMismatch`] for `op` between two shapes.
-    pub fn shape(op: &str, lhs: &[usize], rhs: &[usize]) -> Self {
+    /// A [`TapeError::ShapeMismatch`] for `op`: it needed `expected`, it got `found`.
+    pub fn shape(op: &str, expected: &[usize], found: &[usize]) -> Self {
         TapeError::ShapeMismatch {
             op: op.to_string(),
-            lhs: lhs.to_vec(),
-            rhs: rhs.to_vec(),
+            expected: expected.to_vec(),
+            found: found.to_vec(),
         }
     }
 
@@ -190,11 +192,31 @@ impl TapeError {
         }
     }
 
-    /// Wraps a plugin's own error as [`TapeError::Op`].
+    /// Wraps a plugin's own error as [`TapeError::Op`]. A [`TapeError`] keeps
+    /// its kind; any other error is [`ErrorKind::Op`] (see [`TapeError::op_of_kind`]).
     pub fn op(op: &str, source: impl std::error::Error + Send + Sync + 'static) -> Self {
+        let source: Box<dyn std::error::Error + Send + Sync + 'static> = Box::new(source);
+        let kind = source
+            .downcast_ref::<TapeError>()
+            .map_or(ErrorKind::Op, TapeError::kind);
+        TapeError::Op {
+            op: op.to_string(),
+            source,
+            kind,
+        }
+    }
+
+    /// Wraps a plugin's own error as [`TapeError::Op`] of a kind its crate
+    /// determined, so that callers can classify it without knowing its type.
+    pub fn op_of_kind(
+        op: &str,
+        source: impl std::error::Error + Send + Sync + 'static,
+        kind: ErrorKind,
+    ) -> Self {
         TapeError::Op {
             op: op.to_string(),
             source: Box::new(source),
+            kind,
         }
     }
 }

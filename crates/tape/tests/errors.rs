@@ -69,7 +69,7 @@ fn shape_mismatches_name_the_op_and_both_shapes() {
     for (op_name, result, want_lhs, want_rhs) in cases {
         let err = result.expect_err(op_name);
         assert!(
-            matches!(&err, TapeError::ShapeMismatch { op, lhs, rhs }
+            matches!(&err, TapeError::ShapeMismatch { op, expected: lhs, found: rhs }
                 if op == op_name && *lhs == want_lhs && *rhs == want_rhs),
             "{op_name}: {err:?}"
         );
@@ -407,9 +407,19 @@ fn a_missing_gradient_is_a_typed_error_and_errors_classify_themselves() {
         .unwrap_err();
     assert_eq!(nan.kind(), ErrorKind::NonFinite);
     assert!(nan.is_non_finite());
+    // A tape error wrapped by a plugin keeps its kind; another error is an Op.
     let wrapped = TapeError::op("solver", nan);
-    assert_eq!(wrapped.kind(), ErrorKind::Op);
+    assert_eq!(wrapped.kind(), ErrorKind::NonFinite);
     assert!(wrapped.is_non_finite());
+    let io = TapeError::op("loader", std::io::Error::other("disk"));
+    assert_eq!(io.kind(), ErrorKind::Op);
+    assert!(!io.is_non_finite());
+    let classified = TapeError::op_of_kind(
+        "solver",
+        std::io::Error::other("x"),
+        ErrorKind::NotConverged,
+    );
+    assert_eq!(classified.kind(), ErrorKind::NotConverged);
     assert!(!TapeError::invalid("x", "y").is_non_finite());
     assert!(TapeError::check_arity("op", 2, 2).is_ok());
     assert_eq!(

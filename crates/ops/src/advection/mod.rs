@@ -4,7 +4,9 @@
 //!
 //! Each scheme is a pair of plain functions on ndarray views (the forward and its
 //! vector–Jacobian product, which computes only the gradients asked for in a
-//! [`Wants`]) and a thin tape op over them. In 2D the velocity has shape
+//! [`Wants`]), bundled as an [`AdvectionScheme`] ([`Upwind1d`], [`Upwind2d`],
+//! [`SemiLagrangian1d`], [`SemiLagrangian2d`]); one generic tape op,
+//! [`AdvectionOp`], records any of them ([`advect`]). In 2D the velocity has shape
 //! `[2, nx, ny]` with components `[u_x, u_y]` on the same cells as the field.
 //!
 //! ```
@@ -25,14 +27,14 @@ pub mod upwind;
 
 pub use semi_lagrangian::{
     semi_lagrangian_1d, semi_lagrangian_1d_tape, semi_lagrangian_1d_vjp, semi_lagrangian_2d,
-    semi_lagrangian_2d_tape, semi_lagrangian_2d_vjp, SemiLagrangian1dOp, SemiLagrangian2dOp,
+    semi_lagrangian_2d_tape, semi_lagrangian_2d_vjp, SemiLagrangian1d, SemiLagrangian2d,
 };
 pub use upwind::{
-    upwind_1d, upwind_1d_tape, upwind_1d_vjp, upwind_2d, upwind_2d_tape, upwind_2d_vjp, Upwind1dOp,
-    Upwind2dOp,
+    upwind_1d, upwind_1d_tape, upwind_1d_vjp, upwind_2d, upwind_2d_tape, upwind_2d_vjp, Upwind1d,
+    Upwind2d,
 };
 
-use diffphys_tape::{ArrayD, BackwardArgs, Real};
+use diffphys_tape::{ArrayD, BackwardArgs, Op, Real, TapeError, Var};
 use ndarray::{Array, ArrayBase, ArrayView, ArrayViewD, Data, Dimension};
 
 use crate::{OpsError, Result};
@@ -135,21 +137,8 @@ pub(crate) fn check_finite_velocity<T: Real>(op: &str, u: &[T]) -> Result<()> {
     }
 }
 
-/// Checks the number of inputs of a tape op.
-pub(crate) fn check_arity(op: &str, found: usize, expected: usize) -> diffphys_tape::Result<()> {
-    if found == expected {
-        Ok(())
-    } else {
-        Err(diffphys_tape::TapeError::Arity {
-            op: op.to_string(),
-            expected,
-            found,
-        })
-    }
-}
-
 /// A tape op's dynamic-rank input as a view of rank `D`.
-pub(crate) fn tape_view<'a, T: Real, D: Dimension>(
+fn tape_view<'a, T: Real, D: Dimension>(
     op: &str,
     a: &ArrayViewD<'a, T>,
 ) -> diffphys_tape::Result<ArrayView<'a, T, D>> {
@@ -158,47 +147,110 @@ pub(crate) fn tape_view<'a, T: Real, D: Dimension>(
     })
 }
 
-/// The forward of a `[d, u] → d'` advection tape op: checks the arity, views the
-/// inputs at the scheme's ranks and runs the plain forward `step`.
-pub(crate) fn advection_forward<T: Real, D: Dimension, U: Dimension>(
-    op: &str,
-    inputs: &[ArrayViewD<'_, T>],
-    step: impl FnOnce(ArrayView<'_, T, D>, ArrayView<'_, T, U>) -> Result<Array<T, D>>,
-) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
-    check_arity(op, inputs.len(), 2)?;
-    let d = tape_view::<T, D>(op, &inputs[0])?;
-    let u = tape_view::<T, U>(op, &inputs[1])?;
-    Ok(vec![step(d, u)?.into_dyn()])
+/// The plain vector–Jacobian product of an advection scheme: the gradients of
+/// `d` and `u` that a [`Wants`] asks for.
+pub type AdvectionVjp<T, D, U> = Result<AdvectionGrads<Array<T, D>, Array<T, U>>>;
+
+/// One advection step `d' = step(d, u)` of a field `d` by a velocity `u`, as the
+/// pair of plain functions every scheme is: its forward and its vector–Jacobian
+/// product. [`AdvectionOp`] turns any scheme into a tape op.
+pub trait AdvectionScheme<T: Real> {
+    /// The field's dimension (`Ix1` in 1D, `Ix2` in 2D).
+    type Field: Dimension;
+    /// The velocity's dimension (`Ix1` in 1D, `Ix3` for `[2, nx, ny]` in 2D).
+    type Velocity: Dimension;
+
+    /// Names the op in errors and statistics.
+    fn name(&self) -> &'static str;
+
+    /// The step.
+    ///
+    /// # Errors
+    /// The scheme's own (shapes, CFL, non-finite velocity).
+    fn step(
+        &self,
+        d: ArrayView<'_, T, Self::Field>,
+        u: ArrayView<'_, T, Self::Velocity>,
+    ) -> Result<Array<T, Self::Field>>;
+
+    /// The vector–Jacobian product of [`AdvectionScheme::step`] for the gradient
+    /// `grad_out` of `d'`.
+    ///
+    /// # Errors
+    /// The scheme's own (shapes).
+    fn vjp(
+        &self,
+        d: ArrayView<'_, T, Self::Field>,
+        u: ArrayView<'_, T, Self::Velocity>,
+        grad_out: ArrayView<'_, T, Self::Field>,
+        wants: Wants,
+    ) -> AdvectionVjp<T, Self::Field, Self::Velocity>;
 }
 
-/// The plain vector–Jacobian product of an advection scheme: `(d, u, g, wants)`
-/// to the gradients of `d` and `u` that `wants` asks for.
-pub(crate) type AdvectionVjp<T, D, U> = Result<AdvectionGrads<Array<T, D>, Array<T, U>>>;
+/// Any [`AdvectionScheme`] as a tape op: inputs `[d, u]`, output `d'`; the
+/// backward asks the scheme's vector–Jacobian product for exactly the gradients
+/// the tape needs. Keeps nothing beyond its inputs and output.
+#[derive(Debug, Clone, Copy)]
+pub struct AdvectionOp<S>(pub S);
 
-/// The backward of a `[d, u] → d'` advection tape op: asks the plain `vjp` for
-/// exactly the gradients the tape needs and hands them back in input order.
-pub(crate) fn advection_backward<'a, T: Real, D: Dimension, U: Dimension>(
-    op: &str,
-    args: &BackwardArgs<'a, T>,
-    vjp: impl FnOnce(
-        ArrayView<'a, T, D>,
-        ArrayView<'a, T, U>,
-        ArrayView<'a, T, D>,
-        Wants,
-    ) -> AdvectionVjp<T, D, U>,
-) -> diffphys_tape::Result<Vec<Option<ArrayD<T>>>> {
-    let wants = Wants {
-        field: args.needs(0),
-        velocity: args.needs(1),
-    };
-    let g = vjp(
-        tape_view::<T, D>(op, args.input(0))?,
-        tape_view::<T, U>(op, args.input(1))?,
-        tape_view::<T, D>(op, args.grad_out())?,
-        wants,
-    )?;
-    Ok(vec![
-        g.field.map(|a| a.into_dyn()),
-        g.velocity.map(|a| a.into_dyn()),
-    ])
+impl<T: Real, S: AdvectionScheme<T>> Op<T> for AdvectionOp<S> {
+    fn name(&self) -> &str {
+        self.0.name()
+    }
+
+    fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
+        let op = self.0.name();
+        TapeError::check_arity(op, 2, inputs.len())?;
+        let d = tape_view::<T, S::Field>(op, &inputs[0])?;
+        let u = tape_view::<T, S::Velocity>(op, &inputs[1])?;
+        Ok(vec![self.0.step(d, u)?.into_dyn()])
+    }
+
+    fn backward(
+        &self,
+        args: &BackwardArgs<'_, T>,
+    ) -> diffphys_tape::Result<Vec<Option<ArrayD<T>>>> {
+        let op = self.0.name();
+        let wants = Wants {
+            field: args.needs(0),
+            velocity: args.needs(1),
+        };
+        let g = self.0.vjp(
+            tape_view::<T, S::Field>(op, args.input(0))?,
+            tape_view::<T, S::Velocity>(op, args.input(1))?,
+            tape_view::<T, S::Field>(op, args.grad_out())?,
+            wants,
+        )?;
+        Ok(vec![
+            g.field.map(|a| a.into_dyn()),
+            g.velocity.map(|a| a.into_dyn()),
+        ])
+    }
+}
+
+/// Records one step of `scheme` advecting `d` by `u` on their tape.
+///
+/// ```
+/// use diffphys_ops::advection::{advect, AdvectionParams, Upwind1d};
+/// use diffphys_ops::{Boundary, Grid1};
+/// use diffphys_tape::{arr_dyn, Tape};
+///
+/// let grid = Grid1::new(4, 0.1, 0.0, Boundary::Periodic)?;
+/// let tape = Tape::<f64>::new();
+/// let d = tape.var(arr_dyn(&[0.0, 1.0, 0.0, 0.0]));
+/// let u = tape.var(arr_dyn(&[0.5; 4]));
+/// let scheme = Upwind1d { grid, params: AdvectionParams::new(0.1) };
+/// let d1 = advect(scheme, d, u)?; // Courant number 0.5
+/// assert_eq!(d1.to_array(), arr_dyn(&[0.0, 0.5, 0.5, 0.0]));
+/// # Ok::<(), diffphys_ops::OpsError>(())
+/// ```
+///
+/// # Errors
+/// The scheme's errors (wrapped in [`OpsError::Tape`]), and the tape's own.
+pub fn advect<'t, T: Real, S: AdvectionScheme<T> + 'static>(
+    scheme: S,
+    d: Var<'t, T>,
+    u: Var<'t, T>,
+) -> Result<Var<'t, T>> {
+    Ok(d.apply1(AdvectionOp(scheme), &[u])?)
 }

@@ -25,12 +25,12 @@
 //! models — a review*, Mon. Wea. Rev. 119 (1991). J. Stam, *Stable Fluids*,
 //! SIGGRAPH 1999.
 
-use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, Var};
+use diffphys_tape::{Real, Var};
 use ndarray::{Array1, Array2, Array3, ArrayView1, ArrayView2, ArrayView3, Ix1, Ix2, Ix3};
 
 use super::{
-    advection_backward, advection_forward, check_dt, check_finite_velocity, check_shape,
-    AdvectionGrads, Wants,
+    advect, check_dt, check_finite_velocity, check_shape, AdvectionGrads, AdvectionScheme,
+    AdvectionVjp, Wants,
 };
 use crate::{Boundary, Grid1, Grid2, Result};
 
@@ -302,70 +302,76 @@ pub fn semi_lagrangian_2d_vjp<T: Real>(
     })
 }
 
-/// Semi-Lagrangian advection on a 1D grid as a tape op: inputs `[d, u]`, output
-/// `d'`. Self-advection (`u = d`, Burgers) passes the same variable twice; the
-/// tape sums the two gradients.
-#[derive(Debug, Clone)]
-pub struct SemiLagrangian1dOp {
+/// Semi-Lagrangian advection on a 1D grid (field and velocity `[n]`), as an
+/// [`AdvectionScheme`] for the generic tape op [`AdvectionOp`]. Self-advection
+/// (`u = d`, Burgers) passes the same variable twice; the tape sums the two
+/// gradients.
+#[derive(Debug, Clone, Copy)]
+pub struct SemiLagrangian1d {
     /// The grid.
     pub grid: Grid1,
     /// The time step.
     pub dt: f64,
 }
 
-impl<T: Real> Op<T> for SemiLagrangian1dOp {
-    fn name(&self) -> &str {
+impl<T: Real> AdvectionScheme<T> for SemiLagrangian1d {
+    type Field = Ix1;
+    type Velocity = Ix1;
+
+    fn name(&self) -> &'static str {
         OP_1D
     }
 
-    fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
-        advection_forward::<T, Ix1, Ix1>(OP_1D, inputs, |d, u| {
-            semi_lagrangian_1d(&self.grid, self.dt, d, u)
-        })
+    fn step(&self, d: ArrayView1<'_, T>, u: ArrayView1<'_, T>) -> Result<Array1<T>> {
+        semi_lagrangian_1d(&self.grid, self.dt, d, u)
     }
 
-    fn backward(
+    fn vjp(
         &self,
-        args: &BackwardArgs<'_, T>,
-    ) -> diffphys_tape::Result<Vec<Option<ArrayD<T>>>> {
-        advection_backward(OP_1D, args, |d, u, g, wants| {
-            semi_lagrangian_1d_vjp(&self.grid, self.dt, d, u, g, wants)
-        })
+        d: ArrayView1<'_, T>,
+        u: ArrayView1<'_, T>,
+        grad_out: ArrayView1<'_, T>,
+        wants: Wants,
+    ) -> AdvectionVjp<T, Ix1, Ix1> {
+        semi_lagrangian_1d_vjp(&self.grid, self.dt, d, u, grad_out, wants)
     }
 }
 
-/// Semi-Lagrangian advection on a 2D grid as a tape op: inputs `[d, u]` with `d`
-/// of shape `[nx, ny]` and `u` of shape `[2, nx, ny]`, output `d'`.
-#[derive(Debug, Clone)]
-pub struct SemiLagrangian2dOp {
+/// Semi-Lagrangian advection on a 2D grid (field `[nx, ny]`, velocity
+/// `[2, nx, ny]`), as an [`AdvectionScheme`].
+#[derive(Debug, Clone, Copy)]
+pub struct SemiLagrangian2d {
     /// The grid.
     pub grid: Grid2,
     /// The time step.
     pub dt: f64,
 }
 
-impl<T: Real> Op<T> for SemiLagrangian2dOp {
-    fn name(&self) -> &str {
+impl<T: Real> AdvectionScheme<T> for SemiLagrangian2d {
+    type Field = Ix2;
+    type Velocity = Ix3;
+
+    fn name(&self) -> &'static str {
         OP_2D
     }
 
-    fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
-        advection_forward::<T, Ix2, Ix3>(OP_2D, inputs, |d, u| {
-            semi_lagrangian_2d(&self.grid, self.dt, d, u)
-        })
+    fn step(&self, d: ArrayView2<'_, T>, u: ArrayView3<'_, T>) -> Result<Array2<T>> {
+        semi_lagrangian_2d(&self.grid, self.dt, d, u)
     }
 
-    fn backward(
+    fn vjp(
         &self,
-        args: &BackwardArgs<'_, T>,
-    ) -> diffphys_tape::Result<Vec<Option<ArrayD<T>>>> {
-        advection_backward(OP_2D, args, |d, u, g, wants| {
-            semi_lagrangian_2d_vjp(&self.grid, self.dt, d, u, g, wants)
-        })
+        d: ArrayView2<'_, T>,
+        u: ArrayView3<'_, T>,
+        grad_out: ArrayView2<'_, T>,
+        wants: Wants,
+    ) -> AdvectionVjp<T, Ix2, Ix3> {
+        semi_lagrangian_2d_vjp(&self.grid, self.dt, d, u, grad_out, wants)
     }
 }
 
-/// Records one 1D semi-Lagrangian step of `d` by `u` on their tape.
+/// Records one 1D semi-Lagrangian step of `d` by `u` on their tape:
+/// `advect(SemiLagrangian1d { grid, dt }, d, u)`.
 ///
 /// # Errors
 /// As [`semi_lagrangian_1d`] (wrapped in [`crate::OpsError::Tape`]), and the
@@ -376,10 +382,11 @@ pub fn semi_lagrangian_1d_tape<'t, T: Real>(
     d: Var<'t, T>,
     u: Var<'t, T>,
 ) -> Result<Var<'t, T>> {
-    Ok(d.apply1(SemiLagrangian1dOp { grid: *grid, dt }, &[u])?)
+    advect(SemiLagrangian1d { grid: *grid, dt }, d, u)
 }
 
-/// Records one 2D semi-Lagrangian step of `d` (`[nx, ny]`) by `u` (`[2, nx, ny]`).
+/// Records one 2D semi-Lagrangian step of `d` (`[nx, ny]`) by `u` (`[2, nx, ny]`):
+/// `advect(SemiLagrangian2d { grid, dt }, d, u)`.
 ///
 /// # Errors
 /// As [`semi_lagrangian_2d`], and the tape's own errors.
@@ -389,13 +396,15 @@ pub fn semi_lagrangian_2d_tape<'t, T: Real>(
     d: Var<'t, T>,
     u: Var<'t, T>,
 ) -> Result<Var<'t, T>> {
-    Ok(d.apply1(SemiLagrangian2dOp { grid: *grid, dt }, &[u])?)
+    advect(SemiLagrangian2d { grid: *grid, dt }, d, u)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use diffphys_tape::{check_adjoint, check_gradient, test_array, GradCheckOptions};
+    use diffphys_tape::{
+        check_adjoint, check_gradient, test_array, ArrayD, ArrayViewD, GradCheckOptions,
+    };
 
     const KINDS: [Boundary; 3] = [
         Boundary::Periodic,

@@ -25,12 +25,12 @@
 //! differential equations by finite differences*, Comm. Pure Appl. Math. 5 (1952).
 //! R. J. LeVeque, *Finite Volume Methods for Hyperbolic Problems*, CUP 2002, §4.8.
 
-use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, Var};
+use diffphys_tape::{Real, Var};
 use ndarray::{Array1, Array2, Array3, ArrayView1, ArrayView2, ArrayView3, Ix1, Ix2, Ix3};
 
 use super::{
-    advection_backward, advection_forward, check_finite_velocity, check_shape, AdvectionGrads,
-    AdvectionParams, Wants,
+    advect, check_finite_velocity, check_shape, AdvectionGrads, AdvectionParams, AdvectionScheme,
+    AdvectionVjp, Wants,
 };
 use crate::stencil::{edge_indices, next, prev, Ghost, Neighbour};
 use crate::{Boundary, Grid1, Grid2, OpsError, Result};
@@ -364,69 +364,74 @@ pub fn upwind_2d_vjp<T: Real>(
     Ok(AdvectionGrads { field, velocity })
 }
 
-/// Upwind advection on a 1D grid as a tape op: inputs `[d, u]`, output `d'`.
-/// Gradients are computed only for the inputs that need one.
-#[derive(Debug, Clone)]
-pub struct Upwind1dOp {
+/// First-order upwind on a 1D grid (field and velocity `[n]`), as an
+/// [`AdvectionScheme`] for the generic tape op [`AdvectionOp`].
+#[derive(Debug, Clone, Copy)]
+pub struct Upwind1d {
     /// The grid.
     pub grid: Grid1,
     /// Time step and CFL policy.
     pub params: AdvectionParams,
 }
 
-impl<T: Real> Op<T> for Upwind1dOp {
-    fn name(&self) -> &str {
+impl<T: Real> AdvectionScheme<T> for Upwind1d {
+    type Field = Ix1;
+    type Velocity = Ix1;
+
+    fn name(&self) -> &'static str {
         OP_1D
     }
 
-    fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
-        advection_forward::<T, Ix1, Ix1>(OP_1D, inputs, |d, u| {
-            upwind_1d(&self.grid, &self.params, d, u)
-        })
+    fn step(&self, d: ArrayView1<'_, T>, u: ArrayView1<'_, T>) -> Result<Array1<T>> {
+        upwind_1d(&self.grid, &self.params, d, u)
     }
 
-    fn backward(
+    fn vjp(
         &self,
-        args: &BackwardArgs<'_, T>,
-    ) -> diffphys_tape::Result<Vec<Option<ArrayD<T>>>> {
-        advection_backward(OP_1D, args, |d, u, g, wants| {
-            upwind_1d_vjp(&self.grid, &self.params, d, u, g, wants)
-        })
+        d: ArrayView1<'_, T>,
+        u: ArrayView1<'_, T>,
+        grad_out: ArrayView1<'_, T>,
+        wants: Wants,
+    ) -> AdvectionVjp<T, Ix1, Ix1> {
+        upwind_1d_vjp(&self.grid, &self.params, d, u, grad_out, wants)
     }
 }
 
-/// Upwind advection on a 2D grid as a tape op: inputs `[d, u]` with `d` of shape
-/// `[nx, ny]` and `u` of shape `[2, nx, ny]`, output `d'`.
-#[derive(Debug, Clone)]
-pub struct Upwind2dOp {
+/// First-order upwind on a 2D grid (field `[nx, ny]`, velocity `[2, nx, ny]`),
+/// as an [`AdvectionScheme`].
+#[derive(Debug, Clone, Copy)]
+pub struct Upwind2d {
     /// The grid.
     pub grid: Grid2,
     /// Time step and CFL policy.
     pub params: AdvectionParams,
 }
 
-impl<T: Real> Op<T> for Upwind2dOp {
-    fn name(&self) -> &str {
+impl<T: Real> AdvectionScheme<T> for Upwind2d {
+    type Field = Ix2;
+    type Velocity = Ix3;
+
+    fn name(&self) -> &'static str {
         OP_2D
     }
 
-    fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
-        advection_forward::<T, Ix2, Ix3>(OP_2D, inputs, |d, u| {
-            upwind_2d(&self.grid, &self.params, d, u)
-        })
+    fn step(&self, d: ArrayView2<'_, T>, u: ArrayView3<'_, T>) -> Result<Array2<T>> {
+        upwind_2d(&self.grid, &self.params, d, u)
     }
 
-    fn backward(
+    fn vjp(
         &self,
-        args: &BackwardArgs<'_, T>,
-    ) -> diffphys_tape::Result<Vec<Option<ArrayD<T>>>> {
-        advection_backward(OP_2D, args, |d, u, g, wants| {
-            upwind_2d_vjp(&self.grid, &self.params, d, u, g, wants)
-        })
+        d: ArrayView2<'_, T>,
+        u: ArrayView3<'_, T>,
+        grad_out: ArrayView2<'_, T>,
+        wants: Wants,
+    ) -> AdvectionVjp<T, Ix2, Ix3> {
+        upwind_2d_vjp(&self.grid, &self.params, d, u, grad_out, wants)
     }
 }
 
-/// Records one 1D upwind step of `d` by `u` on their tape.
+/// Records one 1D upwind step of `d` by `u` on their tape:
+/// `advect(Upwind1d { grid, params }, d, u)`.
 ///
 /// # Errors
 /// As [`upwind_1d`] (wrapped in [`OpsError::Tape`]), and the tape's own errors.
@@ -436,14 +441,18 @@ pub fn upwind_1d_tape<'t, T: Real>(
     d: Var<'t, T>,
     u: Var<'t, T>,
 ) -> Result<Var<'t, T>> {
-    let op = Upwind1dOp {
-        grid: *grid,
-        params: *params,
-    };
-    Ok(d.apply1(op, &[u])?)
+    advect(
+        Upwind1d {
+            grid: *grid,
+            params: *params,
+        },
+        d,
+        u,
+    )
 }
 
-/// Records one 2D upwind step of `d` (`[nx, ny]`) by `u` (`[2, nx, ny]`).
+/// Records one 2D upwind step of `d` (`[nx, ny]`) by `u` (`[2, nx, ny]`):
+/// `advect(Upwind2d { grid, params }, d, u)`.
 ///
 /// # Errors
 /// As [`upwind_2d`], and the tape's own errors.
@@ -453,17 +462,20 @@ pub fn upwind_2d_tape<'t, T: Real>(
     d: Var<'t, T>,
     u: Var<'t, T>,
 ) -> Result<Var<'t, T>> {
-    let op = Upwind2dOp {
-        grid: *grid,
-        params: *params,
-    };
-    Ok(d.apply1(op, &[u])?)
+    advect(
+        Upwind2d {
+            grid: *grid,
+            params: *params,
+        },
+        d,
+        u,
+    )
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use diffphys_tape::{check_gradient, test_array, GradCheckOptions};
+    use diffphys_tape::{check_gradient, test_array, ArrayD, GradCheckOptions};
 
     const KINDS: [Boundary; 3] = [
         Boundary::Periodic,

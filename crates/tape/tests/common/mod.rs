@@ -2,8 +2,8 @@
 //! singularities, and the two checks every primitive gets (a finite-difference
 //! gradient check in f64, and a run in f32 compared with f64).
 //!
-//! The workspace-level `tests/common` plays this role for the facade crate; this
-//! crate cannot depend on the facade, so its tests carry this small copy.
+//! The operators crate's `tests/common` plays this role for the operators' tests
+//! (with the ops-specific tolerances); each crate's tests carry their own.
 //!
 //! An op is written once as a closure and checked in both precisions:
 //!

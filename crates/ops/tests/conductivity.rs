@@ -6,12 +6,12 @@
 mod common;
 
 use common::*;
-use diffphys::ops::cg::{CgParams, NullSpace};
-use diffphys::ops::conductivity::{
+use diffphys_ops::cg::{CgParams, NullSpace};
+use diffphys_ops::conductivity::{
     conductivity_solve, conductivity_solve_tape, Conductivity2, ConductivitySolve,
 };
-use diffphys::ops::reference::SparseCholesky;
-use diffphys::{Boundary, Grid2, LinearOperator, OpsError};
+use diffphys_ops::reference::SparseCholesky;
+use diffphys_ops::{Boundary, Grid2, LinearOperator, OpsError};
 use ndarray::{Array2, ArrayD, Ix2};
 
 /// Definite (zero-Dirichlet walls), singular (closed walls) and mixed (closed
@@ -169,8 +169,8 @@ fn gradients_match_the_exact_gradient() {
 /// With `k ≡ 1` the solve is the one of the constant-coefficient Laplacian.
 #[test]
 fn unit_conductivity_solves_the_poisson_equation() {
-    use diffphys::ops::poisson::poisson_solve;
-    use diffphys::ops::stencil::Laplacian2;
+    use diffphys_ops::poisson::poisson_solve;
+    use diffphys_ops::stencil::Laplacian2;
     let (grid, _) = grids(12, 10).remove(0);
     let b = random_field::<f64>(&[12, 10], 11);
     let ones = Array2::<f64>::ones((12, 10));

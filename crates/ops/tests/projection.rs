@@ -7,16 +7,16 @@ mod common;
 use std::sync::Arc;
 
 use common::*;
-use diffphys::ops::cg::{CgError, CgParams, NullSpace};
-use diffphys::ops::mac::{MacGrid, MacPoisson, PressureOperator};
-use diffphys::ops::poisson::WarmStart;
-use diffphys::ops::projection::{
+use diffphys_ops::cg::{CgError, CgParams, NullSpace};
+use diffphys_ops::mac::{MacGrid, MacPoisson, PressureOperator};
+use diffphys_ops::poisson::WarmStart;
+use diffphys_ops::projection::{
     max_abs_divergence, project_tape, PressureProjection, ProjectionOp,
 };
-use diffphys::ops::reference::SparseCholesky;
-use diffphys::ops::stencil::Laplacian2;
-use diffphys::ops::CellMask;
-use diffphys::{Boundary, Grid2, LinearOperator, OpsError};
+use diffphys_ops::reference::SparseCholesky;
+use diffphys_ops::stencil::Laplacian2;
+use diffphys_ops::CellMask;
+use diffphys_ops::{Boundary, Grid2, LinearOperator, OpsError};
 use ndarray::{ArrayD, IxDyn};
 
 use Boundary::{Closed, Periodic, ZeroDirichlet};

@@ -7,13 +7,14 @@ mod common;
 use std::sync::Arc;
 
 use common::*;
-use diffphys::ops::cg::{CgError, CgParams, NullSpace};
-use diffphys::ops::poisson::{
+use diffphys_ops::cg::{CgError, CgParams, NullSpace};
+use diffphys_ops::poisson::{
     poisson_solve, poisson_solve_tape, poisson_solve_vjp, PoissonSolve, SolveLog, WarmStart,
 };
-use diffphys::ops::reference::SparseCholesky;
-use diffphys::ops::stencil::Laplacian2;
-use diffphys::{Boundary, Grid2, Op, OpsError};
+use diffphys_ops::reference::SparseCholesky;
+use diffphys_ops::stencil::Laplacian2;
+use diffphys_ops::{Boundary, Grid2, OpsError};
+use diffphys_tape::Op;
 use ndarray::ArrayD;
 
 /// The two kinds of systems: definite (Dirichlet walls) and singular

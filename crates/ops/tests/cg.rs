@@ -4,14 +4,14 @@
 mod common;
 
 use common::*;
-use diffphys::ops::cg::{
+use diffphys_ops::cg::{
     cg_solve, conjugate_gradient, CgError, CgParams, NullSpace, Preconditioner,
 };
-use diffphys::ops::dense::DenseOperator;
-use diffphys::ops::mac::{MacGrid, MacPoisson};
-use diffphys::ops::reference::SparseCholesky;
-use diffphys::ops::stencil::Laplacian2;
-use diffphys::{Boundary, Grid2, LinearOperator};
+use diffphys_ops::dense::DenseOperator;
+use diffphys_ops::mac::{MacGrid, MacPoisson};
+use diffphys_ops::reference::SparseCholesky;
+use diffphys_ops::stencil::Laplacian2;
+use diffphys_ops::{Boundary, Grid2, LinearOperator};
 use ndarray::{arr1, arr2, Array2, ArrayD, ArrayViewD, ArrayViewMutD, IxDyn};
 
 /// `‖x − x*‖ / ‖x*‖` in f64.
@@ -393,7 +393,7 @@ fn every_error_is_provoked() {
             found: vec![3]
         }
     );
-    let mask = diffphys::ops::CellMask::all_active(&[3]);
+    let mask = diffphys_ops::CellMask::all_active(&[3]);
     let e = cg_solve(
         &spd,
         b.view(),

@@ -1,7 +1,7 @@
 //! The one helper module of the integration tests: tolerances per precision, the
 //! f32/f64 test types, seeded fields and assertions on check reports.
 //!
-//! Use it from a file in `tests/` with `mod common;` and `use common::*;`.
+//! Use it from a file in `crates/ops/tests/` with `mod common;` and `use common::*;`.
 //! A test generic over the precision is written once and run in both:
 //!
 //! ```ignore
@@ -12,7 +12,7 @@
 // Each test file uses a different part of this module.
 #![allow(dead_code, unused_imports, unused_macros)]
 
-pub use diffphys::{
+pub use diffphys_tape::{
     check_adjoint, check_gradient, AdjointReport, ArrayD, GradCheckOptions, GradCheckReport, Real,
     Tape, TapeError, Var,
 };
@@ -78,7 +78,7 @@ macro_rules! both_precisions {
 /// `(shape, seed)` gives the same field in every run and both precisions (up to
 /// rounding).
 pub fn random_field<T: Real>(shape: &[usize], seed: u64) -> ArrayD<T> {
-    diffphys::test_array(shape, seed)
+    diffphys_tape::test_array(shape, seed)
 }
 
 /// Panics with the whole report unless the gradient check passed.
@@ -96,7 +96,7 @@ pub fn assert_grad_ok(report: &GradCheckReport) {
 #[track_caller]
 pub fn assert_gradient<T: Real, F>(f: F, inputs: &[ArrayD<T>]) -> GradCheckReport
 where
-    F: for<'t> Fn(&'t Tape<T>, &[Var<'t, T>]) -> diffphys::tape::Result<Var<'t, T>>,
+    F: for<'t> Fn(&'t Tape<T>, &[Var<'t, T>]) -> diffphys_tape::Result<Var<'t, T>>,
 {
     let report = check_gradient(f, inputs, tol::<T>().grad).expect("gradient check ran");
     assert_grad_ok(&report);

@@ -7,12 +7,12 @@ mod common;
 use std::sync::Arc;
 
 use common::*;
-use diffphys::ops::stencil::{
+use diffphys_ops::stencil::{
     DiffusionParams, Divergence1, Divergence2, ExplicitDiffusion1, ExplicitDiffusion2, Gradient1,
     Gradient2, Laplacian1, Laplacian2,
 };
-use diffphys::ops::tape_ops::{apply_linear, apply_linear_transpose};
-use diffphys::{Boundary, Grid1, Grid2, LinearOperator};
+use diffphys_ops::tape_ops::{apply_linear, apply_linear_transpose};
+use diffphys_ops::{Boundary, Grid1, Grid2, LinearOperator};
 use ndarray::{Array1, Array2, IxDyn};
 
 const KINDS: [Boundary; 3] = [

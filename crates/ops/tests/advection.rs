@@ -7,12 +7,12 @@
 mod common;
 
 use common::*;
-use diffphys::ops::advection::{
+use diffphys_ops::advection::{
     semi_lagrangian_1d, semi_lagrangian_1d_tape, semi_lagrangian_1d_vjp, semi_lagrangian_2d,
     semi_lagrangian_2d_tape, semi_lagrangian_2d_vjp, upwind_1d, upwind_1d_tape, upwind_1d_vjp,
     upwind_2d, upwind_2d_tape, upwind_2d_vjp, AdvectionParams, Wants,
 };
-use diffphys::{Boundary, Grid1, Grid2, OpsError};
+use diffphys_ops::{Boundary, Grid1, Grid2, OpsError};
 use ndarray::{Array1, Array3, ArrayViewD, Ix1, Ix2, Ix3};
 
 /// A velocity with entries of magnitude in `[0.2, 1]·scale`, of one sign (`sign =
@@ -33,7 +33,7 @@ fn upwind_1d_primitives<'t, T: Real>(
     dt: f64,
     d: Var<'t, T>,
     u: Var<'t, T>,
-) -> diffphys::tape::Result<Var<'t, T>> {
+) -> diffphys_tape::Result<Var<'t, T>> {
     let n = grid.n;
     let zero = d.tape().scalar(T::zero());
     let c = u.mul_scalar(T::from_f64(1.0 / grid.dx))?;
@@ -56,7 +56,7 @@ fn upwind_2d_primitives<'t, T: Real>(
     dt: f64,
     d: Var<'t, T>,
     u: Var<'t, T>,
-) -> diffphys::tape::Result<Var<'t, T>> {
+) -> diffphys_tape::Result<Var<'t, T>> {
     let shape = [grid.nx, grid.ny];
     let zero = d.tape().scalar(T::zero());
     let mut out = d;

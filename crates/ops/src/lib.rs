@@ -13,6 +13,7 @@ mod error;
 pub mod grid;
 pub mod linear;
 pub mod mac;
+pub mod multigrid;
 pub mod poisson;
 pub mod projection;
 pub mod reference;

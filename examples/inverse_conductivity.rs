@@ -18,6 +18,7 @@
 //! ```sh
 //! cargo run --release --example inverse_conductivity            # 32², 300 iterations
 //! cargo run --release --example inverse_conductivity -- --small # 16², 120 iterations
+//! cargo run --release --example inverse_conductivity -- --npy   # also OUT/npy/*.npy
 //! ```
 
 mod common;
@@ -235,6 +236,37 @@ fn main() -> Result<(), BoxError> {
         scene.sources.len()
     );
     write_charts(&args.out, &scene, &k, &losses)?;
+    let observed = ndarray::stack(
+        ndarray::Axis(0),
+        &scene.observed.iter().map(|o| o.view()).collect::<Vec<_>>(),
+    )?;
+    args.write_npy(&[
+        (
+            "k_true",
+            scene.k_true.view().into_dyn(),
+            "the true conductivity [n, n]",
+        ),
+        (
+            "k_recovered",
+            k.view().into_dyn(),
+            "the conductivity exp(θ) after the last Adam step [n, n]",
+        ),
+        (
+            "observed",
+            observed.view(),
+            "the observed potentials p_s of the true conductivity, one per source [sources, n, n]",
+        ),
+        (
+            "grad_theta_first",
+            g_tape.view().into_dyn(),
+            "dL/dθ of the misfit at θ = 0 (k = 1), by the implicit adjoint on the tape [n, n]",
+        ),
+        (
+            "grad_theta_first_exact",
+            g_exact.view().into_dyn(),
+            "the same gradient from exact sparse-Cholesky solves [n, n]",
+        ),
+    ])?;
     // Fail loudly rather than print figures that contradict the tutorial.
     if grad_error > 1e-8 {
         return Err(

@@ -81,7 +81,7 @@ fn first_five_losses_match_the_published_ones() {
             .and_then(|r| r.mean())
             .unwrap();
         let value = loss.item().unwrap();
-        // The criterion is 0.5 %; the published values are ours rounded to
+        // The criterion is 0.5 %; the published values are ours rounded to
         // six decimals, so the difference is at most half a unit in the sixth.
         assert!(
             ((value - published) / published).abs() < 0.005,

@@ -70,6 +70,50 @@ pub enum CompareError {
     /// memory limit, say).
     #[error("skipped: {0}")]
     Skipped(String),
+    /// A run was refused before it allocated: its estimated memory exceeds the
+    /// limit (`--memory-limit-mib`, or the memory the machine has available).
+    #[error(
+        "memory limit: {method} on {n}×{n} cells needs about {} (estimated), over the limit of {} \
+         ({source_of_limit}); not run",
+        crate::report::format_bytes(*estimate_bytes),
+        crate::report::format_bytes(*limit_bytes)
+    )]
+    MemoryLimit {
+        /// The method refused (`naive`, `implicit`, `exact`, `baseline_cg`, `setup`).
+        method: String,
+        /// Cells per axis.
+        n: usize,
+        /// The estimated bytes of the run.
+        estimate_bytes: usize,
+        /// The limit it was checked against.
+        limit_bytes: usize,
+        /// Where the limit came from: `--memory-limit-mib`, `MemAvailable` or
+        /// `fallback`.
+        source_of_limit: String,
+    },
+    /// A grid too small for the run asked of it: a fixed count of unrolled CG
+    /// iterations above the number of unknowns. CG reaches the exact solution
+    /// within `unknowns` iterations; the iterations after that divide 0 by 0.
+    #[error(
+        "grid too small: {method} on {n}×{n} cells: {iterations} fixed CG iterations exceed \
+         the {unknowns} unknowns (CG is exact within {unknowns} iterations; later ones divide \
+         a vanished residual by itself, 0/0); \
+         use a larger grid or at most {unknowns} iterations"
+    )]
+    GridTooSmall {
+        /// The method refused.
+        method: String,
+        /// Cells per axis.
+        n: usize,
+        /// The fixed iteration count asked for.
+        iterations: usize,
+        /// Unknowns of the system (`n²`).
+        unknowns: usize,
+    },
+    /// Nothing in a sweep could run (every run was refused or failed); the
+    /// results were still written.
+    #[error("no run succeeded: {0}")]
+    NothingRan(String),
     /// A requested mode or method exists in the interface but is not built yet.
     #[error("not implemented yet: {0}")]
     NotImplemented(String),

@@ -29,6 +29,7 @@ pub mod alloc;
 pub mod chart;
 mod error;
 pub mod harness;
+pub mod memory;
 pub mod methods;
 pub mod npy;
 pub mod problem;

@@ -19,9 +19,10 @@ use std::time::Instant;
 use clap::{Args, Parser, Subcommand};
 use diffphys_compare::alloc::CountingAllocator;
 use diffphys_compare::harness::{
-    cg_speedup, compute_floors, prepare_out_dir, run_sweep, write_charts, Precision, SweepConfig,
-    FLOOR_N,
+    cg_speedup, compute_floors, prepare_out_dir, run_sweep, run_sweep_npy, write_charts, Precision,
+    SweepConfig, FLOOR_N,
 };
+use diffphys_compare::npy::NpyWriter;
 use diffphys_compare::problem::OperatorKind;
 use diffphys_compare::report::{
     floors_text, is_skipped, key_figures_line, render_table, write_report_md, write_results_json,
@@ -86,9 +87,17 @@ struct SweepArgs {
     /// Skip naive runs whose tape would exceed this many MiB [default: 3072].
     #[arg(long)]
     naive_tape_limit_mib: Option<usize>,
+    /// Refuse runs whose estimated memory exceeds this many MiB [default: the
+    /// memory available, from /proc/meminfo].
+    #[arg(long)]
+    memory_limit_mib: Option<usize>,
     /// Output folder for results.json, report.md and the charts.
     #[arg(long, default_value = "out/compare")]
     out: PathBuf,
+    /// Also write, for the plain Laplacian in f64, each size's b, target, exact
+    /// gradient and every method's gradient as .npy files under OUT/npy.
+    #[arg(long)]
+    npy: bool,
     /// A tiny sweep (sizes 8 and 16) that finishes in seconds, for CI.
     #[arg(long)]
     quick: bool,
@@ -139,6 +148,7 @@ impl SweepArgs {
         if let Some(mib) = self.naive_tape_limit_mib {
             c.naive_tape_limit_bytes = mib.saturating_mul(1 << 20);
         }
+        c.memory_limit_mib = self.memory_limit_mib;
         c.validate()?;
         Ok(c)
     }
@@ -190,6 +200,14 @@ fn describe(config: &SweepConfig, args: &SweepArgs) -> Vec<String> {
             "naive tape limit: {}",
             diffphys_compare::report::format_bytes(config.naive_tape_limit_bytes)
         ),
+        {
+            let budget = diffphys_compare::memory::MemoryBudget::new(config.memory_limit_mib);
+            format!(
+                "memory limit per run: {} ({})",
+                diffphys_compare::report::format_bytes(budget.limit_bytes),
+                budget.source
+            )
+        },
         format!(
             "machine: {} logical CPUs, {} {}",
             std::thread::available_parallelism().map_or(0, |n| n.get()),
@@ -202,7 +220,13 @@ fn describe(config: &SweepConfig, args: &SweepArgs) -> Vec<String> {
 fn run(args: &SweepArgs, started: Instant) -> Result<String> {
     let config = args.config()?;
     let out = prepare_out_dir(&args.out)?;
-    let rows = run_sweep(&config, Some(&HEAP))?;
+    let (rows, npy_index) = if args.npy {
+        let mut npy = NpyWriter::new(out.join("npy"))?;
+        let rows = run_sweep_npy(&config, Some(&HEAP), &mut npy)?;
+        (rows, Some(npy.finish()?))
+    } else {
+        (run_sweep(&config, Some(&HEAP))?, None)
+    };
     let (timing, timing_note) = cg_speedup(&config);
     // Like the other floors, the speedup is judged at 256²; on smaller grids the
     // fixed costs of a solve call dominate, so the ratio is reported, not judged.
@@ -248,6 +272,16 @@ fn run(args: &SweepArgs, started: Instant) -> Result<String> {
         out.join("results.json").display(),
         out.join("report.md").display()
     );
+    if let Some(index) = npy_index {
+        println!("wrote {}", index.display());
+    }
+    if rows.iter().all(|r| r.error.is_some()) {
+        return Err(CompareError::NothingRan(format!(
+            "all {} runs were refused or failed; see {}",
+            rows.len(),
+            out.join("results.json").display()
+        )));
+    }
     Ok(key_figures_line(
         &rows,
         &floors,

@@ -13,7 +13,7 @@
 use diffphys_ops::cg::NullSpace;
 use diffphys_ops::stencil::Laplacian2;
 use diffphys_ops::{Boundary, Grid2};
-use diffphys_tape::Real;
+use diffphys_tape::{Real, Var};
 use ndarray::Array2;
 use serde::{Deserialize, Serialize};
 
@@ -234,6 +234,22 @@ impl<T: Real> Problem<T> {
                 .zip(&self.target)
                 .map(|(&a, &w)| a.as_f64() * w.as_f64())
                 .sum(),
+        }
+    }
+
+    /// The loss of `p` recorded on `p`'s tape (the same loss as
+    /// [`Problem::loss`]), for the methods that backpropagate through it.
+    ///
+    /// # Errors
+    /// Whatever the tape's ops return.
+    pub(crate) fn recorded_loss<'t>(&self, p: Var<'t, T>) -> diffphys_tape::Result<Var<'t, T>> {
+        let target = p.tape().constant(self.target.clone().into_dyn());
+        match self.spec.loss {
+            LossKind::Tracking => {
+                let d = p.sub(target)?;
+                d.dot(d)?.mul_scalar(T::from_f64(0.5))
+            }
+            LossKind::Weighted => p.dot(target),
         }
     }
 

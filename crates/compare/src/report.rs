@@ -285,7 +285,7 @@ pub fn markdown_table(rows: &[ResultRow]) -> String {
     out
 }
 
-/// One performance floor of the issue, measured as a ratio in this run.
+/// One performance floor of the project, measured as a ratio in this run.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Floor {
     /// A short key (`heap_ratio`, …), used in the closing JSON line.

@@ -1,4 +1,4 @@
-//! Rows serialise with the fields the issue names, and a tiny sweep produces the
+//! Rows serialise with the fields results.json promises, and a tiny sweep produces the
 //! table, results.json, report.md and charts.
 
 use diffphys_compare::alloc::CountingAllocator;
@@ -19,7 +19,7 @@ fn temp_dir(name: &str) -> std::path::PathBuf {
 }
 
 #[test]
-fn row_serialises_with_the_issue_fields_and_round_trips() {
+fn row_serialises_with_the_documented_fields_and_round_trips() {
     let mut row = ResultRow::new("naive", "f64", 64, "laplacian");
     row.iterations = Some(120);
     row.rtol = Some(1e-8);
@@ -89,6 +89,7 @@ fn tiny_sweep_writes_table_json_report_and_charts() {
         loss: LossKind::Tracking,
         fd_max_n: 6,
         naive_tape_limit_bytes: 64 << 20,
+        memory_limit_mib: None,
     };
     let rows = run_sweep(&config, Some(&HEAP)).unwrap();
     assert_eq!(rows.len(), config.run_count());

@@ -115,7 +115,7 @@ fn manufactured_laplacian<T: Real>() {
 
 both_precisions!(manufactured_dense_spd, manufactured_laplacian);
 
-/// Issue 6's floor, checked at the source: f32 CG on the 64×64 Laplacian to
+/// The stability study's floor, checked at the source: f32 CG on the 64×64 Laplacian to
 /// relative tolerance 1e-5 lands within 1e-4 of the f64 exact solution (the
 /// f64 accumulation of the dot products keeps it near 1e-6).
 #[test]

@@ -134,7 +134,7 @@ fn warm_started_gradient_matches_the_exact_gradient() {
 
 #[test]
 fn f32_gradient_on_64x64_is_within_1e_4_of_exact() {
-    // Issue 6's accuracy floor for the implicit f32 gradient.
+    // The stability study's accuracy floor for the implicit f32 gradient.
     for (a, ns) in systems(64, 64) {
         let exact = SparseCholesky::new(&a, ns.clone()).unwrap();
         let b = random_field::<f64>(&[64, 64], 7);

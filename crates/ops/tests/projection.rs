@@ -62,7 +62,7 @@ fn dot<T: Real>(a: &ArrayD<T>, b: &ArrayD<T>) -> f64 {
 #[test]
 fn face_shapes_follow_the_boundaries() {
     let mac = |b| MacGrid::new(Grid2::new(80, 64, 1.0, 1.0, b).unwrap());
-    // The scene of the issue: closed walls, unknowns only on interior faces.
+    // The projection scene: closed walls, unknowns only on interior faces.
     assert_eq!(mac(Closed).shape_x(), [79, 64]);
     assert_eq!(mac(Closed).shape_y(), [80, 63]);
     assert_eq!(mac(ZeroDirichlet).shape_x(), [81, 64]);

@@ -20,7 +20,6 @@ use diffphys_ops::stencil::Laplacian2;
 use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, Tape, TapeError};
 use ndarray::{Array2, Ix2};
 
-use super::naive::recorded_loss;
 use super::{relative_residual, GradientMethod, RunOutcome, Stop};
 use crate::problem::Problem;
 use crate::{CompareError, Result};
@@ -125,7 +124,7 @@ pub fn run_implicit<T: Real>(
     let start = Instant::now();
     let b = tape.var(problem.b.clone().into_dyn());
     let p = poisson_solve_tape(solve, b)?;
-    let loss = recorded_loss(problem, p)?;
+    let loss = problem.recorded_loss(p)?;
     let loss_value = loss.item()?.as_f64();
     let forward_s = start.elapsed().as_secs_f64();
 
@@ -238,7 +237,7 @@ pub fn implicit_initial_guess_gradient<T: Real>(
     let b = tape.var(problem.b.clone().into_dyn());
     let x0v = tape.var(x0.clone().into_dyn());
     let p = tape.apply1(op, &[b, x0v])?;
-    let loss = recorded_loss(problem, p)?;
+    let loss = problem.recorded_loss(p)?;
     let grads = tape.backward(loss, &[b, x0v])?;
     let get = |v, what| {
         grads

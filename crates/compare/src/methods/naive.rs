@@ -29,7 +29,7 @@ use diffphys_tape::{Real, Tape, TapeError, Var};
 use ndarray::{Array2, Ix2};
 
 use super::{relative_residual, GradientMethod, RunOutcome, Stop};
-use crate::problem::{LossKind, Problem};
+use crate::problem::Problem;
 use crate::{CompareError, Result};
 
 /// CG unrolled on the tape. `check_finite` (on by default) makes the tape check
@@ -130,21 +130,6 @@ fn unrolled_cg<'t, T: Real>(
     })
 }
 
-/// The loss of `p` recorded on its tape.
-pub(crate) fn recorded_loss<'t, T: Real>(
-    problem: &Problem<T>,
-    p: Var<'t, T>,
-) -> diffphys_tape::Result<Var<'t, T>> {
-    let target = p.tape().constant(problem.target.clone().into_dyn());
-    match problem.spec.loss {
-        LossKind::Tracking => {
-            let d = p.sub(target)?;
-            d.dot(d)?.mul_scalar(T::from_f64(0.5))
-        }
-        LossKind::Weighted => p.dot(target),
-    }
-}
-
 /// After a backward failed on a non-finite gradient: the latest iteration whose
 /// scalars (`<p, A p>`, `α`, `‖r‖²`, `β`) received a non-finite gradient, found
 /// by sweeping again with the check off. Reverse mode visits the last iteration
@@ -222,10 +207,12 @@ impl NaiveUnrolled {
         let project = problem.spec.operator.null_space() != NullSpace::None;
         let cg = unrolled_cg(&a, b, x0, b_norm, stop, project)?;
         let last = cg.iterations;
-        let loss = recorded_loss(problem, cg.x).map_err(|source| CompareError::NaiveIteration {
-            iteration: last,
-            source,
-        })?;
+        let loss = problem
+            .recorded_loss(cg.x)
+            .map_err(|source| CompareError::NaiveIteration {
+                iteration: last,
+                source,
+            })?;
         let loss_value = loss.item()?.as_f64();
         let forward_s = start.elapsed().as_secs_f64();
 

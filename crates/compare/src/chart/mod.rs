@@ -1,0 +1,194 @@
+//! SVG charts for the harness: line charts (optionally log-scaled), heat maps of
+//! 2D fields, and quiver plots of 2D velocity fields.
+//!
+//! Everything is drawn with plotters' SVG backend into a string first and then
+//! written to the file, so a write failure is a [`CompareError::Io`] naming the
+//! path. Input that cannot be drawn (no series, no finite point, an empty field)
+//! is a [`CompareError::Chart`], never a panic: plotters itself panics on empty or
+//! NaN axis ranges, so every range is checked and padded before it reaches it.
+//!
+//! ```no_run
+//! use diffphys_compare::chart::{line_chart_svg, LineChart, Series};
+//!
+//! let series = [Series::new("naive f64", vec![(10.0, 1e-3), (100.0, 1e-9)])];
+//! let chart = LineChart {
+//!     title: "gradient error vs iterations",
+//!     x_label: "CG iterations",
+//!     y_label: "relative error",
+//!     log_x: true,
+//!     log_y: true,
+//!     series: &series,
+//! };
+//! line_chart_svg(std::path::Path::new("out/error.svg"), &chart)?;
+//! # Ok::<(), diffphys_compare::CompareError>(())
+//! ```
+
+use std::path::Path;
+
+use ndarray::ArrayView2;
+use plotters::coord::ranged1d::{DefaultFormatting, KeyPointHint, Ranged};
+use plotters::coord::types::RangedCoordf64;
+use plotters::coord::Shift;
+use plotters::prelude::*;
+
+use crate::{CompareError, Result};
+
+mod axes;
+mod heatmap;
+mod line;
+mod quiver;
+
+pub use heatmap::{
+    heatmap_svg, heatmap_svg_string, heatmap_svg_string_with_axes, heatmap_svg_with_axes,
+};
+pub use line::{line_chart_svg, line_chart_svg_string};
+pub use quiver::{quiver_svg, quiver_svg_string};
+
+/// One named curve of a [`LineChart`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct Series {
+    /// The legend entry.
+    pub label: String,
+    /// `(x, y)` points, drawn in the given order (sort by x for a curve). Points
+    /// with a non-finite x are skipped; points with a finite x and a non-finite y
+    /// are drawn as crosses on a separate "non-finite" row above the plot, so a
+    /// failure shows where it happened. On a log axis a value `≤ 0` cannot be
+    /// placed and is skipped.
+    pub points: Vec<(f64, f64)>,
+}
+
+impl Series {
+    /// A series from a label and its points.
+    pub fn new(label: impl Into<String>, points: Vec<(f64, f64)>) -> Self {
+        Series {
+            label: label.into(),
+            points,
+        }
+    }
+}
+
+/// A line chart: one curve per [`Series`], a legend, and linear or log axes.
+#[derive(Debug, Clone, Copy)]
+pub struct LineChart<'a> {
+    /// The caption.
+    pub title: &'a str,
+    /// The x-axis description.
+    pub x_label: &'a str,
+    /// The y-axis description.
+    pub y_label: &'a str,
+    /// Log-scale the x axis (base 10).
+    pub log_x: bool,
+    /// Log-scale the y axis (base 10).
+    pub log_y: bool,
+    /// The curves.
+    pub series: &'a [Series],
+}
+
+const LINE_SIZE: (u32, u32) = (900, 560);
+
+const HEATMAP_SIZE: (u32, u32) = (760, 640);
+
+const COLORBAR_WIDTH: u32 = 120;
+
+/// Heat maps average blocks of cells down to at most this many per axis, which
+/// keeps a 1024² field to a few hundred kilobytes of SVG.
+const HEATMAP_MAX_CELLS: usize = 128;
+
+/// Quiver plots draw at most this many arrows per axis.
+const QUIVER_MAX_ARROWS: usize = 32;
+
+const FONT: &str = "sans-serif";
+
+/// Ten distinguishable colours (the "tab10" palette).
+const PALETTE: [RGBColor; 10] = [
+    RGBColor(31, 119, 180),
+    RGBColor(255, 127, 14),
+    RGBColor(44, 160, 44),
+    RGBColor(214, 39, 40),
+    RGBColor(148, 103, 189),
+    RGBColor(140, 86, 75),
+    RGBColor(227, 119, 194),
+    RGBColor(127, 127, 127),
+    RGBColor(188, 189, 34),
+    RGBColor(23, 190, 207),
+];
+
+/// The colour of series `i` in every line chart, so a method keeps its colour
+/// across charts when callers keep the series order.
+pub fn series_color(i: usize) -> RGBColor {
+    PALETTE[i % PALETTE.len()]
+}
+
+fn chart_err(e: impl std::fmt::Display) -> CompareError {
+    CompareError::Chart(e.to_string())
+}
+
+fn write_file(path: &Path, text: &str) -> Result<()> {
+    std::fs::write(path, text).map_err(|e| CompareError::io(path, e))
+}
+
+/// Formats an axis value with about three significant digits: `0.25`, `1200`,
+/// `1e-8`, `3.2e5`.
+pub fn format_value(x: f64) -> String {
+    if x == 0.0 {
+        return "0".to_string();
+    }
+    if !x.is_finite() {
+        return x.to_string();
+    }
+    let a = x.abs();
+    if (1e-3..1e5).contains(&a) {
+        let s = format!("{x:.3}");
+        let s = s.trim_end_matches('0').trim_end_matches('.');
+        return s.to_string();
+    }
+    let s = format!("{x:.2e}");
+    let (mantissa, exponent) = s.split_once('e').expect("{:e} formatting has an exponent");
+    let mantissa = mantissa.trim_end_matches('0').trim_end_matches('.');
+    format!("{mantissa}e{exponent}")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::axes::{padded_range, AxisScale};
+    use super::heatmap::{ColorScale, NON_FINITE_COLOR};
+    use super::line::place;
+    use super::*;
+
+    #[test]
+    fn values_format_compactly() {
+        assert_eq!(format_value(0.0), "0");
+        assert_eq!(format_value(0.25), "0.25");
+        assert_eq!(format_value(1200.0), "1200");
+        assert_eq!(format_value(1e-8), "1e-8");
+        assert_eq!(format_value(-3.25e5), "-3.25e5");
+    }
+
+    #[test]
+    fn diverging_scale_is_white_at_zero_and_symmetric() {
+        let s = ColorScale::for_range(-2.0, 1.0);
+        assert_eq!(s.color(0.0), RGBColor(247, 247, 247));
+        assert_eq!(s.color(-2.0), RGBColor(33, 102, 172));
+        assert_eq!(s.color(2.0), RGBColor(178, 24, 43));
+        assert_eq!(s.color(f64::NAN), NON_FINITE_COLOR);
+    }
+
+    #[test]
+    fn degenerate_ranges_are_padded() {
+        assert_eq!(padded_range(0.0, 0.0, false), (-1.0, 1.0));
+        assert_eq!(padded_range(-3.0, -3.0, true), (-3.5, -2.5));
+        let (lo, hi) = padded_range(5.0, 5.0, false);
+        assert!(lo < 5.0 && hi > 5.0);
+    }
+
+    #[test]
+    fn gaps_split_runs_and_nan_goes_to_the_row() {
+        let s = Series::new(
+            "s",
+            vec![(1.0, 1.0), (2.0, f64::NAN), (3.0, 2.0), (f64::NAN, 1.0)],
+        );
+        let p = place(&s, AxisScale { log: false }, AxisScale { log: false });
+        assert_eq!(p.runs, vec![vec![(1.0, 1.0)], vec![(3.0, 2.0)]]);
+        assert_eq!(p.non_finite_x, vec![2.0]);
+    }
+}

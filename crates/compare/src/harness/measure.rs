@@ -1,0 +1,140 @@
+//! One run of one method measured into one [`ResultRow`]: timings, tape and
+//! heap bytes, the error against the exact gradient and against finite
+//! differences.
+
+use super::*;
+
+/// Runs `method` once on `problem` and measures it into a row: its timings and
+/// tape bytes, the peak heap (if `heap` is the installed global allocator), the
+/// error against `exact` (the `f64` reference gradient, if known), and any
+/// failure as the row's `error`. A failing method is a result, not an error.
+pub fn measure<T: Real>(
+    method: &dyn GradientMethod<T>,
+    problem: &Problem<T>,
+    stop: Option<Stop>,
+    heap: Option<&CountingAllocator>,
+    exact: Option<&Array2<f64>>,
+) -> (ResultRow, Option<RunOutcome<T>>) {
+    let mut row = ResultRow::new(
+        method.name(),
+        T::NAME,
+        problem.spec.n,
+        &problem.spec.operator.label(),
+    );
+    row.rtol = stop.and_then(|s| s.rtol());
+    row.max_iters = stop.map(|s| s.max_iters());
+    let window = heap.map(HeapWindow::start);
+    // A direct method ignores the stopping rule.
+    let result = method.run(problem, stop.unwrap_or(Stop::Iterations(0)));
+    row.peak_heap_bytes = window.map(|w| w.peak_above_baseline());
+    match result {
+        Ok(out) => {
+            row.forward_s = Some(out.forward_s);
+            row.backward_s = out.backward_s;
+            row.tape_bytes = out.tape_bytes;
+            row.iterations = out.iterations;
+            row.adjoint_iterations = out.adjoint_iterations;
+            row.reached_relative_residual = out.forward_residual;
+            row.loss = Some(out.loss);
+            row.finite = out.loss.is_finite() && out.gradient.iter().all(|v| v.is_finite());
+            row.grad_rel_err = exact.and_then(|g| relative_error(&out.gradient, g));
+            (row, Some(out))
+        }
+        Err(e) => {
+            row.finite = !is_non_finite(&e);
+            row.error = Some(e.to_string());
+            (row, None)
+        }
+    }
+}
+
+/// The relative error of `gradient`'s directional derivative along a fixed
+/// pseudo-random direction `d` (entries in `[−1, 1)`) against finite differences
+/// of the method's own loss: the central difference `D(h) = (L(b + h d) −
+/// L(b − h d)) / 2h` at `h = ε^(1/3)` and `h/2`, Richardson-extrapolated to
+/// `(4 D(h/2) − D(h)) / 3` (error `O(h⁴)`: a truncated CG is a strongly curved
+/// function of `b`). The method runs four more times with the same stopping rule.
+/// The directional derivative uses the perturbation actually applied after
+/// rounding to `T`.
+///
+/// Returns `None` in `f32`, where the loss resolves too few digits for any step
+/// to balance truncation and rounding on a truncated solve, if a perturbed run
+/// fails, or if the derivative is zero.
+pub fn finite_difference_error<T: Real>(
+    method: &dyn GradientMethod<T>,
+    problem: &Problem<T>,
+    stop: Stop,
+    gradient: &Array2<T>,
+) -> Option<f64> {
+    if std::mem::size_of::<T>() < 8 {
+        return None;
+    }
+    let shape = problem.b.shape().to_vec();
+    let d = diffphys_tape::test_array::<T>(&shape, 0x5eed)
+        .into_dimensionality::<ndarray::Ix2>()
+        .ok()?;
+    let shifted = |step: f64| {
+        let mut p = problem.clone();
+        let step = T::from_f64(step);
+        p.b.zip_mut_with(&d, |b, &dv| *b += step * dv);
+        p
+    };
+    // (finite difference, analytic directional derivative) at step h
+    let central = |h: f64| -> Option<(f64, f64)> {
+        let (plus, minus) = (shifted(h), shifted(-h));
+        let l_plus = method.run(&plus, stop).ok()?.loss;
+        let l_minus = method.run(&minus, stop).ok()?.loss;
+        let analytic: f64 = gradient
+            .iter()
+            .zip(plus.b.iter().zip(&minus.b))
+            .map(|(&g, (&bp, &bm))| g.as_f64() * (bp.as_f64() - bm.as_f64()) / (2.0 * h))
+            .sum();
+        Some(((l_plus - l_minus) / (2.0 * h), analytic))
+    };
+    let h = T::fd_step().as_f64();
+    let (fd_h, an_h) = central(h)?;
+    let (fd_half, an_half) = central(h / 2.0)?;
+    let fd = (4.0 * fd_half - fd_h) / 3.0;
+    let analytic = (4.0 * an_half - an_h) / 3.0;
+    let scale = analytic.abs().max(fd.abs());
+    (scale > 0.0 && fd.is_finite()).then(|| (fd - analytic).abs() / scale)
+}
+
+/// Times the straightforward CG ([`baseline_cg`]) on `problem`'s forward solve:
+/// a forward-only row (`method = baseline_cg`, no backward, no gradient).
+pub fn measure_baseline<T: Real>(
+    problem: &Problem<T>,
+    stop: Stop,
+    heap: Option<&CountingAllocator>,
+) -> ResultRow {
+    let mut row = ResultRow::new(
+        "baseline_cg",
+        T::NAME,
+        problem.spec.n,
+        &problem.spec.operator.label(),
+    );
+    row.rtol = stop.rtol();
+    row.max_iters = Some(stop.max_iters());
+    let a = StraightforwardLaplacian::negative(&problem.grid);
+    let b = problem.b.as_standard_layout();
+    let b = b.as_slice().expect("standard layout");
+    let window = heap.map(HeapWindow::start);
+    let start = Instant::now();
+    let mut x = vec![T::zero(); b.len()];
+    let result = baseline_cg(&a, b, &mut x, stop);
+    let elapsed = start.elapsed().as_secs_f64();
+    row.peak_heap_bytes = window.map(|w| w.peak_above_baseline());
+    match result {
+        Ok(info) => {
+            row.forward_s = Some(elapsed);
+            row.iterations = Some(info.iterations);
+            row.reached_relative_residual = Some(info.relative_residual);
+            row.finite = x.iter().all(|v| v.is_finite());
+        }
+        Err(e) => {
+            row.finite = !is_non_finite(&e);
+            row.error = Some(e.to_string());
+        }
+    }
+    row
+}

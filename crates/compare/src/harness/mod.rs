@@ -1,0 +1,185 @@
+//! Measuring methods: one run into one [`ResultRow`], sweeps over sizes, stopping
+//! rules, precisions and operators, the harness's charts and its floors.
+
+use std::collections::HashMap;
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use diffphys_ops::cg::CgError;
+use diffphys_ops::OpsError;
+use diffphys_tape::{Real, TapeError};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use ndarray::Array2;
+use serde::{Deserialize, Serialize};
+
+use crate::alloc::{CountingAllocator, HeapWindow};
+use crate::chart::{line_chart_svg, LineChart, Series};
+use crate::memory::{MemoryBudget, Storage};
+use crate::methods::baseline::{baseline_cg, StraightforwardLaplacian};
+use crate::methods::exact::ExactCholesky;
+use crate::methods::implicit::ImplicitSolve;
+use crate::methods::naive::NaiveUnrolled;
+use crate::methods::{GradientMethod, RunOutcome, Stop};
+use crate::npy::NpyWriter;
+use crate::problem::{LossKind, OperatorKind, Problem, ProblemSpec};
+use crate::report::{Floor, ResultRow};
+use crate::{CompareError, Result};
+
+mod charts;
+mod floors;
+mod measure;
+mod sweep;
+mod timing;
+
+pub use charts::write_charts;
+pub(crate) use charts::{series_by_method, write_chart};
+pub use floors::{compute_floors, FLOOR_N, FLOOR_RTOL};
+pub use measure::{finite_difference_error, measure, measure_baseline};
+pub(crate) use sweep::{exact_reference, ExactCache};
+pub use sweep::{naive_bytes_per_iteration, run_sweep, run_sweep_npy, stop_label, SweepConfig};
+pub use timing::{cg_speedup, time_cg_iterations, time_fused_cg, IterationTiming};
+
+/// A scalar type of the study.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum Precision {
+    /// `f32`.
+    F32,
+    /// `f64`.
+    F64,
+}
+
+impl Precision {
+    /// `"f32"` or `"f64"`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Precision::F32 => "f32",
+            Precision::F64 => "f64",
+        }
+    }
+
+    /// Parses `f32` or `f64`.
+    ///
+    /// # Errors
+    /// [`CompareError::InvalidArgument`] for anything else.
+    pub fn parse(s: &str) -> Result<Self> {
+        match s {
+            "f32" => Ok(Precision::F32),
+            "f64" => Ok(Precision::F64),
+            other => Err(CompareError::invalid(format!(
+                "unknown precision '{other}': expected f32 or f64"
+            ))),
+        }
+    }
+}
+
+/// The gradient methods the harness compares.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum MethodKind {
+    /// CG unrolled on the tape ([`NaiveUnrolled`]).
+    Naive,
+    /// The Poisson op with its implicit adjoint.
+    Implicit,
+    /// The sparse Cholesky reference.
+    Exact,
+}
+
+impl MethodKind {
+    /// The method's name in results.
+    pub fn name(self) -> &'static str {
+        match self {
+            MethodKind::Naive => "naive",
+            MethodKind::Implicit => "implicit",
+            MethodKind::Exact => "exact",
+        }
+    }
+}
+
+/// The method of `kind` in precision `T`.
+///
+/// # Errors
+/// None today; kept fallible so that a method whose operators are missing can
+/// say so ([`CompareError::NotImplemented`]) instead of pretending to work.
+pub fn method<T: Real>(kind: MethodKind) -> Result<Box<dyn GradientMethod<T>>> {
+    match kind {
+        MethodKind::Naive => Ok(Box::new(NaiveUnrolled::default())),
+        MethodKind::Implicit => Ok(Box::new(ImplicitSolve)),
+        MethodKind::Exact => Ok(Box::new(ExactCholesky)),
+    }
+}
+
+/// True if `e` reports a NaN or infinity (as opposed to a bad argument or a
+/// solver that ran out of iterations).
+pub fn is_non_finite(e: &CompareError) -> bool {
+    fn tape(e: &TapeError) -> bool {
+        match e {
+            TapeError::NonFinite { .. } => true,
+            TapeError::Op { source, .. } => {
+                source.downcast_ref::<OpsError>().is_some_and(ops)
+                    || source.downcast_ref::<CgError>().is_some_and(cg)
+            }
+            _ => false,
+        }
+    }
+    fn cg(e: &CgError) -> bool {
+        matches!(e, CgError::NonFinite { .. })
+    }
+    fn ops(e: &OpsError) -> bool {
+        match e {
+            OpsError::NonFinite { .. } => true,
+            OpsError::Tape(t) => tape(t),
+            OpsError::Cg(c) => cg(c),
+            _ => false,
+        }
+    }
+    match e {
+        CompareError::NonFinite { .. } => true,
+        CompareError::Tape(t) | CompareError::NaiveIteration { source: t, .. } => tape(t),
+        CompareError::Ops(o) | CompareError::UnrollStep { source: o, .. } => ops(o),
+        _ => false,
+    }
+}
+
+/// `‖g − g*‖ / ‖g*‖` in `f64` (`‖g − g*‖` if `g* = 0`); `None` if `g` holds a
+/// non-finite value or the shapes differ.
+pub fn relative_error<T: Real>(g: &Array2<T>, exact: &Array2<f64>) -> Option<f64> {
+    if g.dim() != exact.dim() || g.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    let (mut num, mut den) = (0.0, 0.0);
+    for (&a, &b) in g.iter().zip(exact) {
+        num += (a.as_f64() - b).powi(2);
+        den += b * b;
+    }
+    Some(if den > 0.0 {
+        (num / den).sqrt()
+    } else {
+        num.sqrt()
+    })
+}
+
+/// A progress bar on stderr, hidden when stderr is not a terminal (CI, pipes).
+pub fn progress_bar(len: usize, what: &str) -> ProgressBar {
+    let target = if std::io::stderr().is_terminal() {
+        ProgressDrawTarget::stderr()
+    } else {
+        ProgressDrawTarget::hidden()
+    };
+    let bar = ProgressBar::with_draw_target(Some(len as u64), target);
+    if let Ok(style) =
+        ProgressStyle::with_template("{prefix} [{elapsed_precise}] {bar:32} {pos}/{len} {msg}")
+    {
+        bar.set_style(style);
+    }
+    bar.set_prefix(what.to_string());
+    bar
+}
+
+/// Creates the output folder.
+///
+/// # Errors
+/// [`CompareError::Io`].
+pub fn prepare_out_dir(out: &Path) -> Result<PathBuf> {
+    std::fs::create_dir_all(out).map_err(|e| CompareError::io(out, e))?;
+    Ok(out.to_path_buf())
+}

@@ -1,0 +1,477 @@
+//! The sweep: every scene with every method and stopping rule, each run a row,
+//! runs that would not fit in memory or on the grid refused with a typed error.
+
+use super::*;
+
+/// What a sweep runs.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SweepConfig {
+    /// Grid sizes `n` (the grid is `n × n`).
+    pub sizes: Vec<usize>,
+    /// Fixed CG iteration counts.
+    pub iters: Vec<usize>,
+    /// Relative tolerances (each run to convergence or `max_iters`).
+    pub rtols: Vec<f64>,
+    /// The iteration cap of tolerance runs.
+    pub max_iters: usize,
+    /// Scalar types.
+    pub precisions: Vec<Precision>,
+    /// Operators (the conditioning axis).
+    pub operators: Vec<OperatorKind>,
+    /// The loss.
+    pub loss: LossKind,
+    /// Grids up to this size also get a finite-difference check of each gradient
+    /// (two more runs of the method), in [`ResultRow::fd_rel_err`].
+    pub fd_max_n: usize,
+    /// Naive runs whose tape is estimated above this many bytes are skipped (and
+    /// reported as skipped): unrolling thousands of iterations of a large grid
+    /// does not fit in memory, which is the point, but should not crash the run.
+    pub naive_tape_limit_bytes: usize,
+    /// Runs whose estimated memory exceeds this many MiB are refused (rows with
+    /// [`CompareError::MemoryLimit`]); `None` checks against the memory the
+    /// machine has available ([`crate::memory::MemoryBudget::new`]).
+    #[serde(default)]
+    pub memory_limit_mib: Option<usize>,
+}
+
+impl SweepConfig {
+    /// The default run: the README's main job, under two minutes on two cores.
+    pub fn default_run() -> Self {
+        SweepConfig {
+            sizes: vec![32, 64, 128, 256],
+            iters: vec![10, 30, 100, 300],
+            rtols: vec![1e-4, 1e-6, 1e-8],
+            max_iters: 20_000,
+            precisions: vec![Precision::F32, Precision::F64],
+            operators: vec![
+                OperatorKind::Laplacian,
+                OperatorKind::Anisotropic { ratio: 100.0 },
+            ],
+            loss: LossKind::Tracking,
+            fd_max_n: 32,
+            naive_tape_limit_bytes: 3 << 30,
+            memory_limit_mib: None,
+        }
+    }
+
+    /// A tiny run for CI: seconds, every code path, no floors.
+    pub fn quick() -> Self {
+        SweepConfig {
+            sizes: vec![8, 16],
+            iters: vec![5, 20],
+            rtols: vec![1e-6],
+            max_iters: 2_000,
+            precisions: vec![Precision::F32, Precision::F64],
+            operators: vec![OperatorKind::Laplacian],
+            loss: LossKind::Tracking,
+            fd_max_n: 16,
+            naive_tape_limit_bytes: 256 << 20,
+            memory_limit_mib: None,
+        }
+    }
+
+    /// The stopping rules of the sweep: fixed counts, then tolerances.
+    pub fn stops(&self) -> Vec<Stop> {
+        self.iters
+            .iter()
+            .map(|&k| Stop::Iterations(k))
+            .chain(self.rtols.iter().map(|&rtol| Stop::Tolerance {
+                rtol,
+                max_iters: self.max_iters,
+            }))
+            .collect()
+    }
+
+    /// Checks the configuration.
+    ///
+    /// # Errors
+    /// [`CompareError::InvalidArgument`] for an empty list, a size below 2, a
+    /// tolerance not in `(0, 1)`, or a zero iteration count or cap.
+    pub fn validate(&self) -> Result<()> {
+        let fail = |m: String| Err(CompareError::invalid(m));
+        if self.sizes.is_empty() || self.precisions.is_empty() || self.operators.is_empty() {
+            return fail("sizes, precisions and operators must each list at least one".into());
+        }
+        if self.iters.is_empty() && self.rtols.is_empty() {
+            return fail(
+                "give at least one iteration count (--iters) or tolerance (--rtol)".into(),
+            );
+        }
+        if let Some(n) = self.sizes.iter().find(|&&n| n < 2) {
+            return fail(format!("grid size {n} is too small (need ≥ 2)"));
+        }
+        if let Some(r) = self.rtols.iter().find(|r| !(**r > 0.0 && **r < 1.0)) {
+            return fail(format!("tolerance {r} is not in (0, 1)"));
+        }
+        if self.iters.contains(&0) || self.max_iters == 0 {
+            return fail("iteration counts and the cap must be positive".into());
+        }
+        Ok(())
+    }
+
+    /// How many rows a sweep produces (for the progress bar).
+    pub fn run_count(&self) -> usize {
+        let per_scene = 1 + 1 + 2 * self.stops().len(); // exact, baseline, naive + implicit per stop
+        per_scene * self.sizes.len() * self.precisions.len() * self.operators.len()
+    }
+}
+
+/// Bytes the naive tape holds per CG iteration: seven arrays of the grid.
+pub fn naive_bytes_per_iteration<T: Real>(n: usize) -> usize {
+    7 * n * n * std::mem::size_of::<T>()
+}
+
+/// The `f64` exact gradient of a scene, computed once per scene.
+pub(crate) type ExactCache = HashMap<(usize, String), Option<Array2<f64>>>;
+
+pub(crate) fn exact_reference(cache: &mut ExactCache, spec: ProblemSpec) -> Option<Array2<f64>> {
+    cache
+        .entry((spec.n, spec.operator.label()))
+        .or_insert_with(|| {
+            let problem = Problem::<f64>::new(spec).ok()?;
+            let exact = method::<f64>(MethodKind::Exact).ok()?;
+            exact
+                .run(&problem, Stop::Iterations(0))
+                .ok()
+                .map(|o| o.gradient)
+        })
+        .clone()
+}
+
+/// What a sweep writes as `.npy` files besides its rows: for the plain
+/// Laplacian in `f64`, each size's `b`, target, exact gradient and every
+/// method's gradient under every stopping rule.
+struct NpySink<'a> {
+    writer: &'a mut NpyWriter,
+    first_error: Option<CompareError>,
+}
+
+impl NpySink<'_> {
+    fn wants<T: Real>(spec: &ProblemSpec) -> bool {
+        T::NAME == "f64" && spec.operator == OperatorKind::Laplacian
+    }
+
+    fn write<T: Real>(&mut self, name: &str, array: &Array2<T>, meaning: &str) {
+        if self.first_error.is_some() {
+            return;
+        }
+        let values = array.mapv(|v| v.as_f64()).into_dyn();
+        if let Err(e) = self.writer.write(name, values.view(), meaning) {
+            self.first_error = Some(e);
+        }
+    }
+}
+
+/// The `.npy` name of a stopping rule: `iters30`, `rtol1e-8`.
+pub fn stop_label(stop: Stop) -> String {
+    match stop {
+        Stop::Iterations(k) => format!("iters{k}"),
+        Stop::Tolerance { rtol, .. } => format!("rtol{rtol:e}"),
+    }
+}
+
+/// A row of `kind` that was not run, with the reason.
+fn refused_row(
+    kind: &str,
+    precision: &str,
+    spec: &ProblemSpec,
+    stop: Option<Stop>,
+    e: &CompareError,
+) -> ResultRow {
+    let mut row = ResultRow::new(kind, precision, spec.n, &spec.operator.label());
+    row.rtol = stop.and_then(|s| s.rtol());
+    row.max_iters = stop.map(|s| s.max_iters());
+    row.error = Some(e.to_string());
+    row
+}
+
+#[allow(clippy::too_many_arguments)]
+fn sweep_scene<T: Real>(
+    config: &SweepConfig,
+    spec: ProblemSpec,
+    exact: Option<&Array2<f64>>,
+    heap: Option<&CountingAllocator>,
+    budget: &MemoryBudget,
+    bar: &ProgressBar,
+    rows: &mut Vec<ResultRow>,
+    mut npy: Option<&mut NpySink<'_>>,
+) {
+    let label = format!("{} {} n={}", spec.operator.label(), T::NAME, spec.n);
+    let value_bytes = std::mem::size_of::<T>();
+    let stops = config.stops();
+    let per_scene = 2 + 2 * stops.len();
+    // A scene whose fields alone do not fit: every run of it is refused, each
+    // with its own method's estimate.
+    if budget
+        .check("setup", spec.n, value_bytes, Storage::Fields)
+        .is_err()
+    {
+        let refuse = |kind: &str, storage: Storage, stop: Option<Stop>| {
+            let e = budget
+                .check(kind, spec.n, value_bytes, storage)
+                .expect_err("a run needs at least its scene's fields");
+            refused_row(kind, T::NAME, &spec, stop, &e)
+        };
+        rows.push(refuse("exact", Storage::Cholesky, None));
+        rows.push(refuse("baseline_cg", Storage::Fields, None));
+        for &stop in &stops {
+            rows.push(refuse("implicit", Storage::Fields, Some(stop)));
+            let iterations = stop.max_iters();
+            rows.push(refuse(
+                "naive",
+                Storage::NaiveTape { iterations },
+                Some(stop),
+            ));
+        }
+        bar.inc(per_scene as u64);
+        return;
+    }
+    let problem = match Problem::<T>::new(spec) {
+        Ok(p) => p,
+        Err(e) => {
+            let mut row = ResultRow::new("setup", T::NAME, spec.n, &spec.operator.label());
+            row.error = Some(e.to_string());
+            rows.push(row);
+            bar.inc(per_scene as u64);
+            return;
+        }
+    };
+    let failed_row = |kind: MethodKind, stop: Option<Stop>, e: CompareError| {
+        refused_row(kind.name(), T::NAME, &spec, stop, &e)
+    };
+    let n = spec.n;
+    if let Some(sink) = npy.as_deref_mut().filter(|_| NpySink::wants::<T>(&spec)) {
+        sink.write(
+            &format!("n{n}_b"),
+            &problem.b,
+            "right-hand side b (the leaf)",
+        );
+        sink.write(
+            &format!("n{n}_target"),
+            &problem.target,
+            "target p* of the loss ½‖p − p*‖²",
+        );
+        if let Some(g) = exact {
+            sink.write(
+                &format!("n{n}_grad_exact"),
+                g,
+                "dL/db by sparse Cholesky (f64 reference)",
+            );
+        }
+    }
+
+    bar.set_message(format!("{label} exact"));
+    let with_fd = n <= config.fd_max_n;
+    let measure_fd = |m: &dyn GradientMethod<T>, stop: Option<Stop>| {
+        let (mut row, out) = measure(m, &problem, stop, heap, exact);
+        if let (true, Some(out)) = (with_fd, &out) {
+            let stop = stop.unwrap_or(Stop::Iterations(0));
+            row.fd_rel_err = finite_difference_error(m, &problem, stop, &out.gradient);
+        }
+        (row, out.map(|o| o.gradient))
+    };
+    let mut record = |rows: &mut Vec<ResultRow>,
+                      kind: MethodKind,
+                      stop: Stop,
+                      (row, gradient): (ResultRow, Option<Array2<T>>)| {
+        if let (Some(sink), Some(g)) = (
+            npy.as_deref_mut().filter(|_| NpySink::wants::<T>(&spec)),
+            gradient,
+        ) {
+            let name = format!("n{n}_grad_{}_{}", kind.name(), stop_label(stop));
+            let meaning = format!("dL/db by the {} method, {stop:?}", kind.name());
+            sink.write(&name, &g, &meaning);
+        }
+        rows.push(row);
+    };
+    rows.push(
+        match budget.check("exact", n, value_bytes, Storage::Cholesky) {
+            Err(e) => failed_row(MethodKind::Exact, None, e),
+            Ok(()) => match method::<T>(MethodKind::Exact) {
+                Ok(m) => measure_fd(m.as_ref(), None).0,
+                Err(e) => failed_row(MethodKind::Exact, None, e),
+            },
+        },
+    );
+    bar.inc(1);
+
+    let tightest = config.rtols.iter().copied().fold(f64::INFINITY, f64::min);
+    let baseline_stop = if tightest.is_finite() {
+        Stop::Tolerance {
+            rtol: tightest,
+            max_iters: config.max_iters,
+        }
+    } else {
+        Stop::Iterations(config.iters.iter().copied().max().unwrap_or(1))
+    };
+    bar.set_message(format!("{label} baseline CG"));
+    let baseline = match budget.check("baseline_cg", n, value_bytes, Storage::Fields) {
+        Ok(()) => measure_baseline(&problem, baseline_stop, heap),
+        Err(e) => refused_row("baseline_cg", T::NAME, &spec, Some(baseline_stop), &e),
+    };
+    // Iterations the tightest tolerance needs, to size naive tapes if the
+    // implicit run cannot tell.
+    let baseline_iters = baseline.iterations.filter(|_| baseline.error.is_none());
+    rows.push(baseline);
+    bar.inc(1);
+
+    for stop in stops {
+        // The implicit run first: its iteration count sizes the naive tape.
+        bar.set_message(format!("{label} implicit {stop:?}"));
+        let implicit_iters = match budget
+            .check("implicit", n, value_bytes, Storage::Fields)
+            .and_then(|()| method::<T>(MethodKind::Implicit))
+        {
+            Ok(m) => {
+                let measured = measure_fd(m.as_ref(), Some(stop));
+                let it = measured.0.iterations;
+                record(rows, MethodKind::Implicit, stop, measured);
+                it
+            }
+            Err(e) => {
+                rows.push(failed_row(MethodKind::Implicit, Some(stop), e));
+                None
+            }
+        };
+        bar.inc(1);
+
+        bar.set_message(format!("{label} naive {stop:?}"));
+        let expected_iters = match stop {
+            Stop::Iterations(k) => k,
+            Stop::Tolerance { max_iters, .. } => implicit_iters
+                .or(baseline_iters)
+                .unwrap_or(max_iters)
+                .min(max_iters),
+        };
+        let unknowns = n * n;
+        let estimate = expected_iters.saturating_mul(naive_bytes_per_iteration::<T>(n));
+        let too_many = match stop {
+            Stop::Iterations(k) if k > unknowns => Some(k),
+            _ => None,
+        };
+        if let Some(k) = too_many {
+            rows.push(failed_row(
+                MethodKind::Naive,
+                Some(stop),
+                CompareError::GridTooSmall {
+                    method: "naive".into(),
+                    n,
+                    iterations: k,
+                    unknowns,
+                },
+            ));
+        } else if estimate > config.naive_tape_limit_bytes {
+            rows.push(failed_row(
+                MethodKind::Naive,
+                Some(stop),
+                CompareError::Skipped(format!(
+                    "~{expected_iters} unrolled iterations would need a tape of about {} (limit {})",
+                    crate::report::format_bytes(estimate),
+                    crate::report::format_bytes(config.naive_tape_limit_bytes)
+                )),
+            ));
+        } else if let Err(e) = budget.check(
+            "naive",
+            n,
+            value_bytes,
+            Storage::NaiveTape {
+                iterations: expected_iters,
+            },
+        ) {
+            rows.push(failed_row(MethodKind::Naive, Some(stop), e));
+        } else {
+            let measured = measure_fd(&NaiveUnrolled::default(), Some(stop));
+            record(rows, MethodKind::Naive, stop, measured);
+        }
+        bar.inc(1);
+    }
+}
+
+/// Runs every scene of `config` with every method and stopping rule, returning
+/// one row per run (failures included, as rows with an `error`). Runs whose
+/// memory estimate exceeds the budget ([`SweepConfig::memory_limit_mib`]) are
+/// rows with [`CompareError::MemoryLimit`], never attempted.
+///
+/// # Errors
+/// [`CompareError::InvalidArgument`] if the configuration is invalid (see
+/// [`SweepConfig::validate`]); method failures are rows, not errors.
+pub fn run_sweep(config: &SweepConfig, heap: Option<&CountingAllocator>) -> Result<Vec<ResultRow>> {
+    sweep(config, heap, None)
+}
+
+/// [`run_sweep`], also writing through `npy`, for the plain Laplacian in `f64`,
+/// each size's `b` (`n{n}_b`), target (`n{n}_target`), exact gradient
+/// (`n{n}_grad_exact`) and each method's gradient under each stopping rule
+/// (`n{n}_grad_{method}_{stop}`, see [`stop_label`]). The caller finishes the
+/// writer (its `index.json`).
+///
+/// # Errors
+/// As [`run_sweep`], and the first failure to write an array.
+pub fn run_sweep_npy(
+    config: &SweepConfig,
+    heap: Option<&CountingAllocator>,
+    npy: &mut NpyWriter,
+) -> Result<Vec<ResultRow>> {
+    let mut sink = NpySink {
+        writer: npy,
+        first_error: None,
+    };
+    let rows = sweep(config, heap, Some(&mut sink))?;
+    match sink.first_error {
+        Some(e) => Err(e),
+        None => Ok(rows),
+    }
+}
+
+fn sweep(
+    config: &SweepConfig,
+    heap: Option<&CountingAllocator>,
+    mut npy: Option<&mut NpySink<'_>>,
+) -> Result<Vec<ResultRow>> {
+    config.validate()?;
+    let budget = MemoryBudget::new(config.memory_limit_mib);
+    let bar = progress_bar(config.run_count(), "sweep");
+    let mut rows = Vec::with_capacity(config.run_count());
+    let mut cache = ExactCache::new();
+    for &operator in &config.operators {
+        for &n in &config.sizes {
+            let spec = ProblemSpec {
+                n,
+                operator,
+                loss: config.loss,
+            };
+            bar.set_message(format!("{} n={n} exact reference", operator.label()));
+            let exact = match budget.check("exact", n, 8, Storage::Cholesky) {
+                Ok(()) => exact_reference(&mut cache, spec),
+                Err(_) => None,
+            };
+            for &precision in &config.precisions {
+                let npy = npy.as_deref_mut();
+                match precision {
+                    Precision::F32 => sweep_scene::<f32>(
+                        config,
+                        spec,
+                        exact.as_ref(),
+                        heap,
+                        &budget,
+                        &bar,
+                        &mut rows,
+                        npy,
+                    ),
+                    Precision::F64 => sweep_scene::<f64>(
+                        config,
+                        spec,
+                        exact.as_ref(),
+                        heap,
+                        &budget,
+                        &bar,
+                        &mut rows,
+                        npy,
+                    ),
+                }
+            }
+        }
+    }
+    bar.finish_and_clear();
+    Ok(rows)
+}

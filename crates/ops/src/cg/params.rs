@@ -1,0 +1,318 @@
+//! The solver's params / info / error triad and the choices it takes
+//! (preconditioner, null space).
+
+use super::*;
+
+/// The preconditioner `M ≈ A` that CG applies as `z = M⁻¹ r`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[non_exhaustive]
+pub enum Preconditioner {
+    /// None (`M = I`).
+    #[default]
+    None,
+    /// Jacobi: `M = diag(A)`, from [`LinearOperator::diagonal`].
+    Jacobi,
+}
+
+/// The null space of a singular symmetric positive semidefinite operator, which
+/// CG projects out of the right-hand side, the preconditioned residuals and the
+/// solution.
+///
+/// For an operator with `A k = 0` (all-Neumann or periodic Laplacians: `k` the
+/// constants), `A x = b` is solvable only for `b ⟂ k`; CG solves
+/// `A x = Π b` with `Π = I − k kᵀ / (kᵀ k)` and returns the solution with
+/// `kᵀ x = 0` (for constants, zero mean).
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+#[non_exhaustive]
+pub enum NullSpace {
+    /// `A` is positive definite.
+    #[default]
+    None,
+    /// The constants: the mean is removed.
+    Constant,
+    /// The constants on the active cells of a mask (zero on the others, where
+    /// the operator is typically the identity): the mean over the active cells
+    /// is removed from them.
+    ConstantOn(CellMask),
+}
+
+/// How [`conjugate_gradient`] runs.
+///
+/// The stopping test is `‖b − A x‖ ≤ max(rel_tol·‖b‖, abs_tol)`, with `b`
+/// projected onto the range when a [`NullSpace`] is given.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CgParams {
+    /// Relative tolerance on the residual (default `1e-8`).
+    pub rel_tol: f64,
+    /// Absolute tolerance on the residual (default `0`).
+    pub abs_tol: f64,
+    /// Iteration cap; `None` (the default) means twice the number of unknowns
+    /// plus 10 (CG is exact after `n` steps in exact arithmetic).
+    pub max_iters: Option<usize>,
+    /// The preconditioner (default none).
+    pub preconditioner: Preconditioner,
+    /// The operator's null space (default none: `A` is positive definite).
+    pub null_space: NullSpace,
+    /// Keep the residual norm of every iteration in [`CgInfo::history`].
+    pub record_history: bool,
+    /// If true (the default), reaching the cap without meeting the tolerance is
+    /// [`CgError::NoConvergence`], and a tolerance below the rounding floor is
+    /// [`CgError::BelowRoundingFloor`]; if false both return the last iterate
+    /// with [`CgInfo::converged`] false (and [`CgInfo::rounding_floor`] set for
+    /// the floor), for fixed iteration counts and measurements.
+    pub require_convergence: bool,
+    /// Restarts from the recomputed residual allowed when the recurrence has
+    /// drifted from the true residual (default 1).
+    pub max_restarts: usize,
+}
+
+impl Default for CgParams {
+    fn default() -> Self {
+        CgParams {
+            rel_tol: 1e-8,
+            abs_tol: 0.0,
+            max_iters: None,
+            preconditioner: Preconditioner::None,
+            null_space: NullSpace::None,
+            record_history: false,
+            require_convergence: true,
+            max_restarts: 1,
+        }
+    }
+}
+
+impl CgParams {
+    /// The defaults with relative tolerance `rel_tol`.
+    pub fn with_rel_tol(mut self, rel_tol: f64) -> Self {
+        self.rel_tol = rel_tol;
+        self
+    }
+
+    /// With absolute tolerance `abs_tol`.
+    pub fn with_abs_tol(mut self, abs_tol: f64) -> Self {
+        self.abs_tol = abs_tol;
+        self
+    }
+
+    /// With an iteration cap.
+    pub fn with_max_iters(mut self, max_iters: usize) -> Self {
+        self.max_iters = Some(max_iters);
+        self
+    }
+
+    /// With a preconditioner.
+    pub fn with_preconditioner(mut self, preconditioner: Preconditioner) -> Self {
+        self.preconditioner = preconditioner;
+        self
+    }
+
+    /// With a null space.
+    pub fn with_null_space(mut self, null_space: NullSpace) -> Self {
+        self.null_space = null_space;
+        self
+    }
+
+    /// With [`CgParams::require_convergence`] set to `require`.
+    pub fn with_require_convergence(mut self, require: bool) -> Self {
+        self.require_convergence = require;
+        self
+    }
+
+    /// Recording the residual history.
+    pub fn with_history(mut self) -> Self {
+        self.record_history = true;
+        self
+    }
+
+    /// Exactly `iterations` iterations (fewer only if the residual becomes exactly
+    /// zero, or falls so far below the precision's rounding floor that further
+    /// iterations cannot change the solution), without a tolerance and without
+    /// error at the cap: what unrolled solvers are compared with.
+    pub fn fixed_iterations(mut self, iterations: usize) -> Self {
+        self.rel_tol = 0.0;
+        self.abs_tol = 0.0;
+        self.max_iters = Some(iterations);
+        self.require_convergence = false;
+        self.max_restarts = 0;
+        self
+    }
+}
+
+/// What [`conjugate_gradient`] did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CgInfo {
+    /// Iterations performed (operator applications in the loop), over all restarts.
+    pub iterations: usize,
+    /// The true residual `‖b − A x‖` of the returned `x`, recomputed at the end
+    /// (`b` projected onto the range for a singular operator).
+    pub residual_norm: f64,
+    /// `‖b − A x‖ / ‖b‖` (`0` for `b = 0`): the relative residual reached.
+    pub relative_residual: f64,
+    /// The relative tolerance that applied, `max(rel_tol, abs_tol/‖b‖)`: the
+    /// relative residual that was asked for.
+    pub tolerance: f64,
+    /// Whether the true residual met the tolerance,
+    /// `relative_residual ≤ tolerance` (always true unless
+    /// [`CgParams::require_convergence`] is false).
+    pub converged: bool,
+    /// Set when the solve stopped short of the tolerance because the true
+    /// residual stalled near the rounding floor of the precision (the recurrence
+    /// met the tolerance, the recomputed residual did not, and restarting could
+    /// not help): the estimated floor, relative to `‖b‖`. `None` when the
+    /// tolerance was met or the iteration cap was reached.
+    pub rounding_floor: Option<f64>,
+    /// Restarts from the recomputed residual.
+    pub restarts: usize,
+    /// The recurrence residual `‖r_k‖` for `k = 0..=iterations`, if asked for.
+    pub history: Option<Vec<f64>>,
+}
+
+impl CgInfo {
+    /// True if the solve ran into the iteration cap: neither converged nor
+    /// stopped at the rounding floor.
+    pub fn reached_cap(&self) -> bool {
+        !self.converged && self.rounding_floor.is_none()
+    }
+
+    /// The error a solve with [`CgParams::require_convergence`] would have
+    /// returned ([`CgError::NoConvergence`] or [`CgError::BelowRoundingFloor`]),
+    /// for a caller that ran without it to inspect the outcome; `None` if the
+    /// solve converged. `precision` names the scalar type in the message.
+    pub fn failure(&self, precision: &str) -> Option<CgError> {
+        if self.converged {
+            return None;
+        }
+        // Not converged: relative_residual > tolerance ≥ 0, so ‖b‖ is recoverable.
+        let b_norm = self.residual_norm / self.relative_residual;
+        Some(match self.rounding_floor {
+            None => CgError::NoConvergence {
+                iterations: self.iterations,
+                residual: self.residual_norm,
+                relative_residual: self.relative_residual,
+                target: self.tolerance * b_norm,
+            },
+            Some(floor) => CgError::BelowRoundingFloor {
+                precision: precision.to_string(),
+                requested: self.tolerance,
+                reached: self.relative_residual,
+                floor,
+                iterations: self.iterations,
+                restarts: self.restarts,
+            },
+        })
+    }
+}
+
+/// Why [`conjugate_gradient`] failed. Every failure is detected and named; CG
+/// never returns NaN silently.
+#[derive(Debug, Clone, PartialEq, Error)]
+#[non_exhaustive]
+pub enum CgError {
+    /// The tolerance was not met within the iteration cap. The solution array
+    /// holds the last iterate.
+    #[error(
+        "conjugate gradient did not converge in {iterations} iterations: residual \
+         {residual:.3e} (relative {relative_residual:.3e}) above the target {target:.3e}"
+    )]
+    NoConvergence {
+        /// Iterations performed.
+        iterations: usize,
+        /// The true residual `‖b − A x‖` of the last iterate.
+        residual: f64,
+        /// `residual / ‖b‖`.
+        relative_residual: f64,
+        /// The residual that was asked for, `max(rel_tol·‖b‖, abs_tol)`.
+        target: f64,
+    },
+    /// The tolerance lies below what the precision can reach on this system:
+    /// the recurrence residual met it, but the true residual `‖b − A x‖`,
+    /// recomputed, stalled above it near the rounding floor, where restarting
+    /// no longer gains. The solution array holds the last iterate, which is
+    /// converged to working precision. Returned only with
+    /// [`CgParams::require_convergence`]; otherwise [`CgInfo::rounding_floor`]
+    /// flags the same outcome.
+    #[error(
+        "conjugate gradient cannot reach the relative residual {requested:.1e} in {precision}: \
+         the true residual stalled at {reached:.3e} after {iterations} iterations ({restarts} \
+         restarts), near the estimated rounding floor {floor:.1e}; ask for a tolerance above \
+         the floor, or solve in higher precision"
+    )]
+    BelowRoundingFloor {
+        /// `f32` or `f64`.
+        precision: String,
+        /// The relative tolerance asked for, `max(rel_tol, abs_tol/‖b‖)`.
+        requested: f64,
+        /// The true relative residual `‖b − A x‖/‖b‖` reached.
+        reached: f64,
+        /// The estimated rounding floor of the relative residual,
+        /// `ε·‖diag(A) ⊙ x‖/‖b‖`.
+        floor: f64,
+        /// Iterations performed.
+        iterations: usize,
+        /// Restarts from the recomputed residual.
+        restarts: usize,
+    },
+    /// A direction `p` with `<p, A p> ≤ 0` (or a non-positive diagonal entry for
+    /// Jacobi): the operator is not positive definite, or it is singular and no
+    /// [`NullSpace`] was given.
+    #[error(
+        "operator is not positive definite: curvature <p, A p> = {curvature:e} at iteration \
+         {iteration} (a singular operator needs CgParams::null_space)"
+    )]
+    NotPositiveDefinite {
+        /// The iteration (0 for the diagonal check).
+        iteration: usize,
+        /// `<p, A p>` of the normalised system (or the diagonal entry).
+        curvature: f64,
+    },
+    /// NaN or infinity in an input or in the recurrences.
+    #[error("non-finite value in {what} at iteration {iteration}")]
+    NonFinite {
+        /// The iteration (0 for the inputs).
+        iteration: usize,
+        /// Which quantity.
+        what: String,
+    },
+    /// An array does not have the operator's shape.
+    #[error("shape mismatch in conjugate_gradient: {what} has shape {found:?}, the operator needs {expected:?}")]
+    ShapeMismatch {
+        /// Which array.
+        what: String,
+        /// The operator's shape.
+        expected: Vec<usize>,
+        /// The array's shape.
+        found: Vec<usize>,
+    },
+    /// The recurrence cannot continue although the residual is not small: a step
+    /// length overflows the precision (a curvature that underflows), or the
+    /// preconditioned residual `<r, M⁻¹ r>` became non-positive.
+    #[error("conjugate gradient broke down at iteration {iteration}: {reason}")]
+    Breakdown {
+        /// The iteration.
+        iteration: usize,
+        /// What happened.
+        reason: String,
+    },
+    /// The operator or the parameters cannot be used (not square, not symmetric,
+    /// no diagonal for Jacobi, a negative tolerance, an empty null space).
+    #[error("invalid argument to conjugate_gradient: {message}")]
+    InvalidArgument {
+        /// What was wrong.
+        message: String,
+    },
+}
+
+impl CgError {
+    pub(super) fn invalid(message: impl Into<String>) -> Self {
+        CgError::InvalidArgument {
+            message: message.into(),
+        }
+    }
+
+    pub(super) fn non_finite(iteration: usize, what: &str) -> Self {
+        CgError::NonFinite {
+            iteration,
+            what: what.to_string(),
+        }
+    }
+}

@@ -4,7 +4,7 @@
 use super::*;
 
 /// The preconditioner `M ≈ A` that CG applies as `z = M⁻¹ r`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Default)]
 #[non_exhaustive]
 pub enum Preconditioner {
     /// None (`M = I`).
@@ -12,6 +12,26 @@ pub enum Preconditioner {
     None,
     /// Jacobi: `M = diag(A)`, from [`LinearOperator::diagonal`].
     Jacobi,
+    /// One geometric multigrid V-cycle per iteration, `M⁻¹ = B`
+    /// ([`crate::multigrid::Multigrid`], built for the operator's grid): a
+    /// symmetric positive definite cycle, so the iteration count hardly grows
+    /// with the grid.
+    Multigrid(std::sync::Arc<crate::multigrid::Multigrid>),
+}
+
+impl PartialEq for Preconditioner {
+    /// Equal kinds; two multigrid preconditioners are equal if they are the
+    /// same cycle (the same `Arc`).
+    fn eq(&self, other: &Self) -> bool {
+        match (self, other) {
+            (Preconditioner::None, Preconditioner::None)
+            | (Preconditioner::Jacobi, Preconditioner::Jacobi) => true,
+            (Preconditioner::Multigrid(a), Preconditioner::Multigrid(b)) => {
+                std::sync::Arc::ptr_eq(a, b)
+            }
+            _ => false,
+        }
+    }
 }
 
 /// The null space of a singular symmetric positive semidefinite operator, which

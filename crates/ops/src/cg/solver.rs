@@ -43,6 +43,8 @@ pub(super) struct Solver<'a, T: Real, A: ?Sized> {
     /// `M⁻¹ r` (empty without preconditioner: `z = r`).
     z: Vec<T>,
     inv_d: Vec<T>,
+    /// The multigrid cycle that computes `z`, if that is the preconditioner.
+    multigrid: Option<std::sync::Arc<crate::multigrid::Multigrid>>,
     /// The null vector, `None` for the constants (or no null space).
     k: Option<Vec<T>>,
     /// `kᵀ k`; 0 without null space.
@@ -70,8 +72,21 @@ impl<'a, T: Real, A: LinearOperator<T> + ?Sized> Solver<'a, T, A> {
                 mask.active_count() as f64,
             ),
         };
-        let (z, inv_d) = match params.preconditioner {
+        let mut multigrid = None;
+        let (z, inv_d) = match &params.preconditioner {
             Preconditioner::None => (Vec::new(), Vec::new()),
+            Preconditioner::Multigrid(mg) => {
+                let cycle_shape = LinearOperator::<T>::input_shape(&**mg);
+                if cycle_shape != shape.as_slice() {
+                    return Err(CgError::ShapeMismatch {
+                        what: "multigrid preconditioner".to_string(),
+                        expected: shape.clone(),
+                        found: cycle_shape.to_vec(),
+                    });
+                }
+                multigrid = Some(std::sync::Arc::clone(mg));
+                (vec![T::zero(); n], Vec::new())
+            }
             Preconditioner::Jacobi => {
                 let d = op.diagonal().ok_or_else(|| {
                     CgError::invalid(format!(
@@ -106,6 +121,7 @@ impl<'a, T: Real, A: LinearOperator<T> + ?Sized> Solver<'a, T, A> {
             q: vec![T::zero(); n],
             z,
             inv_d,
+            multigrid,
             k,
             kk,
             iterations: 0,
@@ -145,9 +161,25 @@ impl<'a, T: Real, A: LinearOperator<T> + ?Sized> Solver<'a, T, A> {
         }
     }
 
+    /// Whether `z = M⁻¹ r` differs from `r` (some preconditioner).
+    fn preconditioned(&self) -> bool {
+        !self.inv_d.is_empty() || self.multigrid.is_some()
+    }
+
+    /// `z = B r` by one multigrid cycle, then `<r, z>` and `<k, z>` into `sums`.
+    fn multigrid_sums(&mut self, mut sums: Sums) -> Sums {
+        if let Some(mg) = &self.multigrid {
+            mg.apply_slice(&self.r, &mut self.z);
+            let k = self.k.as_deref();
+            sums.rz = dot(&self.r, &self.z);
+            sums.kz = weighted_sum(&self.z, k);
+        }
+        sums
+    }
+
     /// `z = M⁻¹ r` and the sums, from the current `r`.
     fn residual_sums(&mut self) -> Sums {
-        if self.inv_d.is_empty() {
+        if !self.preconditioned() {
             let k = self.k.as_deref();
             let rr = dot(&self.r, &self.r);
             let kr = if self.projecting() {
@@ -161,6 +193,16 @@ impl<'a, T: Real, A: LinearOperator<T> + ?Sized> Solver<'a, T, A> {
                 kr,
                 kz: kr,
             };
+        }
+        if self.multigrid.is_some() {
+            let k = self.k.as_deref();
+            let sums = Sums {
+                rr: dot(&self.r, &self.r),
+                rz: 0.0,
+                kr: weighted_sum(&self.r, k),
+                kz: 0.0,
+            };
+            return self.multigrid_sums(sums);
         }
         for ((z, &r), &d) in self.z.iter_mut().zip(&self.r).zip(&self.inv_d) {
             *z = r * d;
@@ -177,10 +219,10 @@ impl<'a, T: Real, A: LinearOperator<T> + ?Sized> Solver<'a, T, A> {
     /// `p = Π z` from fresh sums: the first direction (and after a restart).
     fn first_direction(&mut self, s: Sums) {
         let m = self.z_mean(s);
-        let z = if self.inv_d.is_empty() {
-            &self.r
-        } else {
+        let z = if self.preconditioned() {
             &self.z
+        } else {
+            &self.r
         };
         self.p.copy_from_slice(z);
         if self.projecting() {
@@ -250,7 +292,10 @@ impl<'a, T: Real, A: LinearOperator<T> + ?Sized> Solver<'a, T, A> {
             }
             let sums = {
                 let k = self.k.as_deref();
-                if self.inv_d.is_empty() {
+                if self.multigrid.is_some() {
+                    let sums = update_residual(alpha_t, &self.q, &mut self.r, k);
+                    self.multigrid_sums(sums)
+                } else if self.inv_d.is_empty() {
                     update_residual(alpha_t, &self.q, &mut self.r, k)
                 } else {
                     update_residual_jacobi(
@@ -294,10 +339,10 @@ impl<'a, T: Real, A: LinearOperator<T> + ?Sized> Solver<'a, T, A> {
             }
             let m = self.z_mean(sums);
             let k = self.k.as_deref();
-            let z = if self.inv_d.is_empty() {
-                &self.r
-            } else {
+            let z = if self.preconditioned() {
                 &self.z
+            } else {
+                &self.r
             };
             update_direction(alpha_t, beta, m, z, &mut self.p, x, k);
             rz = rz_new;

@@ -1,7 +1,7 @@
 //! The one error type of the comparison harness.
 
 use diffphys_ops::OpsError;
-use diffphys_tape::TapeError;
+use diffphys_tape::{ErrorKind, TapeError};
 use thiserror::Error;
 
 /// Everything the harness can reject or fail at. A failing gradient method is a
@@ -114,12 +114,36 @@ pub enum CompareError {
     /// results were still written.
     #[error("no run succeeded: {0}")]
     NothingRan(String),
-    /// A requested mode or method exists in the interface but is not built yet.
-    #[error("not implemented yet: {0}")]
-    NotImplemented(String),
 }
 
 impl CompareError {
+    /// What kind of error this is: the kind of the tape's or operator's error it
+    /// wraps, at any depth; [`ErrorKind::NonFinite`] for a gradient the harness
+    /// found non-finite; [`ErrorKind::InvalidArgument`] for an argument, a grid
+    /// too small or a run refused for memory or skipped; [`ErrorKind::Op`] for
+    /// the harness's own failures (I/O, charts, JSON, nothing ran).
+    pub fn kind(&self) -> ErrorKind {
+        match self {
+            CompareError::Ops(e) | CompareError::UnrollStep { source: e, .. } => e.kind(),
+            CompareError::Tape(e) | CompareError::NaiveIteration { source: e, .. } => e.kind(),
+            CompareError::NonFinite { .. } => ErrorKind::NonFinite,
+            CompareError::InvalidArgument(_)
+            | CompareError::Skipped(_)
+            | CompareError::MemoryLimit { .. }
+            | CompareError::GridTooSmall { .. } => ErrorKind::InvalidArgument,
+            CompareError::Io { .. }
+            | CompareError::Chart(_)
+            | CompareError::Json(_)
+            | CompareError::NothingRan(_) => ErrorKind::Op,
+        }
+    }
+
+    /// True if a NaN or infinity caused this error (as opposed to a bad argument
+    /// or a solver that ran out of iterations), however deeply it is wrapped.
+    pub fn is_non_finite(&self) -> bool {
+        self.kind() == ErrorKind::NonFinite
+    }
+
     /// A [`CompareError::Io`] on `path`.
     pub fn io(path: impl AsRef<std::path::Path>, source: std::io::Error) -> Self {
         CompareError::Io {
@@ -136,3 +160,84 @@ impl CompareError {
 
 /// Result alias of the comparison crate.
 pub type Result<T, E = CompareError> = std::result::Result<T, E>;
+
+#[cfg(test)]
+mod tests {
+    use diffphys_ops::cg::CgError;
+    use diffphys_tape::Pass;
+
+    use super::*;
+
+    fn tape_nan() -> TapeError {
+        TapeError::NonFinite {
+            op: "mul".into(),
+            pass: Pass::Backward,
+            count: 1,
+            len: 4,
+        }
+    }
+
+    fn cg_nan() -> CgError {
+        CgError::NonFinite {
+            iteration: 3,
+            what: "residual".into(),
+        }
+    }
+
+    fn ops_nan() -> OpsError {
+        OpsError::NonFinite {
+            op: "poisson".into(),
+            what: "rhs".into(),
+        }
+    }
+
+    #[test]
+    fn a_non_finite_error_is_recognised_at_every_depth() {
+        let errors = [
+            CompareError::NonFinite {
+                method: "naive".into(),
+                what: "gradient".into(),
+            },
+            CompareError::Tape(tape_nan()),
+            CompareError::NaiveIteration {
+                iteration: 2,
+                source: tape_nan(),
+            },
+            CompareError::Ops(ops_nan()),
+            CompareError::Ops(OpsError::Cg(cg_nan())),
+            CompareError::Ops(OpsError::Tape(tape_nan())),
+            CompareError::Tape(TapeError::from(ops_nan())),
+            CompareError::Tape(TapeError::from(cg_nan())),
+            CompareError::NaiveIteration {
+                iteration: 0,
+                source: TapeError::from(OpsError::Cg(cg_nan())),
+            },
+            CompareError::UnrollStep {
+                step: 5,
+                source: OpsError::Tape(TapeError::from(ops_nan())),
+            },
+            CompareError::Ops(OpsError::Tape(TapeError::from(cg_nan()))),
+        ];
+        for e in &errors {
+            assert!(e.is_non_finite(), "not recognised as non-finite: {e:?}");
+        }
+    }
+
+    #[test]
+    fn other_errors_are_not_non_finite() {
+        let cg = CgError::InvalidArgument {
+            message: "rtol".into(),
+        };
+        let errors = [
+            CompareError::invalid("n = 0"),
+            CompareError::Skipped("too big".into()),
+            CompareError::Chart("empty".into()),
+            CompareError::Tape(TapeError::from(cg)),
+        ];
+        for e in &errors {
+            assert!(!e.is_non_finite(), "{e:?}");
+        }
+        assert_eq!(errors[0].kind(), ErrorKind::InvalidArgument);
+        assert_eq!(errors[3].kind(), ErrorKind::InvalidArgument);
+    }
+}

@@ -379,7 +379,6 @@ fn main() -> ExitCode {
         Err(e) => {
             eprintln!("error: {e}");
             let code = match e {
-                CompareError::NotImplemented(_) => 2,
                 CompareError::InvalidArgument(_) => 64,
                 _ => 1,
             };

@@ -2,7 +2,7 @@
 //! outcome asserted: where a method fails it fails with a typed error naming the
 //! op (and the iteration or step); where it is robust it stays finite.
 
-use diffphys_compare::harness::{is_non_finite, measure, relative_error};
+use diffphys_compare::harness::{measure, relative_error};
 use diffphys_compare::methods::exact::ExactCholesky;
 use diffphys_compare::methods::implicit::{
     implicit_initial_guess_gradient, ImplicitSeparateAdjoint, ImplicitSolve,
@@ -56,7 +56,7 @@ fn naive_past_convergence_fails_in_f32_while_implicit_stays_accurate() {
         }
         other => panic!("expected a non-finite naive iteration, got {other:?}"),
     }
-    assert!(is_non_finite(&err));
+    assert!(err.is_non_finite());
     assert!(err.to_string().contains("iteration") && err.to_string().contains("div"));
 
     // Same run, same precision: the implicit gradient stays finite and accurate.
@@ -215,7 +215,7 @@ fn unroll_gradient_explodes_above_cfl_one_and_stays_bounded_below() {
         CompareError::UnrollStep { step, .. } => assert!(*step < 256),
         other => panic!("expected an unroll step error, got {other:?}"),
     }
-    assert!(is_non_finite(&err));
+    assert!(err.is_non_finite());
     let msg = err.to_string();
     assert!(msg.contains("upwind_1d") && msg.contains("step"), "{msg}");
 }
@@ -253,7 +253,7 @@ fn singular_neumann_system_stays_consistent_or_fails_typed() {
         matches!(err, CompareError::NaiveIteration { .. }),
         "{err:?}"
     );
-    assert!(is_non_finite(&err));
+    assert!(err.is_non_finite());
     // The implicit f32 gradient stays finite and accurate there.
     let out = ImplicitSolve.run(&p32, Stop::Iterations(5 * k)).unwrap();
     assert!(relative_error(&out.gradient, &g).unwrap() < 1e-5);

@@ -41,7 +41,7 @@ pub fn measure<T: Real>(
             (row, Some(out))
         }
         Err(e) => {
-            row.finite = !is_non_finite(&e);
+            row.finite = !e.is_non_finite();
             row.error = Some(e.to_string());
             (row, None)
         }
@@ -132,7 +132,7 @@ pub fn measure_baseline<T: Real>(
             row.finite = x.iter().all(|v| v.is_finite());
         }
         Err(e) => {
-            row.finite = !is_non_finite(&e);
+            row.finite = !e.is_non_finite();
             row.error = Some(e.to_string());
         }
     }

@@ -6,9 +6,8 @@ use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use diffphys_ops::cg::CgError;
 use diffphys_ops::OpsError;
-use diffphys_tape::{Real, TapeError};
+use diffphys_tape::Real;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use ndarray::Array2;
 use serde::{Deserialize, Serialize};
@@ -96,47 +95,11 @@ impl MethodKind {
 }
 
 /// The method of `kind` in precision `T`.
-///
-/// # Errors
-/// None today; kept fallible so that a method whose operators are missing can
-/// say so ([`CompareError::NotImplemented`]) instead of pretending to work.
-pub fn method<T: Real>(kind: MethodKind) -> Result<Box<dyn GradientMethod<T>>> {
+pub fn method<T: Real>(kind: MethodKind) -> Box<dyn GradientMethod<T>> {
     match kind {
-        MethodKind::Naive => Ok(Box::new(NaiveUnrolled::default())),
-        MethodKind::Implicit => Ok(Box::new(ImplicitSolve)),
-        MethodKind::Exact => Ok(Box::new(ExactCholesky)),
-    }
-}
-
-/// True if `e` reports a NaN or infinity (as opposed to a bad argument or a
-/// solver that ran out of iterations).
-pub fn is_non_finite(e: &CompareError) -> bool {
-    fn tape(e: &TapeError) -> bool {
-        match e {
-            TapeError::NonFinite { .. } => true,
-            TapeError::Op { source, .. } => {
-                source.downcast_ref::<OpsError>().is_some_and(ops)
-                    || source.downcast_ref::<CgError>().is_some_and(cg)
-            }
-            _ => false,
-        }
-    }
-    fn cg(e: &CgError) -> bool {
-        matches!(e, CgError::NonFinite { .. })
-    }
-    fn ops(e: &OpsError) -> bool {
-        match e {
-            OpsError::NonFinite { .. } => true,
-            OpsError::Tape(t) => tape(t),
-            OpsError::Cg(c) => cg(c),
-            _ => false,
-        }
-    }
-    match e {
-        CompareError::NonFinite { .. } => true,
-        CompareError::Tape(t) | CompareError::NaiveIteration { source: t, .. } => tape(t),
-        CompareError::Ops(o) | CompareError::UnrollStep { source: o, .. } => ops(o),
-        _ => false,
+        MethodKind::Naive => Box::new(NaiveUnrolled::default()),
+        MethodKind::Implicit => Box::new(ImplicitSolve),
+        MethodKind::Exact => Box::new(ExactCholesky),
     }
 }
 

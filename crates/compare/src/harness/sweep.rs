@@ -129,8 +129,7 @@ pub(crate) fn exact_reference(cache: &mut ExactCache, spec: ProblemSpec) -> Opti
         .entry((spec.n, spec.operator.label()))
         .or_insert_with(|| {
             let problem = Problem::<f64>::new(spec).ok()?;
-            let exact = method::<f64>(MethodKind::Exact).ok()?;
-            exact
+            method::<f64>(MethodKind::Exact)
                 .run(&problem, Stop::Iterations(0))
                 .ok()
                 .map(|o| o.gradient)
@@ -287,10 +286,7 @@ fn sweep_scene<T: Real>(
     rows.push(
         match budget.check("exact", n, value_bytes, Storage::Cholesky) {
             Err(e) => failed_row(MethodKind::Exact, None, e),
-            Ok(()) => match method::<T>(MethodKind::Exact) {
-                Ok(m) => measure_fd(m.as_ref(), None).0,
-                Err(e) => failed_row(MethodKind::Exact, None, e),
-            },
+            Ok(()) => measure_fd(method::<T>(MethodKind::Exact).as_ref(), None).0,
         },
     );
     bar.inc(1);
@@ -318,12 +314,9 @@ fn sweep_scene<T: Real>(
     for stop in stops {
         // The implicit run first: its iteration count sizes the naive tape.
         bar.set_message(format!("{label} implicit {stop:?}"));
-        let implicit_iters = match budget
-            .check("implicit", n, value_bytes, Storage::Fields)
-            .and_then(|()| method::<T>(MethodKind::Implicit))
-        {
-            Ok(m) => {
-                let measured = measure_fd(m.as_ref(), Some(stop));
+        let implicit_iters = match budget.check("implicit", n, value_bytes, Storage::Fields) {
+            Ok(()) => {
+                let measured = measure_fd(method::<T>(MethodKind::Implicit).as_ref(), Some(stop));
                 let it = measured.0.iterations;
                 record(rows, MethodKind::Implicit, stop, measured);
                 it

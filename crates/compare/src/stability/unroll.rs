@@ -117,7 +117,7 @@ pub fn unroll_study(config: &StabilityConfig, bar: &ProgressBar) -> Vec<UnrollRo
                         row.grad_u_norm = Some(gu);
                     }
                     Err(e) => {
-                        row.finite = !crate::harness::is_non_finite(&e);
+                        row.finite = !e.is_non_finite();
                         row.error = Some(e.to_string());
                     }
                 }

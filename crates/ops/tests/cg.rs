@@ -59,7 +59,7 @@ fn manufactured_dense_spd<T: Real>() {
     for pre in [Preconditioner::None, Preconditioner::Jacobi] {
         let params = CgParams::default()
             .with_rel_tol(rel_tol::<T>())
-            .with_preconditioner(pre);
+            .with_preconditioner(pre.clone());
         let (x, info) = cg_solve(&a, cast::<T>(&b).view(), &params).unwrap();
         assert!(info.converged);
         let bound = kappa * (info.relative_residual.max(rel_tol::<T>()) + 8.0 * T::EPS.as_f64());
@@ -87,7 +87,7 @@ fn manufactured_laplacian<T: Real>() {
     for pre in [Preconditioner::None, Preconditioner::Jacobi] {
         let params = CgParams::default()
             .with_rel_tol(rel_tol::<T>())
-            .with_preconditioner(pre)
+            .with_preconditioner(pre.clone())
             .with_history();
         let (x, info) = cg_solve(&a, cast::<T>(&b).view(), &params).unwrap();
         // κ(−∇²) on this grid is about 1.6·10³ (λ ∝ sin²); a rough x* sits in
@@ -192,7 +192,7 @@ fn singular_neumann_system_with_the_mean_removed() {
         let params = CgParams::default()
             .with_rel_tol(1e-11)
             .with_null_space(NullSpace::Constant)
-            .with_preconditioner(pre);
+            .with_preconditioner(pre.clone());
         let (x, info) = cg_solve(&a, b.view(), &params).unwrap();
         assert!(rel_err(&x, &x_star) < 1e-8, "{pre:?} {info:?}");
         assert!(x.mean().unwrap().abs() < 1e-13);

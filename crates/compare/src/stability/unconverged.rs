@@ -1,6 +1,16 @@
 //! Study 3: forward solves stopped before convergence.
 
-use super::*;
+use indicatif::ProgressBar;
+use ndarray::Array2;
+
+use crate::harness::measure;
+use crate::methods::implicit::{ImplicitSeparateAdjoint, ImplicitSolve};
+use crate::methods::naive::NaiveUnrolled;
+use crate::methods::Stop;
+use crate::problem::{Problem, ProblemSpec};
+use crate::Result;
+
+use super::{stability_row, StabilityRow, TOLERANCE_CAP};
 
 /// Study 3: the implicit gradient with the forward solve stopped at each
 /// tolerance (the adjoint tight, and the adjoint stopped alike), and the naive

@@ -1,7 +1,9 @@
 //! The solver's params / info / error triad and the choices it takes
 //! (preconditioner, null space).
 
-use super::*;
+use thiserror::Error;
+
+use crate::CellMask;
 
 /// The preconditioner `M ≈ A` that CG applies as `z = M⁻¹ r`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

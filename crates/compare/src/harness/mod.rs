@@ -1,4 +1,4 @@
-//! Measuring methods: one run into one [`ResultRow`], sweeps over sizes, stopping
+//! Measuring methods: one run into one [`ResultRow`](crate::report::ResultRow), sweeps over sizes, stopping
 //! rules, precisions and operators, the harness's charts and its floors.
 
 use std::io::IsTerminal;

@@ -18,7 +18,7 @@ use super::{
 };
 
 /// One conditioning scene in precision `T`: implicit and (up to
-/// `naive_max_n`) naive to [`converged_rtol`], then, on a singular system, the
+/// `naive_max_n`) naive to [`converged_rtol`](super::converged_rtol), then, on a singular system, the
 /// naive method at five times its convergence count as well.
 fn conditioning_scene<T: Real>(
     spec: ProblemSpec,
@@ -64,7 +64,7 @@ fn conditioning_scene<T: Real>(
 /// singular all-Neumann system, both precisions.
 ///
 /// # Errors
-/// As [`iteration_study`].
+/// As [`iteration_study`](super::iteration_study).
 pub fn conditioning_study(
     config: &StabilityConfig,
     cache: &mut ExactCache,

@@ -16,7 +16,7 @@ use super::{norm, InitialGuessRow, TOLERANCE_CAP};
 /// method's own loss along a fixed direction of `x0`.
 ///
 /// # Errors
-/// As [`iteration_study`].
+/// As [`iteration_study`](super::iteration_study).
 pub fn initial_guess_study(
     n: usize,
     counts: &[usize],

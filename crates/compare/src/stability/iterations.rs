@@ -17,7 +17,7 @@ use super::{methods, stability_row, StabilityConfig, StabilityRow, F32_FLOOR_LIM
 /// Study 1: both methods at fixed iteration counts, `f32` and `f64`, on one scene.
 ///
 /// # Errors
-/// [`CompareError::InvalidArgument`] for a bad grid size; method failures are rows.
+/// [`CompareError::InvalidArgument`](crate::CompareError::InvalidArgument) for a bad grid size; method failures are rows.
 pub fn iteration_study<T: Real>(
     spec: ProblemSpec,
     counts: &[usize],

@@ -1,8 +1,8 @@
 //! Where gradient methods fail: the studies of `diffphys-compare stability`.
 //!
 //! Each study provokes one failure mode and measures its outcome with the same
-//! methods ([`NaiveUnrolled`], [`ImplicitSolve`], [`ExactCholesky`]) and the same
-//! measurement ([`measure`], [`crate::harness::relative_error`]) as the main sweep:
+//! methods ([`NaiveUnrolled`], [`ImplicitSolve`], [`ExactCholesky`](crate::methods::exact::ExactCholesky)) and the same
+//! measurement ([`measure`](crate::harness::measure), [`crate::harness::relative_error`]) as the main sweep:
 //!
 //! 1. precision and iteration counts: both methods in `f32` and `f64` at fixed
 //!    CG iteration counts from a few up to ten times what convergence needs.

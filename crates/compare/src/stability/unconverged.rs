@@ -17,7 +17,7 @@ use super::{stability_row, StabilityRow, TOLERANCE_CAP};
 /// gradient at fixed counts, on one `f64` scene.
 ///
 /// # Errors
-/// As [`iteration_study`].
+/// As [`iteration_study`](super::iteration_study).
 pub fn unconverged_study(
     n: usize,
     rtols: &[f64],

@@ -12,7 +12,7 @@ pub enum Preconditioner {
     /// None (`M = I`).
     #[default]
     None,
-    /// Jacobi: `M = diag(A)`, from [`LinearOperator::diagonal`].
+    /// Jacobi: `M = diag(A)`, from [`LinearOperator::diagonal`](crate::LinearOperator::diagonal).
     Jacobi,
 }
 
@@ -38,7 +38,7 @@ pub enum NullSpace {
     ConstantOn(CellMask),
 }
 
-/// How [`conjugate_gradient`] runs.
+/// How [`conjugate_gradient`](super::conjugate_gradient) runs.
 ///
 /// The stopping test is `‖b − A x‖ ≤ max(rel_tol·‖b‖, abs_tol)`, with `b`
 /// projected onto the range when a [`NullSpace`] is given.
@@ -140,7 +140,7 @@ impl CgParams {
     }
 }
 
-/// What [`conjugate_gradient`] did.
+/// What [`conjugate_gradient`](super::conjugate_gradient) did.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CgInfo {
     /// Iterations performed (operator applications in the loop), over all restarts.
@@ -205,7 +205,7 @@ impl CgInfo {
     }
 }
 
-/// Why [`conjugate_gradient`] failed. Every failure is detected and named; CG
+/// Why [`conjugate_gradient`](super::conjugate_gradient) failed. Every failure is detected and named; CG
 /// never returns NaN silently.
 #[derive(Debug, Clone, PartialEq, Error)]
 #[non_exhaustive]

@@ -1,7 +1,13 @@
 //! Shared axes: linear or log scales, nice tick positions, padded ranges, and
 //! the cell-index axes of heat maps and quiver plots.
 
-use super::*;
+use plotters::coord::ranged1d::{DefaultFormatting, KeyPointHint, Ranged};
+use plotters::coord::types::RangedCoordf64;
+use plotters::prelude::*;
+
+use crate::Result;
+
+use super::{chart_err, format_value, FONT};
 
 /// A linear or base-10 log axis. Log axes are drawn as linear axes over `log10`
 /// of the data, labelled with the original values.
@@ -124,7 +130,7 @@ impl Ranged for TickedAxis {
 
 /// Ticks at multiples of a step of 1, 2 or 5 × 10^k giving about eight labels over
 /// `[lo, hi]`, and finer grid ticks between them.
-pub(super) fn nice_ticks(lo: f64, hi: f64) -> (Vec<f64>, Vec<f64>) {
+fn nice_ticks(lo: f64, hi: f64) -> (Vec<f64>, Vec<f64>) {
     let raw = (hi - lo) / 8.0;
     if !(raw.is_finite() && raw > 0.0) {
         return (vec![lo], vec![]);

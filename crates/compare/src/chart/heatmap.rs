@@ -1,11 +1,21 @@
 //! Heat maps of 2D fields with a colour bar (diverging about zero or
 //! sequential).
 
+use std::path::Path;
+
+use ndarray::ArrayView2;
+use plotters::coord::Shift;
+use plotters::prelude::*;
+
+use crate::{CompareError, Result};
+
 use super::axes::{draw_cell_axes, min_max, padded_range};
-use super::*;
+use super::{
+    chart_err, format_value, write_file, COLORBAR_WIDTH, FONT, HEATMAP_MAX_CELLS, HEATMAP_SIZE,
+};
 
 /// Piecewise-linear interpolation through evenly spaced colour anchors, `t ∈ [0, 1]`.
-pub(super) fn interpolate(anchors: &[(u8, u8, u8)], t: f64) -> RGBColor {
+fn interpolate(anchors: &[(u8, u8, u8)], t: f64) -> RGBColor {
     let t = t.clamp(0.0, 1.0) * (anchors.len() - 1) as f64;
     let k = (t.floor() as usize).min(anchors.len() - 2);
     let f = t - k as f64;
@@ -15,7 +25,7 @@ pub(super) fn interpolate(anchors: &[(u8, u8, u8)], t: f64) -> RGBColor {
 }
 
 /// Blue – white – red (ColorBrewer RdBu), for signed fields.
-pub(super) const DIVERGING: [(u8, u8, u8); 5] = [
+const DIVERGING: [(u8, u8, u8); 5] = [
     (33, 102, 172),
     (146, 197, 222),
     (247, 247, 247),
@@ -24,7 +34,7 @@ pub(super) const DIVERGING: [(u8, u8, u8); 5] = [
 ];
 
 /// Dark purple to yellow (viridis), for single-signed fields.
-pub(super) const SEQUENTIAL: [(u8, u8, u8); 5] = [
+const SEQUENTIAL: [(u8, u8, u8); 5] = [
     (68, 1, 84),
     (59, 82, 139),
     (33, 145, 140),
@@ -79,7 +89,7 @@ impl ColorScale {
 
 /// The field averaged over blocks of `bx × by` cells (a block with a non-finite
 /// cell is non-finite), with the block sizes.
-pub(super) fn block_average(
+fn block_average(
     field: ArrayView2<'_, f64>,
     max_cells: usize,
 ) -> (ndarray::Array2<f64>, usize, usize) {
@@ -198,10 +208,7 @@ pub fn heatmap_svg_string_with_axes(
     Ok(buf)
 }
 
-pub(super) fn draw_color_bar(
-    area: &DrawingArea<SVGBackend<'_>, Shift>,
-    scale: ColorScale,
-) -> Result<()> {
+fn draw_color_bar(area: &DrawingArea<SVGBackend<'_>, Shift>, scale: ColorScale) -> Result<()> {
     let (lo, hi) = scale.bar_range();
     let mut ctx = ChartBuilder::on(area)
         .margin_top(10)

@@ -1,7 +1,13 @@
 //! Line charts of series of points, optionally log-scaled, with a legend.
 
+use std::path::Path;
+
+use plotters::prelude::*;
+
+use crate::{CompareError, Result};
+
 use super::axes::{min_max, padded_range, AxisScale, TickedAxis};
-use super::*;
+use super::{chart_err, series_color, write_file, LineChart, Series, FONT, LINE_SIZE};
 
 /// One series sorted into what can be drawn.
 pub(super) struct Placed {
@@ -35,7 +41,7 @@ pub(super) fn place(series: &Series, sx: AxisScale, sy: AxisScale) -> Placed {
 }
 
 /// The corner of the plot where the legend hides the fewest points.
-pub(super) fn legend_corner(
+fn legend_corner(
     placed: &[Placed],
     (x_lo, x_hi): (f64, f64),
     (y_lo, y_hi): (f64, f64),

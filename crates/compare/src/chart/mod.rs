@@ -25,10 +25,6 @@
 
 use std::path::Path;
 
-use ndarray::ArrayView2;
-use plotters::coord::ranged1d::{DefaultFormatting, KeyPointHint, Ranged};
-use plotters::coord::types::RangedCoordf64;
-use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use crate::{CompareError, Result};

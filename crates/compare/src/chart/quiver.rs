@@ -1,7 +1,14 @@
 //! Quiver plots of 2D velocity fields.
 
+use std::path::Path;
+
+use ndarray::ArrayView2;
+use plotters::prelude::*;
+
+use crate::{CompareError, Result};
+
 use super::axes::draw_cell_axes;
-use super::*;
+use super::{chart_err, format_value, write_file, FONT, HEATMAP_SIZE, QUIVER_MAX_ARROWS};
 
 /// Writes a quiver plot of a 2D velocity field at `path`: arrows at cell centres
 /// on a subsampled grid (at most 32 per axis), `u` the x component and `v` the y

@@ -1,6 +1,10 @@
 //! The harness's charts from its rows.
 
-use super::*;
+use std::path::Path;
+
+use crate::chart::{line_chart_svg, LineChart, Series};
+use crate::problem::OperatorKind;
+use crate::report::ResultRow;
 
 const MIB: f64 = 1024.0 * 1024.0;
 

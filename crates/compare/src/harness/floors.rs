@@ -1,6 +1,7 @@
 //! The performance floors, judged as ratios of rows measured in the same run.
 
-use super::*;
+use crate::problem::OperatorKind;
+use crate::report::{Floor, ResultRow};
 
 /// The grid size and operator the performance floors are stated at.
 pub const FLOOR_N: usize = 256;

@@ -2,7 +2,18 @@
 //! heap bytes, the error against the exact gradient and against finite
 //! differences.
 
-use super::*;
+use std::time::Instant;
+
+use diffphys_tape::Real;
+use ndarray::Array2;
+
+use crate::alloc::{CountingAllocator, HeapWindow};
+use crate::methods::baseline::{baseline_cg, StraightforwardLaplacian};
+use crate::methods::{GradientMethod, RunOutcome, Stop};
+use crate::problem::Problem;
+use crate::report::ResultRow;
+
+use super::{is_non_finite, relative_error};
 
 /// Runs `method` once on `problem` and measures it into a row: its timings and
 /// tape bytes, the peak heap (if `heap` is the installed global allocator), the

@@ -1,10 +1,8 @@
-//! Measuring methods: one run into one [`ResultRow`], sweeps over sizes, stopping
+//! Measuring methods: one run into one [`ResultRow`](crate::report::ResultRow), sweeps over sizes, stopping
 //! rules, precisions and operators, the harness's charts and its floors.
 
-use std::collections::HashMap;
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
 use diffphys_ops::OpsError;
 use diffphys_tape::Real;
@@ -12,17 +10,10 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use ndarray::Array2;
 use serde::{Deserialize, Serialize};
 
-use crate::alloc::{CountingAllocator, HeapWindow};
-use crate::chart::{line_chart_svg, LineChart, Series};
-use crate::memory::{MemoryBudget, Storage};
-use crate::methods::baseline::{baseline_cg, StraightforwardLaplacian};
 use crate::methods::exact::ExactCholesky;
 use crate::methods::implicit::ImplicitSolve;
 use crate::methods::naive::NaiveUnrolled;
-use crate::methods::{GradientMethod, RunOutcome, Stop};
-use crate::npy::NpyWriter;
-use crate::problem::{LossKind, OperatorKind, Problem, ProblemSpec};
-use crate::report::{Floor, ResultRow};
+use crate::methods::GradientMethod;
 use crate::{CompareError, Result};
 
 mod charts;

@@ -1,7 +1,24 @@
 //! The sweep: every scene with every method and stopping rule, each run a row,
 //! runs that would not fit in memory or on the grid refused with a typed error.
 
-use super::*;
+use std::collections::HashMap;
+
+use diffphys_tape::Real;
+use indicatif::ProgressBar;
+use ndarray::Array2;
+use serde::{Deserialize, Serialize};
+
+use crate::alloc::CountingAllocator;
+use crate::memory::{MemoryBudget, Storage};
+use crate::methods::naive::NaiveUnrolled;
+use crate::methods::{GradientMethod, Stop};
+use crate::npy::NpyWriter;
+use crate::problem::{LossKind, OperatorKind, Problem, ProblemSpec};
+use crate::report::ResultRow;
+use crate::{CompareError, Result};
+
+use super::measure::{finite_difference_error, measure, measure_baseline};
+use super::{method, progress_bar, MethodKind, Precision};
 
 /// What a sweep runs.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

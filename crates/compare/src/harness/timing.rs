@@ -1,7 +1,21 @@
 //! Time per CG iteration: the straightforward baseline against the fused
 //! solver of the implicit path, measured in the same run.
 
-use super::*;
+use std::time::Instant;
+
+use diffphys_ops::OpsError;
+use diffphys_tape::Real;
+use serde::{Deserialize, Serialize};
+
+use crate::memory::{MemoryBudget, Storage};
+use crate::methods::baseline::{baseline_cg, StraightforwardLaplacian};
+use crate::methods::Stop;
+use crate::problem::{Problem, ProblemSpec};
+use crate::{CompareError, Result};
+
+use super::floors::FLOOR_N;
+use super::sweep::SweepConfig;
+use super::Precision;
 
 /// Time per CG iteration of the straightforward baseline and of the solver of
 /// the implicit path, on the same problem and iteration count in the same run.

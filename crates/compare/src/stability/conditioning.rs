@@ -1,12 +1,26 @@
 //! Study 4: conditioning (growing sizes, anisotropy, the singular all-Neumann
 //! system).
 
-use super::*;
+use diffphys_tape::Real;
+use indicatif::ProgressBar;
+use ndarray::Array2;
+
+use crate::harness::{exact_reference, measure, ExactCache};
+use crate::methods::implicit::ImplicitSolve;
+use crate::methods::naive::NaiveUnrolled;
+use crate::methods::{GradientMethod, Stop};
+use crate::problem::{OperatorKind, Problem, ProblemSpec};
+use crate::Result;
+
+use super::{
+    converged_rtol, convergence_iterations, convergence_row, null_space_fraction, stability_row,
+    ConvergenceCount, StabilityConfig, StabilityRow, TOLERANCE_CAP,
+};
 
 /// One conditioning scene in precision `T`: implicit and (up to
-/// `naive_max_n`) naive to [`converged_rtol`], then, on a singular system, the
+/// `naive_max_n`) naive to [`converged_rtol`](super::converged_rtol), then, on a singular system, the
 /// naive method at five times its convergence count as well.
-pub(super) fn conditioning_scene<T: Real>(
+fn conditioning_scene<T: Real>(
     spec: ProblemSpec,
     naive_max_n: usize,
     exact: Option<&Array2<f64>>,
@@ -50,7 +64,7 @@ pub(super) fn conditioning_scene<T: Real>(
 /// singular all-Neumann system, both precisions.
 ///
 /// # Errors
-/// As [`iteration_study`].
+/// As [`iteration_study`](super::iteration_study).
 pub fn conditioning_study(
     config: &StabilityConfig,
     cache: &mut ExactCache,

@@ -1,6 +1,8 @@
 //! The findings of a stability run, in words, from its rows.
 
-use super::*;
+use crate::report::ResultRow;
+
+use super::{StabilityResults, StabilityRow, UnrollRow};
 
 pub(super) fn study<'a>(
     rows: &'a [StabilityRow],
@@ -23,7 +25,7 @@ pub fn first_failure(
         .min_by_key(|(k, _)| *k)
 }
 
-pub(super) fn worst_error_from(
+fn worst_error_from(
     rows: &[StabilityRow],
     method: &str,
     precision: &str,

@@ -1,13 +1,22 @@
 //! Study 5: the initial guess `x0` (zero implicit gradient, non-zero naive).
 
-use super::*;
+use indicatif::ProgressBar;
+use ndarray::Array2;
+
+use crate::methods::implicit::implicit_initial_guess_gradient;
+use crate::methods::naive::NaiveUnrolled;
+use crate::methods::Stop;
+use crate::problem::{Problem, ProblemSpec};
+use crate::{CompareError, Result};
+
+use super::{norm, InitialGuessRow, TOLERANCE_CAP};
 
 /// Study 5: `∂L/∂x0` of both methods, started from a non-zero initial guess, at
 /// fixed iteration counts and converged, with a central difference of each
 /// method's own loss along a fixed direction of `x0`.
 ///
 /// # Errors
-/// As [`iteration_study`].
+/// As [`iteration_study`](super::iteration_study).
 pub fn initial_guess_study(
     n: usize,
     counts: &[usize],

@@ -1,12 +1,23 @@
 //! Studies 1 and 2: precision and fixed iteration counts past convergence, and
 //! the floor of the implicit `f32` gradient.
 
-use super::*;
+use diffphys_tape::Real;
+use indicatif::ProgressBar;
+use ndarray::Array2;
+
+use crate::harness::measure;
+use crate::methods::implicit::ImplicitSolve;
+use crate::methods::Stop;
+use crate::problem::{Problem, ProblemSpec};
+use crate::report::{Floor, ResultRow};
+use crate::Result;
+
+use super::{methods, stability_row, StabilityConfig, StabilityRow, F32_FLOOR_LIMIT};
 
 /// Study 1: both methods at fixed iteration counts, `f32` and `f64`, on one scene.
 ///
 /// # Errors
-/// [`CompareError::InvalidArgument`] for a bad grid size; method failures are rows.
+/// [`CompareError::InvalidArgument`](crate::CompareError::InvalidArgument) for a bad grid size; method failures are rows.
 pub fn iteration_study<T: Real>(
     spec: ProblemSpec,
     counts: &[usize],

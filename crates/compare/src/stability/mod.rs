@@ -1,8 +1,8 @@
 //! Where gradient methods fail: the studies of `diffphys-compare stability`.
 //!
 //! Each study provokes one failure mode and measures its outcome with the same
-//! methods ([`NaiveUnrolled`], [`ImplicitSolve`], [`ExactCholesky`]) and the same
-//! measurement ([`measure`], [`crate::harness::relative_error`]) as the main sweep:
+//! methods ([`NaiveUnrolled`], [`ImplicitSolve`], [`ExactCholesky`](crate::methods::exact::ExactCholesky)) and the same
+//! measurement ([`measure`](crate::harness::measure), [`crate::harness::relative_error`]) as the main sweep:
 //!
 //! 1. precision and iteration counts: both methods in `f32` and `f64` at fixed
 //!    CG iteration counts from a few up to ten times what convergence needs.
@@ -23,23 +23,15 @@
 //!
 //! A failed run is a row with its typed error, never a silent NaN.
 
-use std::path::Path;
-
-use diffphys_ops::advection::{upwind_1d_tape, AdvectionParams};
 use diffphys_ops::cg::{cg_solve, CgInfo, CgParams};
-use diffphys_ops::{Boundary, Grid1, OpsError};
-use diffphys_tape::{Real, Tape, TapeError, Var};
-use indicatif::ProgressBar;
-use ndarray::{Array1, Array2};
+use diffphys_ops::OpsError;
+use diffphys_tape::Real;
+use ndarray::Array2;
 use serde::{Deserialize, Serialize};
 
-use crate::chart::{LineChart, Series};
-use crate::harness::{
-    exact_reference, measure, progress_bar, series_by_method, write_chart, ExactCache,
-};
-use crate::methods::implicit::{implicit_initial_guess_gradient, ImplicitSeparateAdjoint};
-use crate::methods::{implicit::ImplicitSolve, naive::NaiveUnrolled, GradientMethod, Stop};
-use crate::problem::{OperatorKind, Problem, ProblemSpec};
+use crate::harness::{exact_reference, progress_bar, ExactCache};
+use crate::methods::{implicit::ImplicitSolve, naive::NaiveUnrolled, GradientMethod};
+use crate::problem::{Problem, ProblemSpec};
 use crate::report::{Floor, ResultRow};
 use crate::{CompareError, Result};
 

@@ -1,8 +1,16 @@
 //! A stability run out to files and stdout: charts, JSON, markdown, tables and
 //! the key-figure line.
 
+use std::path::Path;
+
+use crate::chart::{LineChart, Series};
+use crate::harness::{series_by_method, write_chart};
+use crate::report::ResultRow;
+use crate::{CompareError, Result};
+
+use super::findings::first_failure;
 use super::findings::{fmt, study};
-use super::*;
+use super::{StabilityResults, UnrollRow, F32_FLOOR_LIMIT};
 
 /// The rows of the CG studies, for the table and `report.md`.
 pub fn result_rows(results: &StabilityResults, study_name: &str) -> Vec<ResultRow> {
@@ -212,7 +220,7 @@ pub fn write_stability_json(path: &Path, results: &StabilityResults) -> Result<(
     std::fs::write(path, text + "\n").map_err(|e| CompareError::io(path, e))
 }
 
-pub(super) const STUDIES: [(&str, &str); 4] = [
+const STUDIES: [(&str, &str); 4] = [
     ("iterations", "Precision and iteration counts"),
     ("unconverged", "Forward solve stopped before convergence"),
     ("conditioning", "Conditioning"),
@@ -221,11 +229,11 @@ pub(super) const STUDIES: [(&str, &str); 4] = [
 
 /// Most rows a study's table in `stability.md` shows (the f32 floor study has
 /// one run per iteration cap, hundreds of them).
-pub(super) const MAX_TABLE_ROWS: usize = 100;
+const MAX_TABLE_ROWS: usize = 100;
 
 /// At most about `max` of `rows`, evenly spaced, always keeping the row of the
 /// largest gradient error and every row that failed or went non-finite.
-pub(super) fn table_sample(rows: &[ResultRow], max: usize) -> Vec<ResultRow> {
+fn table_sample(rows: &[ResultRow], max: usize) -> Vec<ResultRow> {
     if rows.len() <= max {
         return rows.to_vec();
     }

@@ -1,13 +1,23 @@
 //! Study 3: forward solves stopped before convergence.
 
-use super::*;
+use indicatif::ProgressBar;
+use ndarray::Array2;
+
+use crate::harness::measure;
+use crate::methods::implicit::{ImplicitSeparateAdjoint, ImplicitSolve};
+use crate::methods::naive::NaiveUnrolled;
+use crate::methods::Stop;
+use crate::problem::{Problem, ProblemSpec};
+use crate::Result;
+
+use super::{stability_row, StabilityRow, TOLERANCE_CAP};
 
 /// Study 3: the implicit gradient with the forward solve stopped at each
 /// tolerance (the adjoint tight, and the adjoint stopped alike), and the naive
 /// gradient at fixed counts, on one `f64` scene.
 ///
 /// # Errors
-/// As [`iteration_study`].
+/// As [`iteration_study`](super::iteration_study).
 pub fn unconverged_study(
     n: usize,
     rtols: &[f64],

@@ -1,12 +1,20 @@
 //! Study 6: long unrolls of upwind advection at Courant numbers below and
 //! above 1.
 
-use super::*;
+use diffphys_ops::advection::{upwind_1d_tape, AdvectionParams};
+use diffphys_ops::{Boundary, Grid1, OpsError};
+use diffphys_tape::{Real, Tape, TapeError, Var};
+use indicatif::ProgressBar;
+use ndarray::Array1;
+
+use crate::{CompareError, Result};
+
+use super::{norm, StabilityConfig, UnrollRow};
 
 /// Where in an unroll a non-finite gradient began: the latest step whose input
 /// received a non-finite gradient (reverse mode visits the last step first),
 /// found by sweeping again with the check off.
-pub(super) fn locate_unroll_failure<T: Real>(
+fn locate_unroll_failure<T: Real>(
     tape: &Tape<T>,
     loss: Var<'_, T>,
     step_inputs: &[Var<'_, T>],
@@ -26,10 +34,7 @@ pub(super) fn locate_unroll_failure<T: Real>(
 /// `u = 1 + 0.2 sin 2πx` (so the local Courant number stays within a factor
 /// 1.5 of the largest: above 1 everywhere when the largest is 1.5), a Gaussian pulse `d⁰` at `x = 0.3` and the target `d*` at
 /// `x = 0.6`; the time step gives Courant number `cfl`.
-pub(super) fn unroll_scene(
-    n: usize,
-    cfl: f64,
-) -> Result<(Grid1, AdvectionParams, [Array1<f64>; 3])> {
+fn unroll_scene(n: usize, cfl: f64) -> Result<(Grid1, AdvectionParams, [Array1<f64>; 3])> {
     let grid = Grid1::new(n, 1.0 / n as f64, 0.0, Boundary::Periodic)?;
     let x = Array1::from_shape_fn(n, |i| (i as f64 + 0.5) / n as f64);
     let u = x.mapv(|x| 1.0 + 0.2 * (2.0 * std::f64::consts::PI * x).sin());

@@ -1,11 +1,13 @@
 //! The fused vector kernels of an iteration: lane-split dot products and
 //! updates that read each vector once, with deterministic reductions.
 
-use super::*;
+use diffphys_tape::Real;
 
-pub(super) const LANES: usize = 4;
+use crate::linear::wide;
 
-pub(super) fn lanes_total(acc: [f64; LANES]) -> f64 {
+const LANES: usize = 4;
+
+fn lanes_total(acc: [f64; LANES]) -> f64 {
     (acc[0] + acc[1]) + (acc[2] + acc[3])
 }
 
@@ -36,7 +38,7 @@ pub(super) fn lanes<T: Copy>(chunk: &[T]) -> &[T; LANES] {
 }
 
 #[inline(always)]
-pub(super) fn lanes_mut<T: Copy>(chunk: &mut [T]) -> &mut [T; LANES] {
+fn lanes_mut<T: Copy>(chunk: &mut [T]) -> &mut [T; LANES] {
     chunk
         .try_into()
         .expect("chunks_exact yields LANES elements")

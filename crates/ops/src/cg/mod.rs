@@ -57,10 +57,8 @@
 
 use diffphys_tape::Real;
 use ndarray::{ArrayD, ArrayViewD, ArrayViewMutD, IxDyn};
-use thiserror::Error;
 
-use crate::linear::wide;
-use crate::{CellMask, LinearOperator};
+use crate::LinearOperator;
 
 mod kernels;
 mod params;

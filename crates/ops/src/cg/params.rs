@@ -1,7 +1,9 @@
 //! The solver's params / info / error triad and the choices it takes
 //! (preconditioner, null space).
 
-use super::*;
+use thiserror::Error;
+
+use crate::CellMask;
 
 /// The preconditioner `M ≈ A` that CG applies as `z = M⁻¹ r`.
 #[derive(Debug, Clone, Default)]
@@ -10,7 +12,7 @@ pub enum Preconditioner {
     /// None (`M = I`).
     #[default]
     None,
-    /// Jacobi: `M = diag(A)`, from [`LinearOperator::diagonal`].
+    /// Jacobi: `M = diag(A)`, from [`LinearOperator::diagonal`](crate::LinearOperator::diagonal).
     Jacobi,
     /// One geometric multigrid V-cycle per iteration, `M⁻¹ = B`
     /// ([`crate::multigrid::Multigrid`], built for the operator's grid): a
@@ -56,7 +58,7 @@ pub enum NullSpace {
     ConstantOn(CellMask),
 }
 
-/// How [`conjugate_gradient`] runs.
+/// How [`conjugate_gradient`](super::conjugate_gradient) runs.
 ///
 /// The stopping test is `‖b − A x‖ ≤ max(rel_tol·‖b‖, abs_tol)`, with `b`
 /// projected onto the range when a [`NullSpace`] is given.
@@ -158,7 +160,7 @@ impl CgParams {
     }
 }
 
-/// What [`conjugate_gradient`] did.
+/// What [`conjugate_gradient`](super::conjugate_gradient) did.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CgInfo {
     /// Iterations performed (operator applications in the loop), over all restarts.
@@ -223,7 +225,7 @@ impl CgInfo {
     }
 }
 
-/// Why [`conjugate_gradient`] failed. Every failure is detected and named; CG
+/// Why [`conjugate_gradient`](super::conjugate_gradient) failed. Every failure is detected and named; CG
 /// never returns NaN silently.
 #[derive(Debug, Clone, PartialEq, Error)]
 #[non_exhaustive]

@@ -1,7 +1,15 @@
 //! The CG iteration: restarts, stopping, breakdown and curvature checks.
 
-use super::kernels::*;
-use super::*;
+use diffphys_tape::Real;
+use ndarray::{ArrayViewD, ArrayViewMutD, IxDyn};
+
+use crate::LinearOperator;
+
+use super::kernels::{
+    axpy, dot, subtract_multiple, update_direction, update_residual, update_residual_jacobi,
+    weighted_sum, Sums,
+};
+use super::params::{CgError, CgInfo, CgParams, NullSpace, Preconditioner};
 
 /// A restart needs the true residual above this multiple of its estimated
 /// rounding floor. Measured on 64² Laplacians: when the recurrence converges in
@@ -9,7 +17,7 @@ use super::*;
 /// it to 1–2 times but leaves the error unchanged while costing 30–100% more
 /// iterations; a drifting `f64` recurrence at a tolerance far above the floor
 /// restarts.
-pub(super) const RESTART_ABOVE_FLOOR: f64 = 10.0;
+const RESTART_ABOVE_FLOOR: f64 = 10.0;
 
 /// Where an iteration sequence stopped.
 pub(super) enum Stop {

@@ -11,9 +11,9 @@ use crate::alloc::{CountingAllocator, HeapWindow};
 use crate::methods::baseline::{baseline_cg, StraightforwardLaplacian};
 use crate::methods::{GradientMethod, RunOutcome, Stop};
 use crate::problem::Problem;
-use crate::report::ResultRow;
+use crate::report::{Method, ResultRow};
 
-use super::{is_non_finite, relative_error};
+use super::{relative_error, Precision};
 
 /// Runs `method` once on `problem` and measures it into a row: its timings and
 /// tape bytes, the peak heap (if `heap` is the installed global allocator), the
@@ -27,10 +27,10 @@ pub fn measure<T: Real>(
     exact: Option<&Array2<f64>>,
 ) -> (ResultRow, Option<RunOutcome<T>>) {
     let mut row = ResultRow::new(
-        method.name(),
-        T::NAME,
+        method.kind(),
+        Precision::of::<T>(),
         problem.spec.n,
-        &problem.spec.operator.label(),
+        problem.spec.operator,
     );
     row.rtol = stop.and_then(|s| s.rtol());
     row.max_iters = stop.map(|s| s.max_iters());
@@ -53,7 +53,7 @@ pub fn measure<T: Real>(
         }
         Err(e) => {
             row.finite = !e.is_non_finite();
-            row.error = Some(e.to_string());
+            row.fail(&e);
             (row, None)
         }
     }
@@ -119,10 +119,10 @@ pub fn measure_baseline<T: Real>(
     heap: Option<&CountingAllocator>,
 ) -> ResultRow {
     let mut row = ResultRow::new(
-        "baseline_cg",
-        T::NAME,
+        Method::BaselineCg,
+        Precision::of::<T>(),
         problem.spec.n,
-        &problem.spec.operator.label(),
+        problem.spec.operator,
     );
     row.rtol = stop.rtol();
     row.max_iters = Some(stop.max_iters());
@@ -144,7 +144,7 @@ pub fn measure_baseline<T: Real>(
         }
         Err(e) => {
             row.finite = !e.is_non_finite();
-            row.error = Some(e.to_string());
+            row.fail(&e);
         }
     }
     row

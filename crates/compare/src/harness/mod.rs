@@ -4,7 +4,6 @@
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 
-use diffphys_ops::OpsError;
 use diffphys_tape::Real;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use ndarray::Array2;
@@ -32,6 +31,7 @@ pub use timing::{cg_speedup, time_cg_iterations, time_fused_cg, IterationTiming}
 
 /// A scalar type of the study.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Precision {
     /// `f32`.
     F32,
@@ -48,6 +48,11 @@ impl Precision {
         }
     }
 
+    /// The precision of `T`.
+    pub fn of<T: Real>() -> Self {
+        Precision::parse(T::NAME).expect("Real is implemented for f32 and f64 only")
+    }
+
     /// Parses `f32` or `f64`.
     ///
     /// # Errors
@@ -60,6 +65,12 @@ impl Precision {
                 "unknown precision '{other}': expected f32 or f64"
             ))),
         }
+    }
+}
+
+impl std::fmt::Display for Precision {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
     }
 }
 

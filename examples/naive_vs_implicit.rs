@@ -24,7 +24,7 @@ use diffphys::compare::methods::implicit::ImplicitSolve;
 use diffphys::compare::methods::naive::NaiveUnrolled;
 use diffphys::compare::methods::{GradientMethod, Stop};
 use diffphys::compare::problem::{Problem, ProblemSpec};
-use diffphys::compare::report::{render_table, ResultRow};
+use diffphys::compare::report::{render_table, Method, ResultRow};
 
 type BoxError = Box<dyn std::error::Error>;
 
@@ -121,7 +121,7 @@ fn main() -> Result<(), BoxError> {
 
     // Gradient error against the fixed iteration count, one curve per method
     // (a non-finite gradient is drawn as a cross).
-    let curve = |method: &str| -> Vec<(f64, f64)> {
+    let curve = |method: Method| -> Vec<(f64, f64)> {
         truncated
             .iter()
             .filter(|r| r.method == method)
@@ -131,7 +131,7 @@ fn main() -> Result<(), BoxError> {
             })
             .collect()
     };
-    let errors_of = |method: &str| -> Vec<serde_json::Value> {
+    let errors_of = |method: Method| -> Vec<serde_json::Value> {
         curve(method)
             .iter()
             .map(|&(_, e)| json_f64(Some(e)))
@@ -148,8 +148,8 @@ fn main() -> Result<(), BoxError> {
             log_x: true,
             log_y: true,
             series: &[
-                Series::new("naive f64", curve("naive")),
-                Series::new("implicit f64", curve("implicit")),
+                Series::new("naive f64", curve(Method::Naive)),
+                Series::new("implicit f64", curve(Method::Implicit)),
             ],
         },
     )?;
@@ -211,8 +211,8 @@ fn main() -> Result<(), BoxError> {
         "peak_heap_ratio_implicit_over_naive": json_f64(Some(heap_ratio)),
         "time_ratio_implicit_over_naive": json_f64(Some(time_ratio)),
         "fixed_iterations": fixed_counts,
-        "fixed_grad_rel_err_naive": errors_of("naive"),
-        "fixed_grad_rel_err_implicit": errors_of("implicit"),
+        "fixed_grad_rel_err_naive": errors_of(Method::Naive),
+        "fixed_grad_rel_err_implicit": errors_of(Method::Implicit),
     }));
     Ok(())
 }

@@ -30,7 +30,7 @@ use diffphys_compare::report::{
 };
 use diffphys_compare::stability::{
     converged_rtol, render_stability_md, result_rows, run_stability, stability_key_figures,
-    unroll_table, write_stability_charts, write_stability_json, StabilityConfig,
+    unroll_table, write_stability_charts, write_stability_json, StabilityConfig, Study,
 };
 use diffphys_compare::{CompareError, Result};
 
@@ -325,9 +325,12 @@ fn run_stability_mode(out: &Path, quick: bool, started: Instant) -> Result<Strin
     std::fs::write(&md_path, md).map_err(|e| CompareError::io(&md_path, e))?;
 
     for (key, title) in [
-        ("iterations", "precision and iteration counts"),
-        ("unconverged", "forward solve stopped before convergence"),
-        ("conditioning", "conditioning"),
+        (Study::Iterations, "precision and iteration counts"),
+        (
+            Study::Unconverged,
+            "forward solve stopped before convergence",
+        ),
+        (Study::Conditioning, "conditioning"),
     ] {
         println!("== {title}\n{}", render_table(&result_rows(&results, key)));
     }

@@ -7,7 +7,111 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::chart::format_value;
+use crate::harness::MethodKind;
+pub use crate::harness::Precision;
+use crate::problem::OperatorKind;
 use crate::{CompareError, Result};
+
+/// What a row measured: a gradient method, the straightforward CG baseline, or
+/// the scene's setup (a row for a scene that could not be built).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Method {
+    /// CG unrolled on the tape.
+    Naive,
+    /// The Poisson op with its implicit adjoint.
+    Implicit,
+    /// The sparse Cholesky reference.
+    Exact,
+    /// The straightforward CG, forward only.
+    BaselineCg,
+    /// Building the scene, before any method ran.
+    Setup,
+}
+
+impl Method {
+    /// The name in results: `naive`, `implicit`, `exact`, `baseline_cg`, `setup`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Naive => "naive",
+            Method::Implicit => "implicit",
+            Method::Exact => "exact",
+            Method::BaselineCg => "baseline_cg",
+            Method::Setup => "setup",
+        }
+    }
+}
+
+impl std::fmt::Display for Method {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl From<MethodKind> for Method {
+    fn from(kind: MethodKind) -> Self {
+        match kind {
+            MethodKind::Naive => Method::Naive,
+            MethodKind::Implicit => Method::Implicit,
+            MethodKind::Exact => Method::Exact,
+        }
+    }
+}
+
+/// How a run ended. Not serialised (`results.json` keeps its fields): on reading,
+/// it is recovered from the row's `error` ([`RunStatus::of_message`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum RunStatus {
+    /// The run completed (its figures may still be non-finite).
+    #[default]
+    Ok,
+    /// The run failed; `error` says why.
+    Failed,
+    /// The run was not attempted ([`CompareError::Skipped`]).
+    Skipped,
+    /// The run was refused before it allocated ([`CompareError::MemoryLimit`]).
+    MemoryLimit,
+}
+
+impl RunStatus {
+    /// The status of a run that ended in `e`.
+    pub fn of_error(e: &CompareError) -> Self {
+        match e {
+            CompareError::Skipped(_) => RunStatus::Skipped,
+            CompareError::MemoryLimit { .. } => RunStatus::MemoryLimit,
+            _ => RunStatus::Failed,
+        }
+    }
+
+    /// The status of a row read back from JSON, from its error message.
+    pub fn of_message(error: Option<&str>) -> Self {
+        match error {
+            None => RunStatus::Ok,
+            Some(e) if e.starts_with("skipped:") => RunStatus::Skipped,
+            Some(e) if e.starts_with("memory limit:") => RunStatus::MemoryLimit,
+            Some(_) => RunStatus::Failed,
+        }
+    }
+}
+
+/// Serialises an [`OperatorKind`] as its [`label`](OperatorKind::label)
+/// (`laplacian`, `aniso100`, `neumann`) and parses it back.
+pub mod operator_label {
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    use crate::problem::OperatorKind;
+
+    /// Writes the label.
+    pub fn serialize<S: Serializer>(op: &OperatorKind, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(&op.label())
+    }
+
+    /// Parses the label.
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<OperatorKind, D::Error> {
+        let label = String::deserialize(d)?;
+        OperatorKind::parse(&label).map_err(serde::de::Error::custom)
+    }
+}
 
 /// One measured run of one method on one scene. Serialised as a `results.json`
 /// entry; `null` where a figure does not apply (no backward for a baseline, no
@@ -15,10 +119,10 @@ use crate::{CompareError, Result};
 /// run failed).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ResultRow {
-    /// `naive`, `implicit`, `exact`, `baseline_cg`.
-    pub method: String,
+    /// `naive`, `implicit`, `exact`, `baseline_cg`, `setup`.
+    pub method: Method,
     /// `f32` or `f64`.
-    pub precision: String,
+    pub precision: Precision,
     /// Cells per axis.
     pub n: usize,
     /// CG iterations of the forward solve (the fixed count, or what the tolerance
@@ -43,8 +147,16 @@ pub struct ResultRow {
     pub finite: bool,
     /// The error, if the run failed.
     pub error: Option<String>,
+    /// How the run ended (not serialised; see [`RunStatus`]).
+    #[serde(skip)]
+    pub status: RunStatus,
+    /// A variant of the method shown beside it in tables (`naive (x0)`); not
+    /// serialised.
+    #[serde(skip)]
+    pub variant: Option<String>,
     /// The operator (`laplacian`, `aniso100`): the conditioning axis.
-    pub operator: String,
+    #[serde(with = "operator_label")]
+    pub operator: OperatorKind,
     /// The iteration cap of a tolerance run, or the fixed count.
     pub max_iters: Option<usize>,
     /// CG iterations of the adjoint solve (implicit method).
@@ -64,10 +176,10 @@ pub struct ResultRow {
 
 impl ResultRow {
     /// A row with the identifying fields set and every figure empty.
-    pub fn new(method: &str, precision: &str, n: usize, operator: &str) -> Self {
+    pub fn new(method: Method, precision: Precision, n: usize, operator: OperatorKind) -> Self {
         ResultRow {
-            method: method.to_string(),
-            precision: precision.to_string(),
+            method,
+            precision,
             n,
             iterations: None,
             rtol: None,
@@ -78,7 +190,9 @@ impl ResultRow {
             grad_rel_err: None,
             finite: true,
             error: None,
-            operator: operator.to_string(),
+            status: RunStatus::Ok,
+            variant: None,
+            operator,
             max_iters: None,
             adjoint_iterations: None,
             reached_relative_residual: None,
@@ -92,6 +206,17 @@ impl ResultRow {
         self.forward_s.map(|f| f + self.backward_s.unwrap_or(0.0))
     }
 
+    /// Records that the run ended in `e`: its message and its status.
+    pub fn fail(&mut self, e: &CompareError) {
+        self.error = Some(e.to_string());
+        self.status = RunStatus::of_error(e);
+    }
+
+    /// True for a run that was attempted and failed (not skipped or refused).
+    pub fn failed(&self) -> bool {
+        self.status == RunStatus::Failed
+    }
+
     /// `method precision`, the label of this row's curve in charts.
     pub fn series_label(&self) -> String {
         format!("{} {}", self.method, self.precision)
@@ -100,9 +225,7 @@ impl ResultRow {
 
 /// True for a row that was not attempted ([`CompareError::Skipped`]).
 pub fn is_skipped(row: &ResultRow) -> bool {
-    row.error
-        .as_deref()
-        .is_some_and(|e| e.starts_with("skipped:"))
+    row.status == RunStatus::Skipped
 }
 
 /// Writes `rows` as a pretty-printed JSON list.
@@ -120,7 +243,11 @@ pub fn write_results_json(path: &Path, rows: &[ResultRow]) -> Result<()> {
 /// [`CompareError::Io`] or [`CompareError::Json`].
 pub fn read_results_json(path: &Path) -> Result<Vec<ResultRow>> {
     let text = std::fs::read_to_string(path).map_err(|e| CompareError::io(path, e))?;
-    Ok(serde_json::from_str(&text)?)
+    let mut rows: Vec<ResultRow> = serde_json::from_str(&text)?;
+    for row in &mut rows {
+        row.status = RunStatus::of_message(row.error.as_deref());
+    }
+    Ok(rows)
 }
 
 /// A byte count as `512 B`, `3.2 KiB`, `41.0 MiB`, `1.20 GiB`.
@@ -178,9 +305,12 @@ const COLUMNS: [&str; 14] = [
 
 fn cells(row: &ResultRow) -> [String; 14] {
     [
-        row.method.clone(),
-        row.precision.clone(),
-        row.operator.clone(),
+        match &row.variant {
+            Some(v) => format!("{} ({v})", row.method),
+            None => row.method.to_string(),
+        },
+        row.precision.to_string(),
+        row.operator.label(),
         row.n.to_string(),
         match (row.iterations, row.adjoint_iterations, row.max_iters) {
             (Some(f), Some(a), _) => format!("{f}+{a}"),

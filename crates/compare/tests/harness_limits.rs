@@ -9,6 +9,7 @@ use diffphys_compare::methods::naive::NaiveUnrolled;
 use diffphys_compare::methods::{GradientMethod, Stop};
 use diffphys_compare::npy::{NpyEntry, NpyWriter};
 use diffphys_compare::problem::{OperatorKind, Problem, ProblemSpec};
+use diffphys_compare::report::{Method, RunStatus};
 use ndarray::{Array2, ArrayD};
 use ndarray_npy::read_npy;
 
@@ -89,7 +90,9 @@ fn sizes_over_the_memory_limit_are_refused_rows_and_the_others_run() {
     for r in &big {
         let e = r.error.as_deref().unwrap();
         assert!(
-            e.starts_with("memory limit: ") && e.contains(&r.method) && e.contains("100000"),
+            r.status == RunStatus::MemoryLimit
+                && e.contains(r.method.name())
+                && e.contains("100000"),
             "{e}"
         );
     }
@@ -99,13 +102,13 @@ fn sizes_over_the_memory_limit_are_refused_rows_and_the_others_run() {
     config.rtols.clear();
     config.memory_limit_mib = Some(1);
     let rows = run_sweep(&config, None).unwrap();
-    let naive = rows.iter().find(|r| r.method == "naive").unwrap();
+    let naive = rows.iter().find(|r| r.method == Method::Naive).unwrap();
     assert!(naive
         .error
         .as_deref()
         .unwrap()
         .starts_with("memory limit: naive on 32×32"));
-    let implicit = rows.iter().find(|r| r.method == "implicit").unwrap();
+    let implicit = rows.iter().find(|r| r.method == Method::Implicit).unwrap();
     assert!(implicit.error.is_none(), "{implicit:?}");
 }
 
@@ -115,7 +118,7 @@ fn grids_too_small_for_a_fixed_count_are_a_typed_row() {
         let mut config = sweep_config(vec![n]);
         config.iters = vec![5, 30];
         let rows = run_sweep(&config, None).unwrap();
-        let naive: Vec<_> = rows.iter().filter(|r| r.method == "naive").collect();
+        let naive: Vec<_> = rows.iter().filter(|r| r.method == Method::Naive).collect();
         // 5 ≤ 9 runs on 3², not on 2²; 30 exceeds both; the tolerance run converges.
         for r in naive {
             let too_many = r.max_iters.is_some_and(|k| r.rtol.is_none() && k > n * n);

@@ -5,8 +5,8 @@ use diffphys_compare::alloc::CountingAllocator;
 use diffphys_compare::harness::{compute_floors, run_sweep, write_charts, Precision, SweepConfig};
 use diffphys_compare::problem::{LossKind, OperatorKind};
 use diffphys_compare::report::{
-    read_results_json, render_report, render_table, write_report_md, write_results_json, Report,
-    ResultRow,
+    read_results_json, render_report, render_table, write_report_md, write_results_json, Method,
+    Report, ResultRow, RunStatus,
 };
 
 #[global_allocator]
@@ -20,7 +20,7 @@ fn temp_dir(name: &str) -> std::path::PathBuf {
 
 #[test]
 fn row_serialises_with_the_documented_fields_and_round_trips() {
-    let mut row = ResultRow::new("naive", "f64", 64, "laplacian");
+    let mut row = ResultRow::new(Method::Naive, Precision::F64, 64, OperatorKind::Laplacian);
     row.iterations = Some(120);
     row.rtol = Some(1e-8);
     row.forward_s = Some(0.5);
@@ -55,10 +55,19 @@ fn row_serialises_with_the_documented_fields_and_round_trips() {
 #[test]
 fn results_json_round_trips_through_a_file() {
     let dir = temp_dir("json");
-    let mut failed = ResultRow::new("implicit", "f32", 8, "aniso100");
+    let mut failed = ResultRow::new(
+        Method::Implicit,
+        Precision::F32,
+        8,
+        OperatorKind::Anisotropic { ratio: 100.0 },
+    );
     failed.error = Some("CG did not converge | 2000 iterations".into());
+    failed.status = RunStatus::Failed;
     failed.finite = false;
-    let rows = vec![ResultRow::new("exact", "f64", 8, "laplacian"), failed];
+    let rows = vec![
+        ResultRow::new(Method::Exact, Precision::F64, 8, OperatorKind::Laplacian),
+        failed,
+    ];
     let path = dir.join("results.json");
     write_results_json(&path, &rows).unwrap();
     assert_eq!(read_results_json(&path).unwrap(), rows);
@@ -94,7 +103,7 @@ fn tiny_sweep_writes_table_json_report_and_charts() {
     let rows = run_sweep(&config, Some(&HEAP)).unwrap();
     assert_eq!(rows.len(), config.run_count());
     // Every naive run on these tiny problems succeeds and stays finite.
-    let naive: Vec<_> = rows.iter().filter(|r| r.method == "naive").collect();
+    let naive: Vec<_> = rows.iter().filter(|r| r.method == Method::Naive).collect();
     assert_eq!(naive.len(), 2 * 2 * 3);
     for r in &naive {
         assert!(r.error.is_none() && r.finite, "{r:?}");
@@ -108,8 +117,8 @@ fn tiny_sweep_writes_table_json_report_and_charts() {
     // accuracy of the extrapolated differences (measured ~1e-9..1e-8). In f32 the
     // check is not attempted.
     for r in naive.iter().filter(|r| r.n == 6) {
-        match r.precision.as_str() {
-            "f64" => {
+        match r.precision {
+            Precision::F64 => {
                 let fd = r.fd_rel_err.unwrap();
                 assert!(fd < 1e-6, "{:?}: fd error {fd:e}", r.max_iters);
             }
@@ -125,7 +134,10 @@ fn tiny_sweep_writes_table_json_report_and_charts() {
         .iter()
         .filter(|r| r.rtol.is_none())
         .all(|r| r.iterations == r.max_iters));
-    let baseline: Vec<_> = rows.iter().filter(|r| r.method == "baseline_cg").collect();
+    let baseline: Vec<_> = rows
+        .iter()
+        .filter(|r| r.method == Method::BaselineCg)
+        .collect();
     assert_eq!(baseline.len(), 4);
     assert!(baseline
         .iter()
@@ -135,14 +147,14 @@ fn tiny_sweep_writes_table_json_report_and_charts() {
     // gradient; the f64 exact row is its own reference.
     for r in rows
         .iter()
-        .filter(|r| r.method == "exact" || r.method == "implicit")
+        .filter(|r| r.method == Method::Exact || r.method == Method::Implicit)
     {
         assert!(r.error.is_none(), "{r:?}");
         let err = r.grad_rel_err.unwrap();
-        if r.method == "exact" && r.precision == "f64" {
+        if r.method == Method::Exact && r.precision == Precision::F64 {
             assert_eq!(err, 0.0);
         }
-        if r.method == "implicit" && r.precision == "f64" && r.rtol == Some(1e-6) {
+        if r.method == Method::Implicit && r.precision == Precision::F64 && r.rtol == Some(1e-6) {
             assert!(err < 1e-5, "{r:?}");
         }
     }

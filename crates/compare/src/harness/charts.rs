@@ -4,7 +4,7 @@ use std::path::Path;
 
 use crate::chart::{line_chart_svg, LineChart, Series};
 use crate::problem::OperatorKind;
-use crate::report::ResultRow;
+use crate::report::{Method, ResultRow};
 
 const MIB: f64 = 1024.0 * 1024.0;
 
@@ -28,19 +28,12 @@ pub(crate) fn series_by_method<'a>(
     rows: impl Iterator<Item = &'a ResultRow>,
     point: impl Fn(&ResultRow) -> Option<(f64, f64)>,
 ) -> Vec<Series> {
-    const ORDER: [&str; 4] = ["naive", "implicit", "exact", "baseline_cg"];
     // (method order, label) → points
-    type Group = ((usize, String), Vec<(f64, f64)>);
+    type Group = ((Method, String), Vec<(f64, f64)>);
     let mut groups: Vec<Group> = Vec::new();
     for r in rows {
         let Some(p) = point(r) else { continue };
-        let key = (
-            ORDER
-                .iter()
-                .position(|m| *m == r.method)
-                .unwrap_or(ORDER.len()),
-            r.series_label(),
-        );
+        let key = (r.method, r.series_label());
         match groups.iter_mut().find(|(k, _)| *k == key) {
             Some((_, pts)) => pts.push(p),
             None => groups.push((key, vec![p])),
@@ -64,12 +57,11 @@ pub(crate) fn series_by_method<'a>(
 pub fn write_charts(out_dir: &Path, rows: &[ResultRow]) -> (Vec<(String, String)>, Vec<String>) {
     let mut charts = Vec::new();
     let mut notes = Vec::new();
-    let laplacian_label = OperatorKind::Laplacian.label();
-    let laplacian = laplacian_label.as_str();
+    let laplacian = OperatorKind::Laplacian;
     // Per-size charts use the largest size at which the naive method ran.
     let chart_n = rows
         .iter()
-        .filter(|r| r.method == "naive" && r.error.is_none() && r.operator == laplacian)
+        .filter(|r| r.method == Method::Naive && r.error.is_none() && r.operator == laplacian)
         .map(|r| r.n)
         .max()
         .or_else(|| rows.iter().map(|r| r.n).max())
@@ -77,7 +69,7 @@ pub fn write_charts(out_dir: &Path, rows: &[ResultRow]) -> (Vec<(String, String)
     let gradient_rows = || {
         rows.iter()
             .filter(move |r| r.n == chart_n && r.operator == laplacian)
-            .filter(|r| r.method != "baseline_cg")
+            .filter(|r| r.method != Method::BaselineCg)
     };
 
     let caption = format!("Gradient error vs time ({chart_n}², laplacian)");
@@ -107,7 +99,7 @@ pub fn write_charts(out_dir: &Path, rows: &[ResultRow]) -> (Vec<(String, String)
     let caption = format!("Gradient error vs reached residual ({chart_n}², laplacian)");
     let series = series_by_method(
         gradient_rows().filter(|r| {
-            r.rtol.is_some() && r.grad_rel_err.is_some_and(|e| e > 0.0) && r.method != "exact"
+            r.rtol.is_some() && r.grad_rel_err.is_some_and(|e| e > 0.0) && r.method != Method::Exact
         }),
         |r| Some((r.reached_relative_residual?, r.grad_rel_err?)),
     );
@@ -129,7 +121,7 @@ pub fn write_charts(out_dir: &Path, rows: &[ResultRow]) -> (Vec<(String, String)
 
     let caption = format!("Peak heap vs CG iterations ({chart_n}², laplacian)");
     let series = series_by_method(
-        gradient_rows().filter(|r| r.rtol.is_none() && r.method != "exact"),
+        gradient_rows().filter(|r| r.rtol.is_none() && r.method != Method::Exact),
         |r| Some((r.iterations? as f64, r.peak_heap_bytes? as f64 / MIB)),
     );
     write_chart(
@@ -157,8 +149,8 @@ pub fn write_charts(out_dir: &Path, rows: &[ResultRow]) -> (Vec<(String, String)
         // The baseline is forward-only; its comparison is the per-iteration floor.
         rows.iter().filter(|r| {
             r.operator == laplacian
-                && r.method != "baseline_cg"
-                && (r.rtol == Some(tightest) || r.method == "exact")
+                && r.method != Method::BaselineCg
+                && (r.rtol == Some(tightest) || r.method == Method::Exact)
         }),
         |r| Some((r.n as f64, r.total_s()?)),
     );
@@ -181,7 +173,7 @@ pub fn write_charts(out_dir: &Path, rows: &[ResultRow]) -> (Vec<(String, String)
     let caption =
         format!("Stability: gradient error vs fixed CG iterations ({chart_n}², laplacian)");
     let series = series_by_method(
-        gradient_rows().filter(|r| r.rtol.is_none() && r.method != "exact"),
+        gradient_rows().filter(|r| r.rtol.is_none() && r.method != Method::Exact),
         |r| {
             let iters = r.max_iters? as f64;
             let shown = if r.finite { r.grad_rel_err? } else { f64::NAN };

@@ -1,7 +1,7 @@
 //! The performance floors, judged as ratios of rows measured in the same run.
 
 use crate::problem::OperatorKind;
-use crate::report::{Floor, ResultRow};
+use crate::report::{Floor, Method, Precision, ResultRow};
 
 /// The grid size and operator the performance floors are stated at.
 pub const FLOOR_N: usize = 256;
@@ -9,12 +9,12 @@ pub const FLOOR_N: usize = 256;
 /// The tolerance the floors are stated at.
 pub const FLOOR_RTOL: f64 = 1e-8;
 
-fn floor_row<'a>(rows: &'a [ResultRow], method: &str) -> Option<&'a ResultRow> {
+fn floor_row(rows: &[ResultRow], method: Method) -> Option<&ResultRow> {
     rows.iter().find(|r| {
         r.method == method
-            && r.precision == "f64"
+            && r.precision == Precision::F64
             && r.n == FLOOR_N
-            && r.operator == OperatorKind::Laplacian.label()
+            && r.operator == OperatorKind::Laplacian
             && r.rtol == Some(FLOOR_RTOL)
     })
 }
@@ -24,10 +24,10 @@ fn floor_row<'a>(rows: &'a [ResultRow], method: &str) -> Option<&'a ResultRow> {
 /// ratio taken from `cg_speedup` (baseline time per iteration over the fused
 /// solver's, if measured).
 pub fn compute_floors(rows: &[ResultRow], cg_speedup: Option<(Option<f64>, String)>) -> Vec<Floor> {
-    let naive = floor_row(rows, "naive").filter(|r| r.error.is_none());
-    let implicit = floor_row(rows, "implicit").filter(|r| r.error.is_none());
+    let naive = floor_row(rows, Method::Naive).filter(|r| r.error.is_none());
+    let implicit = floor_row(rows, Method::Implicit).filter(|r| r.error.is_none());
     let at = format!("{FLOOR_N}², f64, laplacian, rtol {FLOOR_RTOL:e}");
-    let why_not = |method: &str| -> String {
+    let why_not = |method: Method| -> String {
         match floor_row(rows, method) {
             None => format!("no {method} run at {at} in this sweep"),
             Some(r) => match &r.error {
@@ -36,7 +36,7 @@ pub fn compute_floors(rows: &[ResultRow], cg_speedup: Option<(Option<f64>, Strin
             },
         }
     };
-    let err_note = |method: &str, row: Option<&ResultRow>| {
+    let err_note = |method: Method, row: Option<&ResultRow>| {
         let w = why_not(method);
         if w.is_empty() && row.and_then(|r| r.grad_rel_err).is_none() {
             "no exact reference gradient in this run, or a non-finite gradient".to_string()
@@ -46,7 +46,7 @@ pub fn compute_floors(rows: &[ResultRow], cg_speedup: Option<(Option<f64>, Strin
     };
     let both = naive.zip(implicit);
     let note_both = || {
-        [why_not("naive"), why_not("implicit")]
+        [why_not(Method::Naive), why_not(Method::Implicit)]
             .into_iter()
             .filter(|s| !s.is_empty())
             .collect::<Vec<_>>()
@@ -95,7 +95,7 @@ pub fn compute_floors(rows: &[ResultRow], cg_speedup: Option<(Option<f64>, Strin
             measured: worst_err(naive),
             limit: 1e-6,
             at_least: false,
-            note: err_note("naive", naive),
+            note: err_note(Method::Naive, naive),
         },
         Floor {
             key: "implicit_grad_err".into(),
@@ -103,7 +103,7 @@ pub fn compute_floors(rows: &[ResultRow], cg_speedup: Option<(Option<f64>, Strin
             measured: worst_err(implicit),
             limit: 1e-6,
             at_least: false,
-            note: err_note("implicit", implicit),
+            note: err_note(Method::Implicit, implicit),
         },
         Floor {
             key: "implicit_backward_over_forward".into(),
@@ -111,7 +111,7 @@ pub fn compute_floors(rows: &[ResultRow], cg_speedup: Option<(Option<f64>, Strin
             measured: backward_ratio,
             limit: 1.2,
             at_least: false,
-            note: why_not("implicit"),
+            note: why_not(Method::Implicit),
         },
         Floor {
             key: "cg_iteration_speedup".into(),

@@ -14,7 +14,7 @@ use crate::methods::naive::NaiveUnrolled;
 use crate::methods::{GradientMethod, Stop};
 use crate::npy::NpyWriter;
 use crate::problem::{LossKind, OperatorKind, Problem, ProblemSpec};
-use crate::report::ResultRow;
+use crate::report::{Method, ResultRow};
 use crate::{CompareError, Result};
 
 use super::measure::{finite_difference_error, measure, measure_baseline};
@@ -164,7 +164,7 @@ struct NpySink<'a> {
 
 impl NpySink<'_> {
     fn wants<T: Real>(spec: &ProblemSpec) -> bool {
-        T::NAME == "f64" && spec.operator == OperatorKind::Laplacian
+        Precision::of::<T>() == Precision::F64 && spec.operator == OperatorKind::Laplacian
     }
 
     fn write<T: Real>(&mut self, name: &str, array: &Array2<T>, meaning: &str) {
@@ -188,16 +188,16 @@ pub fn stop_label(stop: Stop) -> String {
 
 /// A row of `kind` that was not run, with the reason.
 fn refused_row(
-    kind: &str,
-    precision: &str,
+    kind: Method,
+    precision: Precision,
     spec: &ProblemSpec,
     stop: Option<Stop>,
     e: &CompareError,
 ) -> ResultRow {
-    let mut row = ResultRow::new(kind, precision, spec.n, &spec.operator.label());
+    let mut row = ResultRow::new(kind, precision, spec.n, spec.operator);
     row.rtol = stop.and_then(|s| s.rtol());
     row.max_iters = stop.map(|s| s.max_iters());
-    row.error = Some(e.to_string());
+    row.fail(e);
     row
 }
 
@@ -219,22 +219,22 @@ fn sweep_scene<T: Real>(
     // A scene whose fields alone do not fit: every run of it is refused, each
     // with its own method's estimate.
     if budget
-        .check("setup", spec.n, value_bytes, Storage::Fields)
+        .check(Method::Setup.name(), spec.n, value_bytes, Storage::Fields)
         .is_err()
     {
-        let refuse = |kind: &str, storage: Storage, stop: Option<Stop>| {
+        let refuse = |kind: Method, storage: Storage, stop: Option<Stop>| {
             let e = budget
-                .check(kind, spec.n, value_bytes, storage)
+                .check(kind.name(), spec.n, value_bytes, storage)
                 .expect_err("a run needs at least its scene's fields");
-            refused_row(kind, T::NAME, &spec, stop, &e)
+            refused_row(kind, Precision::of::<T>(), &spec, stop, &e)
         };
-        rows.push(refuse("exact", Storage::Cholesky, None));
-        rows.push(refuse("baseline_cg", Storage::Fields, None));
+        rows.push(refuse(Method::Exact, Storage::Cholesky, None));
+        rows.push(refuse(Method::BaselineCg, Storage::Fields, None));
         for &stop in &stops {
-            rows.push(refuse("implicit", Storage::Fields, Some(stop)));
+            rows.push(refuse(Method::Implicit, Storage::Fields, Some(stop)));
             let iterations = stop.max_iters();
             rows.push(refuse(
-                "naive",
+                Method::Naive,
                 Storage::NaiveTape { iterations },
                 Some(stop),
             ));
@@ -245,15 +245,16 @@ fn sweep_scene<T: Real>(
     let problem = match Problem::<T>::new(spec) {
         Ok(p) => p,
         Err(e) => {
-            let mut row = ResultRow::new("setup", T::NAME, spec.n, &spec.operator.label());
-            row.error = Some(e.to_string());
+            let mut row =
+                ResultRow::new(Method::Setup, Precision::of::<T>(), spec.n, spec.operator);
+            row.fail(&e);
             rows.push(row);
             bar.inc(per_scene as u64);
             return;
         }
     };
     let failed_row = |kind: MethodKind, stop: Option<Stop>, e: CompareError| {
-        refused_row(kind.name(), T::NAME, &spec, stop, &e)
+        refused_row(kind.into(), Precision::of::<T>(), &spec, stop, &e)
     };
     let n = spec.n;
     if let Some(sink) = npy.as_deref_mut().filter(|_| NpySink::wants::<T>(&spec)) {
@@ -320,7 +321,13 @@ fn sweep_scene<T: Real>(
     bar.set_message(format!("{label} baseline CG"));
     let baseline = match budget.check("baseline_cg", n, value_bytes, Storage::Fields) {
         Ok(()) => measure_baseline(&problem, baseline_stop, heap),
-        Err(e) => refused_row("baseline_cg", T::NAME, &spec, Some(baseline_stop), &e),
+        Err(e) => refused_row(
+            Method::BaselineCg,
+            Precision::of::<T>(),
+            &spec,
+            Some(baseline_stop),
+            &e,
+        ),
     };
     // Iterations the tightest tolerance needs, to size naive tapes if the
     // implicit run cannot tell.

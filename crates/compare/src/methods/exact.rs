@@ -28,8 +28,8 @@ fn to_2d(a: ndarray::ArrayD<f64>) -> Result<Array2<f64>> {
 }
 
 impl<T: Real> GradientMethod<T> for ExactCholesky {
-    fn name(&self) -> &'static str {
-        "exact"
+    fn kind(&self) -> crate::report::Method {
+        crate::report::Method::Exact
     }
 
     fn run(&self, problem: &Problem<T>, _stop: Stop) -> Result<RunOutcome<T>> {

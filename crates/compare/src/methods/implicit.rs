@@ -68,8 +68,8 @@ pub fn check_solves<T: Real>(forward: Stop, adjoint: Stop, log: &SolveLog<T>) ->
 pub struct ImplicitSolve;
 
 impl<T: Real> GradientMethod<T> for ImplicitSolve {
-    fn name(&self) -> &'static str {
-        "implicit"
+    fn kind(&self) -> crate::report::Method {
+        crate::report::Method::Implicit
     }
 
     fn run(&self, problem: &Problem<T>, stop: Stop) -> Result<RunOutcome<T>> {
@@ -87,8 +87,8 @@ pub struct ImplicitSeparateAdjoint {
 }
 
 impl<T: Real> GradientMethod<T> for ImplicitSeparateAdjoint {
-    fn name(&self) -> &'static str {
-        "implicit"
+    fn kind(&self) -> crate::report::Method {
+        crate::report::Method::Implicit
     }
 
     fn run(&self, problem: &Problem<T>, stop: Stop) -> Result<RunOutcome<T>> {

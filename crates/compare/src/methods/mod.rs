@@ -72,8 +72,13 @@ pub struct RunOutcome<T: Real> {
 
 /// A way of computing `∂L/∂b` for a [`Problem`] in precision `T`.
 pub trait GradientMethod<T: Real> {
+    /// The method, as results name it.
+    fn kind(&self) -> crate::report::Method;
+
     /// The method's name in results: `naive`, `implicit`, `exact`.
-    fn name(&self) -> &'static str;
+    fn name(&self) -> &'static str {
+        self.kind().name()
+    }
 
     /// Computes the loss and its gradient, stopping iterative solves by `stop`
     /// (a direct method ignores it).

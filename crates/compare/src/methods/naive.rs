@@ -155,8 +155,8 @@ fn locate_non_finite<T: Real>(
 }
 
 impl<T: Real> GradientMethod<T> for NaiveUnrolled {
-    fn name(&self) -> &'static str {
-        "naive"
+    fn kind(&self) -> crate::report::Method {
+        crate::report::Method::Naive
     }
 
     fn run(&self, problem: &Problem<T>, stop: Stop) -> Result<RunOutcome<T>> {

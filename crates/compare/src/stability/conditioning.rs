@@ -14,7 +14,7 @@ use crate::Result;
 
 use super::{
     converged_rtol, convergence_iterations, convergence_row, null_space_fraction, stability_row,
-    ConvergenceCount, StabilityConfig, StabilityRow, TOLERANCE_CAP,
+    ConvergenceCount, StabilityConfig, StabilityRow, Study, TOLERANCE_CAP,
 };
 
 /// One conditioning scene in precision `T`: implicit and (up to
@@ -35,7 +35,7 @@ fn conditioning_scene<T: Real>(
     let singular = spec.operator.null_space() != diffphys_ops::cg::NullSpace::None;
     let mut push = |m: &dyn GradientMethod<T>, stop: Stop| {
         let (row, out) = measure(m, &problem, Some(stop), None, exact);
-        let mut r = stability_row("conditioning", row);
+        let mut r = stability_row(Study::Conditioning, row);
         if singular {
             r.null_space_fraction = out.and_then(|o| null_space_fraction(&o.gradient));
         }

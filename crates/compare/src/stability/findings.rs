@@ -1,13 +1,11 @@
 //! The findings of a stability run, in words, from its rows.
 
-use crate::report::ResultRow;
+use crate::problem::OperatorKind;
+use crate::report::{Method, Precision, ResultRow};
 
-use super::{StabilityResults, StabilityRow, UnrollRow};
+use super::{StabilityResults, StabilityRow, Study, UnrollRow};
 
-pub(super) fn study<'a>(
-    rows: &'a [StabilityRow],
-    name: &'a str,
-) -> impl Iterator<Item = &'a ResultRow> {
+pub(super) fn study(rows: &[StabilityRow], name: Study) -> impl Iterator<Item = &ResultRow> {
     rows.iter().filter(move |r| r.study == name).map(|r| &r.row)
 }
 
@@ -15,10 +13,10 @@ pub(super) fn study<'a>(
 /// went non-finite in the iteration study, with its error.
 pub fn first_failure(
     rows: &[StabilityRow],
-    method: &str,
-    precision: &str,
+    method: Method,
+    precision: Precision,
 ) -> Option<(usize, String)> {
-    study(rows, "iterations")
+    study(rows, Study::Iterations)
         .filter(|r| r.method == method && r.precision == precision)
         .filter(|r| !r.finite || r.error.is_some())
         .filter_map(|r| Some((r.max_iters?, r.error.clone().unwrap_or_default())))
@@ -27,11 +25,11 @@ pub fn first_failure(
 
 fn worst_error_from(
     rows: &[StabilityRow],
-    method: &str,
-    precision: &str,
+    method: Method,
+    precision: Precision,
     from: usize,
 ) -> Option<f64> {
-    study(rows, "iterations")
+    study(rows, Study::Iterations)
         .filter(|r| r.method == method && r.precision == precision)
         .filter(|r| r.max_iters.is_some_and(|k| k >= from))
         .map(|r| r.grad_rel_err.unwrap_or(f64::INFINITY))
@@ -49,11 +47,13 @@ pub fn findings(r: &StabilityResults) -> Vec<String> {
     let k_conv = r
         .convergence
         .iter()
-        .find(|c| c.n == n && c.precision == "f64" && c.operator == "laplacian")
+        .find(|c| {
+            c.n == n && c.precision == Precision::F64 && c.operator == OperatorKind::Laplacian
+        })
         .and_then(|c| c.iterations)
         .unwrap_or(0);
-    for p in ["f32", "f64"] {
-        let fail = first_failure(&r.rows, "naive", p);
+    for p in [Precision::F32, Precision::F64] {
+        let fail = first_failure(&r.rows, Method::Naive, p);
         out.push(format!(
             "iterations ({n}², {p}): CG converges in {k_conv} iterations (f64 to 1e-10); naive {}; \
              implicit worst error from {k_conv} iterations on: {} (all finite: {})",
@@ -61,12 +61,12 @@ pub fn findings(r: &StabilityResults) -> Vec<String> {
                 Some((k, e)) => format!("first fails at {k} iterations: {e}"),
                 None => format!(
                     "stays finite, worst error from {k_conv} iterations on {}",
-                    fmt(worst_error_from(&r.rows, "naive", p, k_conv))
+                    fmt(worst_error_from(&r.rows, Method::Naive, p, k_conv))
                 ),
             },
-            fmt(worst_error_from(&r.rows, "implicit", p, k_conv)),
-            study(&r.rows, "iterations")
-                .filter(|x| x.method == "implicit" && x.precision == p)
+            fmt(worst_error_from(&r.rows, Method::Implicit, p, k_conv)),
+            study(&r.rows, Study::Iterations)
+                .filter(|x| x.method == Method::Implicit && x.precision == p)
                 .all(|x| x.finite && x.error.is_none()),
         ));
     }
@@ -88,7 +88,7 @@ pub fn findings(r: &StabilityResults) -> Vec<String> {
     let ratios: Vec<f64> = r
         .rows
         .iter()
-        .filter(|x| x.study == "unconverged" && x.variant.as_deref() == Some("adjoint tight"))
+        .filter(|x| x.study == Study::Unconverged && x.variant.as_deref() == Some("adjoint tight"))
         .filter_map(|x| Some(x.row.grad_rel_err? / x.row.reached_relative_residual?))
         .filter(|v| v.is_finite())
         .collect();
@@ -104,10 +104,10 @@ pub fn findings(r: &StabilityResults) -> Vec<String> {
     for (c, nsf) in r
         .rows
         .iter()
-        .filter(|x| x.study == "conditioning" && x.row.operator == "neumann")
+        .filter(|x| x.study == Study::Conditioning && x.row.operator == OperatorKind::Neumann)
         .map(|x| (&x.row, &x.null_space_fraction))
     {
-        if c.method == "naive" {
+        if c.method == Method::Naive {
             out.push(format!(
                 "singular all-Neumann ({}², {}, naive, {}): {}",
                 c.n,
@@ -144,7 +144,7 @@ pub fn findings(r: &StabilityResults) -> Vec<String> {
         ));
     }
     for &cfl in &r.config.cfls {
-        for p in ["f64", "f32"] {
+        for p in [Precision::F64, Precision::F32] {
             let rows: Vec<&UnrollRow> = r
                 .unroll
                 .iter()

@@ -7,6 +7,7 @@ use crate::methods::implicit::implicit_initial_guess_gradient;
 use crate::methods::naive::NaiveUnrolled;
 use crate::methods::Stop;
 use crate::problem::{Problem, ProblemSpec};
+use crate::report::Method;
 use crate::{CompareError, Result};
 
 use super::{norm, InitialGuessRow, TOLERANCE_CAP};
@@ -38,10 +39,10 @@ pub fn initial_guess_study(
     });
     let mut rows = Vec::new();
     for stop in stops {
-        for method in ["naive", "implicit"] {
+        for method in [Method::Naive, Method::Implicit] {
             bar.set_message(format!("initial guess: {method} {stop:?}"));
             let run = |x: &Array2<f64>| -> Result<(f64, Array2<f64>, Array2<f64>)> {
-                if method == "naive" {
+                if method == Method::Naive {
                     let (out, g0) = NaiveUnrolled::default().run_from(&problem, stop, Some(x))?;
                     let g0 = g0.ok_or_else(|| CompareError::invalid("naive: no x0 gradient"))?;
                     Ok((out.loss, out.gradient, g0))
@@ -50,7 +51,7 @@ pub fn initial_guess_study(
                 }
             };
             let mut row = InitialGuessRow {
-                method: method.to_string(),
+                method,
                 n,
                 iterations: match stop {
                     Stop::Iterations(k) => Some(k),

@@ -12,7 +12,7 @@ use crate::problem::{Problem, ProblemSpec};
 use crate::report::{Floor, ResultRow};
 use crate::Result;
 
-use super::{methods, stability_row, StabilityConfig, StabilityRow, F32_FLOOR_LIMIT};
+use super::{methods, stability_row, StabilityConfig, StabilityRow, Study, F32_FLOOR_LIMIT};
 
 /// Study 1: both methods at fixed iteration counts, `f32` and `f64`, on one scene.
 ///
@@ -30,7 +30,7 @@ pub fn iteration_study<T: Real>(
         for m in methods::<T>() {
             bar.set_message(format!("iterations: {} {} k={k}", m.name(), T::NAME));
             let (row, _) = measure(m.as_ref(), &problem, Some(Stop::Iterations(k)), None, exact);
-            rows.push(stability_row("iterations", row));
+            rows.push(stability_row(Study::Iterations, row));
             bar.inc(1);
         }
     }
@@ -65,7 +65,7 @@ pub fn floor_study(
             None,
             exact,
         );
-        rows.push(stability_row("floor", row));
+        rows.push(stability_row(Study::Floor, row));
         bar.inc(1);
     }
     Ok(rows)
@@ -76,7 +76,7 @@ pub fn floor_study(
 pub fn f32_floor(rows: &[StabilityRow], n: usize, from: usize, to: usize) -> Floor {
     let floor_rows: Vec<&ResultRow> = rows
         .iter()
-        .filter(|r| r.study == "floor")
+        .filter(|r| r.study == Study::Floor)
         .map(|r| &r.row)
         .collect();
     let bad: Vec<String> = floor_rows

@@ -31,8 +31,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::harness::{exact_reference, progress_bar, ExactCache};
 use crate::methods::{implicit::ImplicitSolve, naive::NaiveUnrolled, GradientMethod};
-use crate::problem::{Problem, ProblemSpec};
-use crate::report::{Floor, ResultRow};
+use crate::problem::{OperatorKind, Problem, ProblemSpec};
+use crate::report::{Floor, Method, Precision, ResultRow};
 use crate::{CompareError, Result};
 
 mod conditioning;
@@ -190,12 +190,39 @@ impl StabilityConfig {
     }
 }
 
+/// The CG studies of a stability run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Study {
+    /// Precision and fixed iteration counts.
+    Iterations,
+    /// The f32 rounding floor.
+    Floor,
+    /// The forward solve stopped before convergence.
+    Unconverged,
+    /// Conditioning (operators and grid sizes).
+    Conditioning,
+}
+
+impl Study {
+    /// The name in `stability.json`: `iterations`, `floor`, `unconverged`,
+    /// `conditioning`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Study::Iterations => "iterations",
+            Study::Floor => "floor",
+            Study::Unconverged => "unconverged",
+            Study::Conditioning => "conditioning",
+        }
+    }
+}
+
 /// One measured run of a CG study: the sweep's row with the study it belongs
 /// to and, for singular systems, how much of the gradient lies in the kernel.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct StabilityRow {
     /// `iterations`, `floor`, `unconverged`, `conditioning`.
-    pub study: String,
+    pub study: Study,
     /// The measured run.
     #[serde(flatten)]
     pub row: ResultRow,
@@ -213,9 +240,10 @@ pub struct ConvergenceCount {
     /// Cells per axis.
     pub n: usize,
     /// The operator.
-    pub operator: String,
+    #[serde(with = "crate::report::operator_label")]
+    pub operator: OperatorKind,
     /// `f32` or `f64`.
-    pub precision: String,
+    pub precision: Precision,
     /// The relative residual asked for.
     pub rtol: f64,
     /// Iterations the solver of the implicit path needed; `None` if it failed.
@@ -232,7 +260,7 @@ pub struct ConvergenceCount {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct InitialGuessRow {
     /// `naive` or `implicit`.
-    pub method: String,
+    pub method: Method,
     /// Cells per axis.
     pub n: usize,
     /// Fixed iterations, or `None` for a tolerance run.
@@ -263,7 +291,7 @@ pub struct UnrollRow {
     /// Steps unrolled on the tape.
     pub steps: usize,
     /// `f32` or `f64`.
-    pub precision: String,
+    pub precision: Precision,
     /// The loss `½‖d_N − d*‖²`.
     pub loss: Option<f64>,
     /// `‖∂L/∂d⁰‖₂`.
@@ -346,8 +374,8 @@ fn convergence_row<T: Real>(problem: &Problem<T>) -> ConvergenceCount {
     let result = convergence_solve(problem);
     ConvergenceCount {
         n: problem.spec.n,
-        operator: problem.spec.operator.label(),
-        precision: T::NAME.to_string(),
+        operator: problem.spec.operator,
+        precision: Precision::of::<T>(),
         rtol: converged_rtol::<T>(),
         iterations: result.as_ref().ok().map(|i| i.iterations),
         reached_relative_residual: result.as_ref().ok().map(|i| i.relative_residual),
@@ -355,9 +383,9 @@ fn convergence_row<T: Real>(problem: &Problem<T>) -> ConvergenceCount {
     }
 }
 
-fn stability_row(study: &str, row: ResultRow) -> StabilityRow {
+fn stability_row(study: Study, row: ResultRow) -> StabilityRow {
     StabilityRow {
-        study: study.to_string(),
+        study,
         row,
         null_space_fraction: None,
         variant: None,

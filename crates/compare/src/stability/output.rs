@@ -5,24 +5,23 @@ use std::path::Path;
 
 use crate::chart::{LineChart, Series};
 use crate::harness::{series_by_method, write_chart};
-use crate::report::ResultRow;
+use crate::problem::OperatorKind;
+use crate::report::{Method, Precision, ResultRow};
 use crate::{CompareError, Result};
 
 use super::findings::first_failure;
 use super::findings::{fmt, study};
-use super::{StabilityResults, UnrollRow, F32_FLOOR_LIMIT};
+use super::{StabilityResults, Study, UnrollRow, F32_FLOOR_LIMIT};
 
 /// The rows of the CG studies, for the table and `report.md`.
-pub fn result_rows(results: &StabilityResults, study_name: &str) -> Vec<ResultRow> {
+pub fn result_rows(results: &StabilityResults, study_name: Study) -> Vec<ResultRow> {
     results
         .rows
         .iter()
         .filter(|r| r.study == study_name)
         .map(|r| {
             let mut row = r.row.clone();
-            if let Some(v) = &r.variant {
-                row.method = format!("{} ({v})", row.method);
-            }
+            row.variant = r.variant.clone();
             row
         })
         .collect()
@@ -41,7 +40,7 @@ pub fn write_stability_charts(
     let caption = format!(
         "Stability: gradient error vs fixed CG iterations ({n}², laplacian; × = non-finite)"
     );
-    let series = series_by_method(study(&results.rows, "iterations"), |r| {
+    let series = series_by_method(study(&results.rows, Study::Iterations), |r| {
         let shown = if r.finite && r.error.is_none() {
             r.grad_rel_err?
         } else {
@@ -74,13 +73,13 @@ pub fn write_stability_charts(
         let pts = results
             .rows
             .iter()
-            .filter(|r| r.study == "unconverged" && r.variant.as_deref() == Some(variant))
+            .filter(|r| r.study == Study::Unconverged && r.variant.as_deref() == Some(variant))
             .filter_map(|r| Some((r.row.reached_relative_residual?, r.row.grad_rel_err?)))
             .collect();
         series.push(Series::new(format!("implicit, {variant}"), sorted(pts)));
     }
-    let pts = study(&results.rows, "unconverged")
-        .filter(|r| r.method == "naive")
+    let pts = study(&results.rows, Study::Unconverged)
+        .filter(|r| r.method == Method::Naive)
         .filter_map(|r| Some((r.reached_relative_residual?, r.grad_rel_err?)))
         .collect();
     series.push(Series::new("naive (fixed iterations)", sorted(pts)));
@@ -106,7 +105,7 @@ pub fn write_stability_charts(
 
     let floor_n = results.config.floor_n;
     let caption = format!("f32 floor: implicit f32 gradient error vs CG cap ({floor_n}²)");
-    let pts: Vec<(f64, f64)> = study(&results.rows, "floor")
+    let pts: Vec<(f64, f64)> = study(&results.rows, Study::Floor)
         .filter_map(|r| {
             let e = if r.finite && r.error.is_none() {
                 r.grad_rel_err?
@@ -148,7 +147,7 @@ pub fn write_stability_charts(
     );
     let mut series = Vec::new();
     for &cfl in &results.config.cfls {
-        for p in ["f64", "f32"] {
+        for p in [Precision::F64, Precision::F32] {
             let pts = results
                 .unroll
                 .iter()
@@ -176,15 +175,15 @@ pub fn write_stability_charts(
 
     let caption = "Conditioning: CG iterations to convergence vs grid size".to_string();
     let mut series = Vec::new();
-    for p in ["f64", "f32"] {
-        for op in ["laplacian", "neumann"] {
+    for p in [Precision::F64, Precision::F32] {
+        for op in [OperatorKind::Laplacian, OperatorKind::Neumann] {
             let pts = results
                 .convergence
                 .iter()
                 .filter(|c| c.precision == p && c.operator == op)
                 .filter_map(|c| Some((c.n as f64, c.iterations? as f64)))
                 .collect();
-            series.push(Series::new(format!("{op} {p}"), sorted(pts)));
+            series.push(Series::new(format!("{} {p}", op.label()), sorted(pts)));
         }
     }
     write_chart(
@@ -220,11 +219,14 @@ pub fn write_stability_json(path: &Path, results: &StabilityResults) -> Result<(
     std::fs::write(path, text + "\n").map_err(|e| CompareError::io(path, e))
 }
 
-const STUDIES: [(&str, &str); 4] = [
-    ("iterations", "Precision and iteration counts"),
-    ("unconverged", "Forward solve stopped before convergence"),
-    ("conditioning", "Conditioning"),
-    ("floor", "The f32 floor"),
+const STUDIES: [(Study, &str); 4] = [
+    (Study::Iterations, "Precision and iteration counts"),
+    (
+        Study::Unconverged,
+        "Forward solve stopped before convergence",
+    ),
+    (Study::Conditioning, "Conditioning"),
+    (Study::Floor, "The f32 floor"),
 ];
 
 /// Most rows a study's table in `stability.md` shows (the f32 floor study has
@@ -268,7 +270,7 @@ pub fn render_stability_md(
     use std::fmt::Write as _;
     let all: Vec<ResultRow> = STUDIES
         .iter()
-        .flat_map(|(s, _)| result_rows(results, s))
+        .flat_map(|&(s, _)| result_rows(results, s))
         .collect();
     let mut report_notes = results.findings.clone();
     report_notes.extend(notes);
@@ -339,7 +341,7 @@ pub fn unroll_table(rows: &[UnrollRow], markdown: bool) -> String {
     for u in rows {
         let cells = [
             format!("{}", u.cfl),
-            u.precision.clone(),
+            u.precision.to_string(),
             u.steps.to_string(),
             fmt(u.loss),
             fmt(u.grad_d0_norm),
@@ -374,8 +376,8 @@ pub fn stability_key_figures(
 ) -> serde_json::Value {
     let rows: Vec<ResultRow> = results.rows.iter().map(|r| r.row.clone()).collect();
     let mut v = crate::report::key_figures_value(&rows, &results.floors, out_dir, elapsed_s);
-    let first = |m: &str, p: &str| first_failure(&results.rows, m, p).map(|(k, _)| k);
-    let x0 = |m: &str| {
+    let first = |m: Method, p: Precision| first_failure(&results.rows, m, p).map(|(k, _)| k);
+    let x0 = |m: Method| {
         results
             .initial_guess
             .iter()
@@ -385,7 +387,7 @@ pub fn stability_key_figures(
                 Some(acc.map_or(v, |a| a.max(v)))
             })
     };
-    let unroll_fail = |cfl: f64, p: &str| {
+    let unroll_fail = |cfl: f64, p: Precision| {
         results
             .unroll
             .iter()
@@ -396,14 +398,14 @@ pub fn stability_key_figures(
         results
             .unroll
             .iter()
-            .filter(|u| u.cfl == cfl && u.precision == "f64")
+            .filter(|u| u.cfl == cfl && u.precision == Precision::F64)
             .filter_map(|u| u.grad_d0_norm)
             .next_back()
     };
     let ratios: Vec<f64> = results
         .rows
         .iter()
-        .filter(|x| x.study == "unconverged" && x.variant.as_deref() == Some("adjoint tight"))
+        .filter(|x| x.study == Study::Unconverged && x.variant.as_deref() == Some("adjoint tight"))
         .filter_map(|x| Some(x.row.grad_rel_err? / x.row.reached_relative_residual?))
         .collect();
     if let Some(o) = v.as_object_mut() {
@@ -411,15 +413,15 @@ pub fn stability_key_figures(
         o.insert("ok".into(), true.into());
         o.insert(
             "naive_first_non_finite_iters".into(),
-            serde_json::json!({ "f32": first("naive", "f32"), "f64": first("naive", "f64") }),
+            serde_json::json!({ "f32": first(Method::Naive, Precision::F32), "f64": first(Method::Naive, Precision::F64) }),
         );
         o.insert(
             "implicit_first_non_finite_iters".into(),
-            serde_json::json!({ "f32": first("implicit", "f32"), "f64": first("implicit", "f64") }),
+            serde_json::json!({ "f32": first(Method::Implicit, Precision::F32), "f64": first(Method::Implicit, Precision::F64) }),
         );
         o.insert(
             "x0_grad_norm_max".into(),
-            serde_json::json!({ "implicit": x0("implicit"), "naive": x0("naive") }),
+            serde_json::json!({ "implicit": x0(Method::Implicit), "naive": x0(Method::Naive) }),
         );
         o.insert(
             "unconverged_err_over_residual".into(),
@@ -434,8 +436,8 @@ pub fn stability_key_figures(
                 format!("cfl_{cfl}"),
                 serde_json::json!({
                     "grad_d0_norm_last_f64": unroll_last(cfl),
-                    "first_failing_steps_f64": unroll_fail(cfl, "f64"),
-                    "first_failing_steps_f32": unroll_fail(cfl, "f32"),
+                    "first_failing_steps_f64": unroll_fail(cfl, Precision::F64),
+                    "first_failing_steps_f32": unroll_fail(cfl, Precision::F32),
                 }),
             );
         }

@@ -10,7 +10,7 @@ use crate::methods::Stop;
 use crate::problem::{Problem, ProblemSpec};
 use crate::Result;
 
-use super::{stability_row, StabilityRow, TOLERANCE_CAP};
+use super::{stability_row, StabilityRow, Study, TOLERANCE_CAP};
 
 /// Study 3: the implicit gradient with the forward solve stopped at each
 /// tolerance (the adjoint tight, and the adjoint stopped alike), and the naive
@@ -39,11 +39,11 @@ pub fn unconverged_study(
         bar.set_message(format!("unconverged: implicit rtol {rtol:e}"));
         let tight_method = ImplicitSeparateAdjoint { adjoint: tight };
         let (row, _) = measure(&tight_method, &problem, Some(stop), None, exact);
-        let mut r = stability_row("unconverged", row);
+        let mut r = stability_row(Study::Unconverged, row);
         r.variant = Some("adjoint tight".into());
         rows.push(r);
         let (row, _) = measure(&ImplicitSolve, &problem, Some(stop), None, exact);
-        let mut r = stability_row("unconverged", row);
+        let mut r = stability_row(Study::Unconverged, row);
         r.variant = Some("adjoint alike".into());
         rows.push(r);
         bar.inc(2);
@@ -57,7 +57,7 @@ pub fn unconverged_study(
             None,
             exact,
         );
-        rows.push(stability_row("unconverged", row));
+        rows.push(stability_row(Study::Unconverged, row));
         bar.inc(1);
     }
     Ok(rows)

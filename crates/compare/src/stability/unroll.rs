@@ -7,6 +7,7 @@ use diffphys_tape::{Real, Tape, TapeError, Var};
 use indicatif::ProgressBar;
 use ndarray::Array1;
 
+use crate::report::Precision;
 use crate::{CompareError, Result};
 
 use super::{norm, StabilityConfig, UnrollRow};
@@ -96,10 +97,10 @@ pub fn unroll_gradient<T: Real>(n: usize, cfl: f64, steps: usize) -> Result<(f64
 pub fn unroll_study(config: &StabilityConfig, bar: &ProgressBar) -> Vec<UnrollRow> {
     let mut rows = Vec::new();
     for &cfl in &config.cfls {
-        for precision in ["f64", "f32"] {
+        for precision in [Precision::F64, Precision::F32] {
             for &steps in &config.unroll_steps {
                 bar.set_message(format!("unroll: CFL {cfl} {precision} N={steps}"));
-                let result = if precision == "f64" {
+                let result = if precision == Precision::F64 {
                     unroll_gradient::<f64>(config.unroll_n, cfl, steps)
                 } else {
                     unroll_gradient::<f32>(config.unroll_n, cfl, steps)
@@ -107,7 +108,7 @@ pub fn unroll_study(config: &StabilityConfig, bar: &ProgressBar) -> Vec<UnrollRo
                 let mut row = UnrollRow {
                     cfl,
                     steps,
-                    precision: precision.to_string(),
+                    precision,
                     loss: None,
                     grad_d0_norm: None,
                     grad_u_norm: None,

@@ -27,12 +27,14 @@
 
 pub mod alloc;
 pub mod chart;
+pub mod cli;
 mod error;
 pub mod harness;
 pub mod memory;
 pub mod methods;
 pub mod npy;
 pub mod problem;
+pub mod progress;
 pub mod report;
 pub mod stability;
 

@@ -18,6 +18,7 @@ use std::time::Instant;
 
 use clap::{Args, Parser, Subcommand};
 use diffphys_compare::alloc::CountingAllocator;
+use diffphys_compare::cli::progress_bar;
 use diffphys_compare::harness::{
     cg_speedup, compute_floors, prepare_out_dir, run_sweep, run_sweep_npy, write_charts, Precision,
     SweepConfig, FLOOR_N,
@@ -222,10 +223,13 @@ fn run(args: &SweepArgs, started: Instant) -> Result<String> {
     let out = prepare_out_dir(&args.out)?;
     let (rows, npy_index) = if args.npy {
         let mut npy = NpyWriter::new(out.join("npy"))?;
-        let rows = run_sweep_npy(&config, Some(&HEAP), &mut npy)?;
+        let rows = run_sweep_npy(&config, Some(&HEAP), &progress_bar(0, "sweep"), &mut npy)?;
         (rows, Some(npy.finish()?))
     } else {
-        (run_sweep(&config, Some(&HEAP))?, None)
+        (
+            run_sweep(&config, Some(&HEAP), &progress_bar(0, "sweep"))?,
+            None,
+        )
     };
     let (timing, timing_note) = cg_speedup(&config);
     // Like the other floors, the speedup is judged at 256²; on smaller grids the
@@ -297,7 +301,7 @@ fn run_stability_mode(out: &Path, quick: bool, started: Instant) -> Result<Strin
         StabilityConfig::full()
     };
     let out = prepare_out_dir(out)?;
-    let results = run_stability(&config)?;
+    let results = run_stability(&config, &progress_bar(0, "stability"))?;
     let (charts, notes) = write_stability_charts(&out, &results);
     write_stability_json(&out.join("stability.json"), &results)?;
     let configuration = vec![

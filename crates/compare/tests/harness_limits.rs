@@ -9,6 +9,7 @@ use diffphys_compare::methods::naive::NaiveUnrolled;
 use diffphys_compare::methods::{GradientMethod, Stop};
 use diffphys_compare::npy::{NpyEntry, NpyWriter};
 use diffphys_compare::problem::{OperatorKind, Problem, ProblemSpec};
+use diffphys_compare::progress::NoProgress;
 use diffphys_compare::report::{Method, RunStatus};
 use ndarray::{Array2, ArrayD};
 use ndarray_npy::read_npy;
@@ -42,7 +43,7 @@ fn harness_npy_reads_back_bit_for_bit() {
     let dir = std::env::temp_dir().join(format!("diffphys-harness-npy-{}", std::process::id()));
     let config = sweep_config(vec![8]);
     let mut npy = NpyWriter::new(&dir).unwrap();
-    let rows = run_sweep_npy(&config, None, &mut npy).unwrap();
+    let rows = run_sweep_npy(&config, None, &NoProgress, &mut npy).unwrap();
     assert!(rows.iter().all(|r| r.error.is_none()), "{rows:?}");
     let index = npy.finish().unwrap();
 
@@ -80,7 +81,7 @@ fn harness_npy_reads_back_bit_for_bit() {
 fn sizes_over_the_memory_limit_are_refused_rows_and_the_others_run() {
     let mut config = sweep_config(vec![8, 100_000]);
     config.memory_limit_mib = Some(64);
-    let rows = run_sweep(&config, None).unwrap();
+    let rows = run_sweep(&config, None, &NoProgress).unwrap();
     assert_eq!(rows.len(), config.run_count());
     for r in rows.iter().filter(|r| r.n == 8) {
         assert!(r.error.is_none(), "{r:?}");
@@ -101,7 +102,7 @@ fn sizes_over_the_memory_limit_are_refused_rows_and_the_others_run() {
     config.iters = vec![300];
     config.rtols.clear();
     config.memory_limit_mib = Some(1);
-    let rows = run_sweep(&config, None).unwrap();
+    let rows = run_sweep(&config, None, &NoProgress).unwrap();
     let naive = rows.iter().find(|r| r.method == Method::Naive).unwrap();
     assert!(naive
         .error
@@ -117,7 +118,7 @@ fn grids_too_small_for_a_fixed_count_are_a_typed_row() {
     for n in [2, 3] {
         let mut config = sweep_config(vec![n]);
         config.iters = vec![5, 30];
-        let rows = run_sweep(&config, None).unwrap();
+        let rows = run_sweep(&config, None, &NoProgress).unwrap();
         let naive: Vec<_> = rows.iter().filter(|r| r.method == Method::Naive).collect();
         // 5 ≤ 9 runs on 3², not on 2²; 30 exceeds both; the tolerance run converges.
         for r in naive {

@@ -4,6 +4,7 @@
 use diffphys_compare::alloc::CountingAllocator;
 use diffphys_compare::harness::{compute_floors, run_sweep, write_charts, Precision, SweepConfig};
 use diffphys_compare::problem::{LossKind, OperatorKind};
+use diffphys_compare::progress::NoProgress;
 use diffphys_compare::report::{
     read_results_json, render_report, render_table, write_report_md, write_results_json, Method,
     Report, ResultRow, RunStatus,
@@ -100,7 +101,7 @@ fn tiny_sweep_writes_table_json_report_and_charts() {
         naive_tape_limit_bytes: 64 << 20,
         memory_limit_mib: None,
     };
-    let rows = run_sweep(&config, Some(&HEAP)).unwrap();
+    let rows = run_sweep(&config, Some(&HEAP), &NoProgress).unwrap();
     assert_eq!(rows.len(), config.run_count());
     // Every naive run on these tiny problems succeeds and stays finite.
     let naive: Vec<_> = rows.iter().filter(|r| r.method == Method::Naive).collect();
@@ -198,7 +199,7 @@ fn tiny_sweep_writes_table_json_report_and_charts() {
 fn invalid_configurations_are_typed_errors() {
     let mut c = SweepConfig::quick();
     c.sizes = vec![1];
-    assert!(run_sweep(&c, None).is_err());
+    assert!(run_sweep(&c, None, &NoProgress).is_err());
     let mut c = SweepConfig::quick();
     c.rtols = vec![2.0];
     assert!(c.validate().is_err());

@@ -10,6 +10,7 @@ use diffphys_compare::methods::implicit::{
 use diffphys_compare::methods::naive::NaiveUnrolled;
 use diffphys_compare::methods::{GradientMethod, Stop};
 use diffphys_compare::problem::{OperatorKind, Problem, ProblemSpec};
+use diffphys_compare::progress::NoProgress;
 use diffphys_compare::stability::{
     convergence_iterations, f32_floor, floor_study, null_space_fraction, run_stability,
     stability_key_figures, unroll_gradient, write_stability_charts, StabilityConfig,
@@ -17,7 +18,6 @@ use diffphys_compare::stability::{
 };
 use diffphys_compare::CompareError;
 use diffphys_tape::{Pass, TapeError};
-use indicatif::ProgressBar;
 use ndarray::Array2;
 
 fn exact(spec: ProblemSpec) -> Array2<f64> {
@@ -94,7 +94,7 @@ fn implicit_f32_floor_holds_at_every_cap_on_a_small_grid() {
     let g = exact(ProblemSpec::laplacian(n));
     let from =
         convergence_iterations(&Problem::<f32>::new(ProblemSpec::laplacian(n)).unwrap()).unwrap();
-    let rows = floor_study(n, from, 1000, 1, Some(&g), &ProgressBar::hidden()).unwrap();
+    let rows = floor_study(n, from, 1000, 1, Some(&g), &NoProgress).unwrap();
     assert_eq!(rows.len(), 1000 - from + 1);
     let floor = f32_floor(&rows, n, from, 1000);
     assert_eq!(floor.holds(), Some(true), "{floor:?}");
@@ -277,7 +277,7 @@ fn anisotropy_costs_iterations_and_f32_accuracy() {
 
 #[test]
 fn quick_stability_run_writes_its_charts_and_key_figures() {
-    let results = run_stability(&StabilityConfig::quick()).unwrap();
+    let results = run_stability(&StabilityConfig::quick(), &NoProgress).unwrap();
     assert!(results.floors.iter().all(|f| f.holds() == Some(true)));
     // Every failed row carries its error; no row is non-finite without one.
     for r in &results.rows {

@@ -1,11 +1,9 @@
 //! Measuring methods: one run into one [`ResultRow`](crate::report::ResultRow), sweeps over sizes, stopping
 //! rules, precisions and operators, the harness's charts and its floors.
 
-use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 
 use diffphys_tape::Real;
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use ndarray::Array2;
 use serde::{Deserialize, Serialize};
 
@@ -21,6 +19,7 @@ mod measure;
 mod sweep;
 mod timing;
 
+pub use crate::cli::progress_bar;
 pub use charts::write_charts;
 pub(crate) use charts::{series_by_method, write_chart};
 pub use floors::{compute_floors, FLOOR_N, FLOOR_RTOL};
@@ -121,23 +120,6 @@ pub fn relative_error<T: Real>(g: &Array2<T>, exact: &Array2<f64>) -> Option<f64
     } else {
         num.sqrt()
     })
-}
-
-/// A progress bar on stderr, hidden when stderr is not a terminal (CI, pipes).
-pub fn progress_bar(len: usize, what: &str) -> ProgressBar {
-    let target = if std::io::stderr().is_terminal() {
-        ProgressDrawTarget::stderr()
-    } else {
-        ProgressDrawTarget::hidden()
-    };
-    let bar = ProgressBar::with_draw_target(Some(len as u64), target);
-    if let Ok(style) =
-        ProgressStyle::with_template("{prefix} [{elapsed_precise}] {bar:32} {pos}/{len} {msg}")
-    {
-        bar.set_style(style);
-    }
-    bar.set_prefix(what.to_string());
-    bar
 }
 
 /// Creates the output folder.

@@ -4,7 +4,6 @@
 use std::collections::HashMap;
 
 use diffphys_tape::Real;
-use indicatif::ProgressBar;
 use ndarray::Array2;
 use serde::{Deserialize, Serialize};
 
@@ -14,11 +13,12 @@ use crate::methods::naive::NaiveUnrolled;
 use crate::methods::{GradientMethod, Stop};
 use crate::npy::NpyWriter;
 use crate::problem::{LossKind, OperatorKind, Problem, ProblemSpec};
+use crate::progress::Progress;
 use crate::report::{Method, ResultRow};
 use crate::{CompareError, Result};
 
 use super::measure::{finite_difference_error, measure, measure_baseline};
-use super::{method, progress_bar, MethodKind, Precision};
+use super::{method, MethodKind, Precision};
 
 /// What a sweep runs.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -208,7 +208,7 @@ fn sweep_scene<T: Real>(
     exact: Option<&Array2<f64>>,
     heap: Option<&CountingAllocator>,
     budget: &MemoryBudget,
-    bar: &ProgressBar,
+    bar: &dyn Progress,
     rows: &mut Vec<ResultRow>,
     mut npy: Option<&mut NpySink<'_>>,
 ) {
@@ -412,8 +412,12 @@ fn sweep_scene<T: Real>(
 /// # Errors
 /// [`CompareError::InvalidArgument`] if the configuration is invalid (see
 /// [`SweepConfig::validate`]); method failures are rows, not errors.
-pub fn run_sweep(config: &SweepConfig, heap: Option<&CountingAllocator>) -> Result<Vec<ResultRow>> {
-    sweep(config, heap, None)
+pub fn run_sweep(
+    config: &SweepConfig,
+    heap: Option<&CountingAllocator>,
+    progress: &dyn Progress,
+) -> Result<Vec<ResultRow>> {
+    sweep(config, heap, progress, None)
 }
 
 /// [`run_sweep`], also writing through `npy`, for the plain Laplacian in `f64`,
@@ -427,13 +431,14 @@ pub fn run_sweep(config: &SweepConfig, heap: Option<&CountingAllocator>) -> Resu
 pub fn run_sweep_npy(
     config: &SweepConfig,
     heap: Option<&CountingAllocator>,
+    progress: &dyn Progress,
     npy: &mut NpyWriter,
 ) -> Result<Vec<ResultRow>> {
     let mut sink = NpySink {
         writer: npy,
         first_error: None,
     };
-    let rows = sweep(config, heap, Some(&mut sink))?;
+    let rows = sweep(config, heap, progress, Some(&mut sink))?;
     match sink.first_error {
         Some(e) => Err(e),
         None => Ok(rows),
@@ -443,11 +448,12 @@ pub fn run_sweep_npy(
 fn sweep(
     config: &SweepConfig,
     heap: Option<&CountingAllocator>,
+    bar: &dyn Progress,
     mut npy: Option<&mut NpySink<'_>>,
 ) -> Result<Vec<ResultRow>> {
     config.validate()?;
     let budget = MemoryBudget::new(config.memory_limit_mib);
-    let bar = progress_bar(config.run_count(), "sweep");
+    bar.begin(config.run_count(), "sweep");
     let mut rows = Vec::with_capacity(config.run_count());
     let mut cache = ExactCache::new();
     for &operator in &config.operators {
@@ -471,7 +477,7 @@ fn sweep(
                         exact.as_ref(),
                         heap,
                         &budget,
-                        &bar,
+                        bar,
                         &mut rows,
                         npy,
                     ),
@@ -481,7 +487,7 @@ fn sweep(
                         exact.as_ref(),
                         heap,
                         &budget,
-                        &bar,
+                        bar,
                         &mut rows,
                         npy,
                     ),
@@ -489,6 +495,6 @@ fn sweep(
             }
         }
     }
-    bar.finish_and_clear();
+    bar.finish();
     Ok(rows)
 }

@@ -2,7 +2,6 @@
 //! system).
 
 use diffphys_tape::Real;
-use indicatif::ProgressBar;
 use ndarray::Array2;
 
 use crate::harness::{exact_reference, measure, ExactCache};
@@ -10,6 +9,7 @@ use crate::methods::implicit::ImplicitSolve;
 use crate::methods::naive::NaiveUnrolled;
 use crate::methods::{GradientMethod, Stop};
 use crate::problem::{OperatorKind, Problem, ProblemSpec};
+use crate::progress::Progress;
 use crate::Result;
 
 use super::{
@@ -24,7 +24,7 @@ fn conditioning_scene<T: Real>(
     spec: ProblemSpec,
     naive_max_n: usize,
     exact: Option<&Array2<f64>>,
-    bar: &ProgressBar,
+    bar: &dyn Progress,
     rows: &mut Vec<StabilityRow>,
 ) -> Result<()> {
     let problem = Problem::<T>::new(spec)?;
@@ -68,7 +68,7 @@ fn conditioning_scene<T: Real>(
 pub fn conditioning_study(
     config: &StabilityConfig,
     cache: &mut ExactCache,
-    bar: &ProgressBar,
+    bar: &dyn Progress,
 ) -> Result<(Vec<StabilityRow>, Vec<ConvergenceCount>)> {
     let mut specs: Vec<ProblemSpec> = config
         .laplacian_sizes

@@ -1,12 +1,12 @@
 //! Study 5: the initial guess `x0` (zero implicit gradient, non-zero naive).
 
-use indicatif::ProgressBar;
 use ndarray::Array2;
 
 use crate::methods::implicit::implicit_initial_guess_gradient;
 use crate::methods::naive::NaiveUnrolled;
 use crate::methods::Stop;
 use crate::problem::{Problem, ProblemSpec};
+use crate::progress::Progress;
 use crate::report::Method;
 use crate::{CompareError, Result};
 
@@ -21,7 +21,7 @@ use super::{norm, InitialGuessRow, TOLERANCE_CAP};
 pub fn initial_guess_study(
     n: usize,
     counts: &[usize],
-    bar: &ProgressBar,
+    bar: &dyn Progress,
 ) -> Result<Vec<InitialGuessRow>> {
     let problem = Problem::<f64>::new(ProblemSpec::laplacian(n))?;
     let to2 = |a: ndarray::ArrayD<f64>| {

@@ -2,13 +2,13 @@
 //! the floor of the implicit `f32` gradient.
 
 use diffphys_tape::Real;
-use indicatif::ProgressBar;
 use ndarray::Array2;
 
 use crate::harness::measure;
 use crate::methods::implicit::ImplicitSolve;
 use crate::methods::Stop;
 use crate::problem::{Problem, ProblemSpec};
+use crate::progress::Progress;
 use crate::report::{Floor, ResultRow};
 use crate::Result;
 
@@ -22,7 +22,7 @@ pub fn iteration_study<T: Real>(
     spec: ProblemSpec,
     counts: &[usize],
     exact: Option<&Array2<f64>>,
-    bar: &ProgressBar,
+    bar: &dyn Progress,
 ) -> Result<Vec<StabilityRow>> {
     let problem = Problem::<T>::new(spec)?;
     let mut rows = Vec::new();
@@ -48,7 +48,7 @@ pub fn floor_study(
     to: usize,
     stride: usize,
     exact: Option<&Array2<f64>>,
-    bar: &ProgressBar,
+    bar: &dyn Progress,
 ) -> Result<Vec<StabilityRow>> {
     let problem = Problem::<f32>::new(ProblemSpec::laplacian(n))?;
     let mut caps: Vec<usize> = (from..=to).step_by(stride.max(1)).collect();

@@ -29,9 +29,10 @@ use diffphys_tape::Real;
 use ndarray::Array2;
 use serde::{Deserialize, Serialize};
 
-use crate::harness::{exact_reference, progress_bar, ExactCache};
+use crate::harness::{exact_reference, ExactCache};
 use crate::methods::{implicit::ImplicitSolve, naive::NaiveUnrolled, GradientMethod};
 use crate::problem::{OperatorKind, Problem, ProblemSpec};
+use crate::progress::Progress;
 use crate::report::{Floor, Method, Precision, ResultRow};
 use crate::{CompareError, Result};
 
@@ -409,7 +410,7 @@ fn methods<T: Real>() -> [Box<dyn GradientMethod<T>>; 2] {
 /// # Errors
 /// [`CompareError::InvalidArgument`] for an invalid configuration, or if the
 /// scenes' convergence counts cannot be measured; method failures are rows.
-pub fn run_stability(config: &StabilityConfig) -> Result<StabilityResults> {
+pub fn run_stability(config: &StabilityConfig, bar: &dyn Progress) -> Result<StabilityResults> {
     config.validate()?;
     let mut cache = ExactCache::new();
     let mut convergence = Vec::new();
@@ -439,7 +440,7 @@ pub fn run_stability(config: &StabilityConfig) -> Result<StabilityResults> {
         + 2 * conditioning_scenes
         + 2 * (config.x0_iterations.len() + 1)
         + 2 * config.cfls.len() * config.unroll_steps.len();
-    let bar = progress_bar(total, "stability");
+    bar.begin(total, "stability");
 
     let mut rows = Vec::new();
     let exact = exact_reference(&mut cache, it_spec);
@@ -447,13 +448,13 @@ pub fn run_stability(config: &StabilityConfig) -> Result<StabilityResults> {
         it_spec,
         &counts,
         exact.as_ref(),
-        &bar,
+        bar,
     )?);
     rows.extend(iteration_study::<f64>(
         it_spec,
         &counts,
         exact.as_ref(),
-        &bar,
+        bar,
     )?);
 
     let exact = exact_reference(&mut cache, floor_spec);
@@ -463,7 +464,7 @@ pub fn run_stability(config: &StabilityConfig) -> Result<StabilityResults> {
         floor_to,
         config.floor_stride,
         exact.as_ref(),
-        &bar,
+        bar,
     )?);
 
     let exact = exact_reference(&mut cache, un_spec);
@@ -472,16 +473,16 @@ pub fn run_stability(config: &StabilityConfig) -> Result<StabilityResults> {
         &config.forward_rtols,
         &naive_counts,
         exact.as_ref(),
-        &bar,
+        bar,
     )?);
 
-    let (cond_rows, cond_counts) = conditioning_study(config, &mut cache, &bar)?;
+    let (cond_rows, cond_counts) = conditioning_study(config, &mut cache, bar)?;
     rows.extend(cond_rows);
     convergence.extend(cond_counts);
 
-    let initial_guess = initial_guess_study(config.x0_n, &config.x0_iterations, &bar)?;
-    let unroll = unroll_study(config, &bar);
-    bar.finish_and_clear();
+    let initial_guess = initial_guess_study(config.x0_n, &config.x0_iterations, bar)?;
+    let unroll = unroll_study(config, bar);
+    bar.finish();
 
     let floors = vec![f32_floor(&rows, config.floor_n, floor_from, floor_to)];
     let mut results = StabilityResults {

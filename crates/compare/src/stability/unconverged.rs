@@ -1,6 +1,5 @@
 //! Study 3: forward solves stopped before convergence.
 
-use indicatif::ProgressBar;
 use ndarray::Array2;
 
 use crate::harness::measure;
@@ -8,6 +7,7 @@ use crate::methods::implicit::{ImplicitSeparateAdjoint, ImplicitSolve};
 use crate::methods::naive::NaiveUnrolled;
 use crate::methods::Stop;
 use crate::problem::{Problem, ProblemSpec};
+use crate::progress::Progress;
 use crate::Result;
 
 use super::{stability_row, StabilityRow, Study, TOLERANCE_CAP};
@@ -23,7 +23,7 @@ pub fn unconverged_study(
     rtols: &[f64],
     naive_counts: &[usize],
     exact: Option<&Array2<f64>>,
-    bar: &ProgressBar,
+    bar: &dyn Progress,
 ) -> Result<Vec<StabilityRow>> {
     let problem = Problem::<f64>::new(ProblemSpec::laplacian(n))?;
     let tight = Stop::Tolerance {

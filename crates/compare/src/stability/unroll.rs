@@ -4,9 +4,9 @@
 use diffphys_ops::advection::{upwind_1d_tape, AdvectionParams};
 use diffphys_ops::{Boundary, Grid1, OpsError};
 use diffphys_tape::{Real, Tape, TapeError, Var};
-use indicatif::ProgressBar;
 use ndarray::Array1;
 
+use crate::progress::Progress;
 use crate::report::Precision;
 use crate::{CompareError, Result};
 
@@ -94,7 +94,7 @@ pub fn unroll_gradient<T: Real>(n: usize, cfl: f64, steps: usize) -> Result<(f64
 
 /// Study 6: [`unroll_gradient`] at every step count and Courant number, `f64`
 /// and `f32`.
-pub fn unroll_study(config: &StabilityConfig, bar: &ProgressBar) -> Vec<UnrollRow> {
+pub fn unroll_study(config: &StabilityConfig, bar: &dyn Progress) -> Vec<UnrollRow> {
     let mut rows = Vec::new();
     for &cfl in &config.cfls {
         for precision in [Precision::F64, Precision::F32] {

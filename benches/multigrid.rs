@@ -1,0 +1,145 @@
+//! The implicit gradient `∂L/∂b` of `L = ½‖A⁻¹b − p*‖²` (the harness's scene:
+//! `A = −∇²`, zero Dirichlet walls, f64) with CG preconditioned by a multigrid
+//! V-cycle (MG-PCG, forward and adjoint), against plain CG and the exact
+//! sparse-Cholesky gradient, from 64² to 2048².
+//!
+//! Run: `cargo bench --bench multigrid` (`-- --quick` for a shorter criterion
+//! part). Before timing it prints, for every size, the MG-PCG iterations to
+//! relative residual 1e-8 (forward + adjoint), the seconds of each gradient
+//! (MG-PCG best of 3, plain CG and exact one run) and their ratios, and the gradient error against exact where the
+//! exact gradient runs (up to 1024²: its factor at 2048² takes minutes).
+
+use std::hint::black_box;
+use std::sync::Arc;
+use std::time::Instant;
+
+use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use diffphys::compare::harness::relative_error;
+use diffphys::compare::methods::exact::ExactCholesky;
+use diffphys::compare::methods::{GradientMethod, Stop};
+use diffphys::compare::problem::{Problem, ProblemSpec};
+use diffphys::ops::cg::{CgParams, Preconditioner};
+use diffphys::ops::multigrid::Multigrid;
+use diffphys::ops::poisson::{poisson_solve_tape, PoissonSolve};
+use diffphys::Tape;
+use ndarray::Array2;
+
+const SIZES: [usize; 6] = [64, 128, 256, 512, 1024, 2048];
+const EXACT_UP_TO: usize = 1024;
+const RTOL: f64 = 1e-8;
+
+/// The gradient through the Poisson op with `params`, and its CG iterations.
+fn implicit_gradient(problem: &Problem<f64>, params: CgParams) -> (Array2<f64>, usize, usize) {
+    let solve = PoissonSolve::new(Arc::new(problem.operator.clone()), params);
+    let log = solve.log();
+    let tape = Tape::<f64>::new();
+    let b = tape.var(problem.b.clone().into_dyn());
+    let p = poisson_solve_tape(solve, b).expect("the solve converges");
+    let d = p
+        .sub(tape.constant(problem.target.clone().into_dyn()))
+        .expect("shapes");
+    let loss = d
+        .mul(d)
+        .and_then(|l| l.sum())
+        .and_then(|l| l.mul_scalar(0.5))
+        .expect("loss");
+    let g = tape.backward(loss, &[b]).expect("backward");
+    let g = g
+        .get(b)
+        .expect("gradient")
+        .clone()
+        .into_dimensionality()
+        .expect("2-D");
+    let (f, a) = (
+        log.last_forward().expect("a solve"),
+        log.last_adjoint().expect("a solve"),
+    );
+    (g, f.iterations, a.iterations)
+}
+
+fn mg_params(problem: &Problem<f64>) -> CgParams {
+    let mg = Multigrid::new(&problem.grid, 2).expect("the grid coarsens");
+    CgParams::default()
+        .with_rel_tol(RTOL)
+        .with_preconditioner(Preconditioner::Multigrid(Arc::new(mg)))
+}
+
+fn best_of_3(mut f: impl FnMut()) -> f64 {
+    (0..3)
+        .map(|_| {
+            let start = Instant::now();
+            f();
+            start.elapsed().as_secs_f64()
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+fn report() {
+    println!("n      MG-PCG its   MG-PCG s   plain CG its   plain CG s   exact s   exact/MG   plain/MG   MG err vs exact");
+    for n in SIZES {
+        let problem = Problem::<f64>::new(ProblemSpec::laplacian(n)).expect("scene");
+        let (g_mg, f_mg, a_mg) = implicit_gradient(&problem, mg_params(&problem));
+        let t_mg = best_of_3(|| {
+            black_box(implicit_gradient(&problem, mg_params(&problem)));
+        });
+        let plain = CgParams::default()
+            .with_rel_tol(RTOL)
+            .with_max_iters(20_000);
+        let (f_cg, a_cg, t_cg) = if n <= EXACT_UP_TO {
+            let start = Instant::now();
+            let (_, f, a) = implicit_gradient(&problem, plain.clone());
+            (
+                f.to_string(),
+                a.to_string(),
+                Some(start.elapsed().as_secs_f64()),
+            )
+        } else {
+            ("-".to_string(), "-".to_string(), None)
+        };
+        let (t_exact, err) = if n <= EXACT_UP_TO {
+            let exact = ExactCholesky
+                .run(&problem, Stop::Iterations(0))
+                .expect("exact");
+            let start = Instant::now();
+            black_box(
+                ExactCholesky
+                    .run(&problem, Stop::Iterations(0))
+                    .expect("exact"),
+            );
+            let t = start.elapsed().as_secs_f64();
+            let g_exact = exact.gradient.mapv(|v| v);
+            (Some(t), relative_error(&g_mg, &g_exact))
+        } else {
+            (None, None)
+        };
+        let fmt = |v: Option<f64>, p: usize| v.map_or("-".to_string(), |v| format!("{v:.p$}"));
+        println!(
+            "{n:<6} {:>5}+{:<5} {t_mg:>9.4} {:>7}+{:<6} {:>10} {:>9} {:>10} {:>10} {:>14}",
+            f_mg,
+            a_mg,
+            f_cg,
+            a_cg,
+            fmt(t_cg, 4),
+            fmt(t_exact, 4),
+            fmt(t_exact.map(|t| t / t_mg), 2),
+            fmt(t_cg.map(|t| t / t_mg), 1),
+            err.map_or("-".to_string(), |e| format!("{e:.2e}")),
+        );
+    }
+}
+
+fn bench(c: &mut Criterion) {
+    report();
+    let n = 256;
+    let problem = Problem::<f64>::new(ProblemSpec::laplacian(n)).expect("scene");
+    let mut group = c.benchmark_group("multigrid/gradient");
+    group.throughput(Throughput::Elements((n * n) as u64));
+    group.sample_size(10);
+    group.bench_function("mg_pcg_256", |b| {
+        b.iter(|| black_box(implicit_gradient(&problem, mg_params(&problem))))
+    });
+    group.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

@@ -27,6 +27,7 @@
 
 pub mod alloc;
 pub mod chart;
+#[cfg(feature = "cli")]
 pub mod cli;
 mod error;
 pub mod harness;

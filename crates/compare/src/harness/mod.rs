@@ -19,6 +19,7 @@ mod measure;
 mod sweep;
 mod timing;
 
+#[cfg(feature = "cli")]
 pub use crate::cli::progress_bar;
 pub use charts::write_charts;
 pub(crate) use charts::{series_by_method, write_chart};

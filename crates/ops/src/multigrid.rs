@@ -122,12 +122,31 @@ impl Level {
         T::from_f64(s)
     }
 
+    /// Whether `(i, j)` has all four neighbours inside the grid, where the
+    /// stencil needs no boundary rule.
+    #[inline]
+    fn interior(&self, i: usize, j: usize) -> bool {
+        i > 0 && j > 0 && i + 1 < self.nx && j + 1 < self.ny
+    }
+
+    /// [`Level::off`] for an interior cell: plain neighbours, no boundary rule.
+    #[inline]
+    fn off_interior<T: Real>(&self, x: &[T], k: usize) -> T {
+        let (cx, cy) = (T::from_f64(self.cx), T::from_f64(self.cy));
+        cx * (x[k - self.ny] + x[k + self.ny]) + cy * (x[k - 1] + x[k + 1])
+    }
+
     /// `r = b − A x`.
     fn residual<T: Real>(&self, x: &[T], b: &[T], r: &mut [T]) {
         for i in 0..self.nx {
             for j in 0..self.ny {
                 let k = i * self.ny + j;
-                r[k] = b[k] - (T::from_f64(self.diag[k]) * x[k] - self.off(x, i, j));
+                let off = if self.interior(i, j) {
+                    self.off_interior(x, k)
+                } else {
+                    self.off(x, i, j)
+                };
+                r[k] = b[k] - (T::from_f64(self.diag[k]) * x[k] - off);
             }
         }
     }
@@ -138,7 +157,12 @@ impl Level {
             let mut j = (i + colour) % 2;
             while j < self.ny {
                 let k = i * self.ny + j;
-                x[k] = (b[k] + self.off(x, i, j)) / T::from_f64(self.diag[k]);
+                let off = if self.interior(i, j) {
+                    self.off_interior(x, k)
+                } else {
+                    self.off(x, i, j)
+                };
+                x[k] = (b[k] + off) / T::from_f64(self.diag[k]);
                 j += 2;
             }
         }

@@ -21,7 +21,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use burgers_scene::{
-    batch_of, curve, learning_rate, mse, random_initial_state, sample_of, unet_config, BoxError,
+    batch_of, curve, learning_rate, mse, network, random_initial_state, sample_of, BoxError,
     Burgers, DESCENT_RATE, N,
 };
 use diffphys::compare::chart::{line_chart_svg, LineChart, Series};
@@ -38,7 +38,6 @@ const HELDOUT_SEED: u64 = 2;
 const MODEL_SEED: u64 = 3;
 const BATCH_SEED: u64 = 4;
 /// Widths of the U-Net, finest first (three poolings: it sees the whole field).
-const WIDTHS: [usize; 4] = [16, 32, 32, 32];
 /// Adam's initial step size, the same for both trainings (cosine decay to 1/20).
 const ADAM_RATE: f64 = 2e-3;
 /// Per-instance optimisation: the gradient-descent steps of `burgers_inverse`,
@@ -144,13 +143,7 @@ fn train(
     heldout: &Cases,
     budget: Budget,
 ) -> Result<Run, BoxError> {
-    let mut params = Params::new();
-    let net = UNet::new(
-        &mut params,
-        "unet",
-        unet_config(&WIDTHS),
-        &mut StdRng::seed_from_u64(MODEL_SEED),
-    )?;
+    let (mut params, net) = network(MODEL_SEED)?;
     let mut batches = StdRng::seed_from_u64(BATCH_SEED);
     let mut adam = Adam::new(ADAM_RATE);
     let mut heldout_physics = Vec::new();

@@ -17,7 +17,7 @@ mod common;
 use std::time::Instant;
 
 use burgers_scene::{
-    batch_of, curve, learning_rate, mse, random_initial_state, sample_of, unet_config, BoxError,
+    batch_of, curve, learning_rate, mse, network, random_initial_state, sample_of, BoxError,
     Burgers, N,
 };
 use diffphys::compare::chart::{line_chart_svg, LineChart, Series};
@@ -35,7 +35,6 @@ const HELDOUT_SEED: u64 = 12;
 const MODEL_SEED: u64 = 13;
 const BATCH_SEED: u64 = 14;
 /// Widths of the U-Net, finest first (the same network as `nn_control_burgers`).
-const WIDTHS: [usize; 4] = [16, 32, 32, 32];
 /// Adam's initial step size, the same for every run (cosine decay to 1/20).
 const ADAM_RATE: f64 = 2e-3;
 
@@ -146,13 +145,7 @@ fn train(
     heldout: &Pairs,
     budget: Budget,
 ) -> Result<Run, BoxError> {
-    let mut params = Params::new();
-    let net = UNet::new(
-        &mut params,
-        "unet",
-        unet_config(&WIDTHS),
-        &mut StdRng::seed_from_u64(MODEL_SEED),
-    )?;
+    let (mut params, net) = network(MODEL_SEED)?;
     let mut adam = Adam::new(ADAM_RATE);
     let mut batches = StdRng::seed_from_u64(BATCH_SEED);
     // On the fly, the data stream starts where the precomputed sets start too.

@@ -10,13 +10,14 @@
 
 use std::sync::Arc;
 
-use diffphys::nn::{Activation, Padding, UNetConfig};
+use diffphys::nn::{Activation, Padding, Params, UNet, UNetConfig};
 use diffphys::ops::advection::{semi_lagrangian_1d, semi_lagrangian_1d_tape};
 use diffphys::ops::stencil::{DiffusionParams, ExplicitDiffusion1};
 use diffphys::ops::tape_ops::apply_linear;
 use diffphys::{ArrayD, Boundary, Grid1, LinearOperator, Tape, Var};
 use ndarray::{Array1, Ix1};
-use rand::Rng;
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
 
 pub type BoxError = Box<dyn std::error::Error>;
 
@@ -148,18 +149,29 @@ pub fn random_initial_state(grid: &Grid1, rng: &mut impl Rng) -> Array1<f64> {
     }))
 }
 
-/// The network of both scenes: a 1D U-Net, periodic padding, kernel 5, ReLU,
-/// widths `widths` (finest first), one channel in and out.
-pub fn unet_config(widths: &[usize]) -> UNetConfig {
-    UNetConfig {
+/// Channels per level of the network, finest first.
+pub const WIDTHS: [usize; 4] = [16, 32, 32, 32];
+
+/// The network of both scenes, its parameters drawn from `seed`: a 1D U-Net,
+/// periodic padding, kernel 5, ReLU, widths [`WIDTHS`], one channel in and out.
+pub fn network(seed: u64) -> Result<(Params<f64>, UNet), BoxError> {
+    let config = UNetConfig {
         dims: 1,
         c_in: 1,
         c_out: 1,
-        widths: widths.to_vec(),
+        widths: WIDTHS.to_vec(),
         kernel: 5,
         padding: Padding::Periodic,
         activation: Activation::Relu,
-    }
+    };
+    let mut params = Params::new();
+    let net = UNet::new(
+        &mut params,
+        "unet",
+        config,
+        &mut StdRng::seed_from_u64(seed),
+    )?;
+    Ok((params, net))
 }
 
 /// Stacks `[N]` states into a `[batch, 1, N]` array.

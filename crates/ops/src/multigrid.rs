@@ -368,8 +368,10 @@ impl Multigrid {
         self.levels.len()
     }
 
-    /// `z = B r`: one V-cycle from a zero guess.
-    pub fn apply_slice<T: Real>(&self, r: &[T], z: &mut [T]) {
+    /// `z = B r`: one V-cycle from a zero guess, on slices of the grid's size
+    /// (the solver's own buffers; users go through [`LinearOperator`], which
+    /// checks shapes).
+    pub(crate) fn apply_slice<T: Real>(&self, r: &[T], z: &mut [T]) {
         if self.singular {
             let mut rp = r.to_vec();
             project_mean(&mut rp);

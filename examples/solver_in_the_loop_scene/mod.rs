@@ -1,74 +1,75 @@
-//! The physics of `solver_in_the_loop`: a coarse Burgers solver on the tape and a
-//! finer reference reduced to the coarse grid.
+//! The physics of `solver_in_the_loop`: a coarse advection solver on the tape
+//! and a finer reference reduced to the coarse grid.
 //!
-//! Viscous Burgers `∂u/∂t + u ∂u/∂x = ν ∂²u/∂x²` on the periodic domain [−1, 1],
-//! ν = [`NU`]. One step of either solver is explicit diffusion `u + ν·dt·∇²u`, then
-//! semi-Lagrangian self-advection of the diffused state (linear interpolation),
-//! the scheme of `burgers_inverse`:
+//! Advection of a density `d` by a fixed, spatially varying velocity,
+//! `∂d/∂t + c(x) ∂d/∂x = 0` with `c(x) = 1 + ½ sin πx`, on the periodic domain
+//! [−1, 1]. Both solvers take first-order upwind steps (`upwind_1d` of
+//! `diffphys-ops`):
 //!
-//! - coarse: [`COARSE`] cells, one step of `dt` = [`DT`] per step;
-//! - reference (the "source"): [`FINE`] = 4 × [`COARSE`] cells, [`SUBSTEPS`] steps
-//!   of `dt / SUBSTEPS` per coarse step, reduced to the coarse grid by averaging
-//!   each block of four cells.
+//! - coarse: [`COARSE`] cells, one step of `dt` = [`DT`] per step (Courant
+//!   numbers 0.25 to 0.75);
+//! - reference (the "source"): [`FINE`] = 8 × [`COARSE`] cells, [`SUBSTEPS`]
+//!   steps of `dt / SUBSTEPS` per coarse step (the same Courant numbers),
+//!   reduced to the coarse grid by averaging each block of eight cells.
 //!
-//! On the coarse grid the fronts that Burgers steepens span only a few cells,
-//! a coarse step moves them by two to three cells, and linear semi-Lagrangian
-//! interpolation smears them, so the coarse solution lags the reference more
-//! with every step. The large coarse step makes that error dynamical: where the
-//! front ends up depends on the state, so an error left by one step changes the
-//! next steps (rather than being damped by viscosity alone).
+//! The initial densities are random square pulses. Upwind's numerical diffusion
+//! is proportional to the cell size, so on the coarse grid the pulses' edges
+//! smear over several cells within a few steps, while the reference keeps them
+//! sharp to within about a coarse cell over the whole rollout. Nothing in the
+//! physics forgets an error: the exact solution only moves the density, so a
+//! smeared edge stays smeared and a misplaced one stays misplaced, and the
+//! coarse error grows for as long as the rollout runs.
 //!
 //! The coarse step is one tape op over a batch `[batch, 1, COARSE]`
-//! ([`CoarseStepOp`]); its adjoint is the adjoint of the advection
-//! (`semi_lagrangian_1d_vjp`, field and velocity gradients summed, since the
-//! diffused state is both) followed by the transposed diffusion (symmetric).
+//! ([`CoarseStepOp`]); it is linear in the density, and its adjoint is the
+//! field adjoint of `upwind_1d` (`upwind_1d_vjp`).
 
 use std::sync::Arc;
 
-use diffphys::ops::advection::{semi_lagrangian_1d, semi_lagrangian_1d_vjp, Wants};
-use diffphys::ops::stencil::{DiffusionParams, ExplicitDiffusion1};
+use diffphys::ops::advection::{upwind_1d, upwind_1d_vjp, AdvectionParams, Wants};
 use diffphys::tape::Result as TapeResult;
-use diffphys::{
-    ArrayD, ArrayViewD, BackwardArgs, Boundary, Grid1, LinearOperator, Op, TapeError, Var,
-};
-use ndarray::{s, Array1, Array2, ArrayView1, Axis, Ix1};
+use diffphys::{ArrayD, ArrayViewD, BackwardArgs, Boundary, Grid1, Op, TapeError, Var};
+use ndarray::{s, Array1, Array2, ArrayView1, Axis};
 use rand::Rng;
 
 pub type BoxError = Box<dyn std::error::Error>;
 
 /// Cells of the coarse grid.
 pub const COARSE: usize = 32;
+/// Reference cells per coarse cell.
+pub const RATIO: usize = 8;
 /// Cells of the reference grid.
-pub const FINE: usize = 4 * COARSE;
+pub const FINE: usize = RATIO * COARSE;
 /// Reference steps per coarse step.
 pub const SUBSTEPS: usize = 8;
-/// The coarse time step (a reference step is `DT / SUBSTEPS` = 1/128).
-pub const DT: f64 = 1.0 / 16.0;
-/// Viscosity.
-pub const NU: f64 = 0.01;
-/// The bound of the Fourier coefficients of a random initial state: with
-/// velocities of 2–3, fronts form within the first five coarse steps and a coarse
-/// step moves them by two to three cells.
-pub const AMPLITUDE: f64 = 2.0;
-/// Fourier modes of a random initial state.
-pub const MODES: usize = 4;
+/// The coarse time step: Courant numbers `dt·c(x)/dx` from 0.25 to 0.75.
+pub const DT: f64 = 1.0 / 32.0;
+/// The velocity's variation, `c(x) = 1 + VARIATION·sin πx`.
+pub const VARIATION: f64 = 0.5;
+/// Square pulses per initial state.
+pub const PULSES: usize = 2;
 
-/// One solver: a grid, a time step and its diffusion operator.
+/// One solver: a grid, a time step and the velocity at the cell centres.
 #[derive(Debug, Clone)]
 pub struct Solver {
     pub grid: Grid1,
     pub dt: f64,
-    diffusion: Arc<ExplicitDiffusion1>,
+    velocity: Arc<Array1<f64>>,
 }
 
 impl Solver {
     pub fn new(cells: usize, dt: f64) -> Result<Self, BoxError> {
         let grid = Grid1::over(-1.0, 1.0, cells, Boundary::Periodic)?;
-        let diffusion = ExplicitDiffusion1::new(grid, DiffusionParams::new(NU, dt))?;
+        let pi = std::f64::consts::PI;
+        let velocity = Array1::from_iter(
+            grid.centers()
+                .into_iter()
+                .map(|x| 1.0 + VARIATION * (pi * x).sin()),
+        );
         Ok(Solver {
             grid,
             dt,
-            diffusion: Arc::new(diffusion),
+            velocity: Arc::new(velocity),
         })
     }
 
@@ -82,37 +83,43 @@ impl Solver {
         Solver::new(FINE, DT / SUBSTEPS as f64)
     }
 
-    fn diffuse(&self, u: ArrayView1<'_, f64>) -> TapeResult<Array1<f64>> {
-        let d = self
-            .diffusion
-            .apply(u.into_dyn())
-            .map_err(|e| TapeError::op("burgers step (diffusion)", e))?;
-        Ok(d.into_dimensionality::<Ix1>().expect("1-D in, 1-D out"))
+    /// The velocity at the cell centres, repeated for a `[batch, 1, n]` batch.
+    pub fn velocity_batch(&self, batch: usize) -> ArrayD<f64> {
+        let n = self.grid.n;
+        let mut out = ArrayD::zeros(vec![batch, 1, n]);
+        for mut row in out.axis_iter_mut(Axis(0)) {
+            row.slice_mut(s![0, ..]).assign(&*self.velocity);
+        }
+        out
     }
 
-    /// One step of one state: diffuse, then advect the diffused state by itself.
-    pub fn step(&self, u: ArrayView1<'_, f64>) -> TapeResult<Array1<f64>> {
-        let d = self.diffuse(u)?;
-        semi_lagrangian_1d(&self.grid, self.dt, d.view(), d.view())
-            .map_err(|e| TapeError::op("burgers step (advection)", e))
+    /// One upwind step of one density.
+    pub fn step(&self, d: ArrayView1<'_, f64>) -> TapeResult<Array1<f64>> {
+        upwind_1d(
+            &self.grid,
+            &AdvectionParams::new(self.dt),
+            d,
+            self.velocity.view(),
+        )
+        .map_err(|e| TapeError::op("advection step", e))
     }
 
-    /// The vector–Jacobian product of [`Solver::step`] at `u` for `g = ∂L/∂u'`:
-    /// `Dᵀ (A_dᵀ g + A_uᵀ g)` with `D` the diffusion and `A` the advection.
-    pub fn step_vjp(
-        &self,
-        u: ArrayView1<'_, f64>,
-        g: ArrayView1<'_, f64>,
-    ) -> TapeResult<Array1<f64>> {
-        let d = self.diffuse(u)?;
-        let grads = semi_lagrangian_1d_vjp(&self.grid, self.dt, d.view(), d.view(), g, Wants::BOTH)
-            .map_err(|e| TapeError::op("burgers step adjoint (advection)", e))?;
-        let both = grads.field.expect("asked for") + grads.velocity.expect("asked for");
-        let back = self
-            .diffusion
-            .apply_transpose(both.view().into_dyn())
-            .map_err(|e| TapeError::op("burgers step adjoint (diffusion)", e))?;
-        Ok(back.into_dimensionality::<Ix1>().expect("1-D in, 1-D out"))
+    /// The vector–Jacobian product of [`Solver::step`] for `g = ∂L/∂d'`.
+    pub fn step_vjp(&self, g: ArrayView1<'_, f64>) -> TapeResult<Array1<f64>> {
+        let zeros = Array1::zeros(self.grid.n);
+        let grads = upwind_1d_vjp(
+            &self.grid,
+            &AdvectionParams::new(self.dt),
+            zeros.view(),
+            self.velocity.view(),
+            g,
+            Wants {
+                field: true,
+                velocity: false,
+            },
+        )
+        .map_err(|e| TapeError::op("advection step adjoint", e))?;
+        Ok(grads.field.expect("asked for"))
     }
 
     /// Records one step of every state of a `[batch, 1, n]` batch.
@@ -126,8 +133,8 @@ impl Solver {
     }
 }
 
-/// One solver step of a `[batch, 1, n]` batch as a tape op (see the module docs).
-/// Keeps only its input; the backward recomputes the diffused state.
+/// One solver step of a `[batch, 1, n]` batch as a tape op (see the module
+/// docs). Linear, so it keeps nothing for its backward.
 #[derive(Debug, Clone)]
 pub struct CoarseStepOp {
     solver: Solver,
@@ -142,7 +149,7 @@ fn rows_of(name: &str, x: &ArrayViewD<'_, f64>, n: usize) -> TapeResult<usize> {
 
 impl Op<f64> for CoarseStepOp {
     fn name(&self) -> &str {
-        "burgers_step"
+        "advection_step"
     }
 
     fn forward(&mut self, inputs: &[ArrayViewD<'_, f64>]) -> TapeResult<Vec<ArrayD<f64>>> {
@@ -157,47 +164,48 @@ impl Op<f64> for CoarseStepOp {
     }
 
     fn backward(&self, args: &BackwardArgs<'_, f64>) -> TapeResult<Vec<Option<ArrayD<f64>>>> {
-        let x = args.input(0);
         let g = args.grad_out();
-        let mut out = ArrayD::zeros(x.shape());
-        for ((row, grow), mut dst) in x
-            .axis_iter(Axis(0))
-            .zip(g.axis_iter(Axis(0)))
-            .zip(out.axis_iter_mut(Axis(0)))
-        {
-            let back = self
-                .solver
-                .step_vjp(row.slice(s![0, ..]), grow.slice(s![0, ..]))?;
+        let mut out = ArrayD::zeros(g.shape());
+        for (grow, mut dst) in g.axis_iter(Axis(0)).zip(out.axis_iter_mut(Axis(0))) {
+            let back = self.solver.step_vjp(grow.slice(s![0, ..]))?;
             dst.slice_mut(s![0, ..]).assign(&back);
         }
         Ok(vec![Some(out)])
     }
 }
 
-/// A random smooth periodic state
-/// `u₀(x) = Σ_{k=1..4} (a_k cos kπx + b_k sin kπx) / k`, `a_k, b_k` uniform on
-/// [−A, A] with A = [`AMPLITUDE`], sampled at the cell centres of `grid`.
+/// The length of `[a, b] ∩ [lo, hi]` on the periodic domain [−1, 1].
+fn overlap(a: f64, b: f64, lo: f64, hi: f64) -> f64 {
+    [-2.0, 0.0, 2.0]
+        .iter()
+        .map(|shift| ((b + shift).min(hi) - (a + shift).max(lo)).max(0.0))
+        .sum()
+}
+
+/// A random density of square pulses: [`PULSES`] pulses, each with a centre
+/// uniform on [−1, 1], a width uniform on [0.25, 0.6] and a height uniform on
+/// [0.5, 1.5], summed; the exact cell averages on `grid`.
 pub fn random_initial_state(grid: &Grid1, rng: &mut impl Rng) -> Array1<f64> {
-    let a = AMPLITUDE;
-    let coefficients: Vec<(f64, f64)> = (0..MODES)
-        .map(|_| (rng.random_range(-a..a), rng.random_range(-a..a)))
+    let pulses: Vec<(f64, f64, f64)> = (0..PULSES)
+        .map(|_| {
+            let centre = rng.random_range(-1.0..1.0);
+            let width = rng.random_range(0.25..0.6);
+            let height = rng.random_range(0.5..1.5);
+            (centre - width / 2.0, centre + width / 2.0, height)
+        })
         .collect();
-    let pi = std::f64::consts::PI;
+    let h = grid.dx;
     Array1::from_iter(grid.centers().into_iter().map(|x| {
-        coefficients
+        pulses
             .iter()
-            .enumerate()
-            .map(|(i, (a, b))| {
-                let k = (i + 1) as f64;
-                (a * (k * pi * x).cos() + b * (k * pi * x).sin()) / k
-            })
+            .map(|&(a, b, height)| height * overlap(a, b, x - h / 2.0, x + h / 2.0) / h)
             .sum::<f64>()
     }))
 }
 
-/// The fine state averaged over each block of `FINE / COARSE` cells.
+/// The fine state averaged over each block of [`RATIO`] cells.
 pub fn reduce(fine: ArrayView1<'_, f64>) -> Array1<f64> {
-    let r = FINE / COARSE;
+    let r = RATIO;
     Array1::from_iter((0..COARSE).map(|i| fine.slice(s![i * r..(i + 1) * r]).sum() / r as f64))
 }
 

@@ -752,6 +752,34 @@ fn main() -> Result<(), BoxError> {
         println!("wrote {}", f.display());
     }
 
+    // The held-out curves and final states, for scripts (`--npy`).
+    let errors_per_step = Array2::from_shape_fn((curves.len(), sizes.rollout), |(v, t)| {
+        curves[v].points[t].1
+    });
+    let mut final_states = vec![coarse_final.clone()];
+    final_states.extend(finals.iter().cloned());
+    let final_views: Vec<_> = final_states.iter().map(|a| a.view()).collect();
+    let final_states = ndarray::stack(ndarray::Axis(0), &final_views)?;
+    args.write_npy(&[
+        (
+            "relative_error_per_step",
+            errors_per_step.view().into_dyn(),
+            "held-out relative error after steps 1..=rollout [coarse, non, noise, sol_2, \
+             sol_4, sol_8, sol_16; rollout], mean over states and trainings",
+        ),
+        (
+            "reference_final",
+            rows(&test_set, sizes.rollout).view(),
+            "held-out reference states at the last rollout step [states, 1, cells]",
+        ),
+        (
+            "final_states",
+            final_states.view(),
+            "states at the last rollout step [coarse, non, noise, sol_2, sol_4, sol_8, \
+             sol_16; states, 1, cells], first training of each variant",
+        ),
+    ])?;
+
     let seconds = run_start.elapsed().as_secs_f64();
     println!("total time {seconds:.1} s");
     let floors = [

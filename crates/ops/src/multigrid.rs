@@ -16,12 +16,18 @@
 //! inactive (masked) cells as identity rows. Coarsening merges 2 × 2 cells
 //! (`⌈n/2⌉` per axis, so odd sizes coarsen too: the last coarse cell of an odd
 //! axis has one child), while the level has more than [`COARSEST_CELLS`]
-//! cells. A coarse cell is active if any child is; a coarse face's coupling
-//! is the sum of the fine faces between its two cells divided by 8, a coarse
-//! wall term the sum of its children's divided by 8 (with both axes halved,
-//! `1/h² → 1/(4h²)` per face, two fine faces per coarse face). Without a mask
-//! this is the rediscretisation of `−∇²` with twice the spacing; with one, a
-//! face-averaged operator, symmetric and semidefinite at every level.
+//! cells. A coarse face's coupling is the sum of the fine faces between its
+//! two cells divided by 8, a coarse wall term the sum of its children's
+//! divided by 8 (with both axes halved, `1/h² → 1/(4h²)` per face, two fine
+//! faces per coarse face; a cell of an odd axis' end, with one child, is
+//! scaled by the distances it really spans). Without a mask this is the
+//! rediscretisation of `−∇²` with twice the spacing. With a mask, a coarse
+//! cell is active only if all its children are, and a face to a cell that an
+//! obstacle cuts becomes a zero Dirichlet wall of the coarse problem: the
+//! coarse grids correct the fluid away from obstacles, the smoother the cut
+//! cells (any child active instead gives coarse cells much weaker than their
+//! fluid, and a cycle that diverges as a stationary iteration). Every level
+//! is symmetric and semidefinite.
 //!
 //! Between levels:
 //!
@@ -198,7 +204,11 @@ struct Level {
     /// `1/d` (0 where `d = 0`: an active cell with no face and no wall, whose
     /// value the cycle leaves at 0).
     inv_diag: Vec<f64>,
-    wall: Vec<f64>,
+    /// The wall terms of the x-walls and the y-walls.
+    wall: [Vec<f64>; 2],
+    /// The cells' widths along x and y in units of the finest spacing
+    /// (`2^l`, or less for the last cell of an odd axis).
+    widths: [Vec<f64>; 2],
     /// `None`: every cell is active.
     active: Option<Vec<bool>>,
     /// `(a_x, a_y, 1/d)` shared by every interior cell, if they all agree (no
@@ -214,7 +224,8 @@ impl Level {
         (bx, by): (Boundary, Boundary),
         fx: Vec<f64>,
         fy: Vec<f64>,
-        wall: Vec<f64>,
+        wall: [Vec<f64>; 2],
+        widths: [Vec<f64>; 2],
         active: Option<Vec<bool>>,
     ) -> Self {
         let mut level = Level {
@@ -227,6 +238,7 @@ impl Level {
             diag: Vec::new(),
             inv_diag: Vec::new(),
             wall,
+            widths,
             active,
             uniform: None,
         };
@@ -235,7 +247,9 @@ impl Level {
             for j in 0..ny {
                 let k = i * ny + j;
                 diag[k] = if level.is_active(k) {
-                    level.couplings(i, j).iter().map(|&(_, a)| a).sum::<f64>() + level.wall[k]
+                    level.couplings(i, j).iter().map(|&(_, a)| a).sum::<f64>()
+                        + level.wall[0][k]
+                        + level.wall[1][k]
                 } else {
                     1.0
                 };
@@ -245,6 +259,14 @@ impl Level {
             .iter()
             .map(|&d| if d > 0.0 { 1.0 / d } else { 0.0 })
             .collect();
+        if level.widths[0].first().is_some_and(|&w| w > 1.0) {
+            // A coarse level: no correction on inactive cells.
+            for k in 0..nx * ny {
+                if !level.is_active(k) {
+                    level.inv_diag[k] = 0.0;
+                }
+            }
+        }
         level.diag = diag;
         level.uniform = level.find_uniform();
         level
@@ -311,7 +333,7 @@ impl Level {
         let (cx, cy) = (1.0 / (grid.dx * grid.dx), 1.0 / (grid.dy * grid.dy));
         let mut fx = vec![0.0; nx * ny];
         let mut fy = vec![0.0; nx * ny];
-        let mut wall = vec![0.0; nx * ny];
+        let mut wall = [vec![0.0; nx * ny], vec![0.0; nx * ny]];
         let dirichlet_x = grid.boundary_x == Boundary::ZeroDirichlet;
         let dirichlet_y = grid.boundary_y == Boundary::ZeroDirichlet;
         let periodic_x = grid.boundary_x == Boundary::Periodic;
@@ -325,11 +347,14 @@ impl Level {
                 if j + 1 < ny || (periodic_y && ny > 1) {
                     fy[k] = cy;
                 }
-                for (edge, n, c, dirichlet) in [(i, nx, cx, dirichlet_x), (j, ny, cy, dirichlet_y)]
+                for (axis, (edge, n, c, dirichlet)) in
+                    [(i, nx, cx, dirichlet_x), (j, ny, cy, dirichlet_y)]
+                        .into_iter()
+                        .enumerate()
                 {
                     if dirichlet {
                         let walls = usize::from(edge == 0) + usize::from(edge + 1 == n);
-                        wall[k] += 2.0 * c * walls as f64;
+                        wall[axis][k] += 2.0 * c * walls as f64;
                     }
                 }
             }
@@ -340,6 +365,7 @@ impl Level {
             fx,
             fy,
             wall,
+            [vec![1.0; nx], vec![1.0; ny]],
             None,
         )
     }
@@ -354,7 +380,7 @@ impl Level {
         let (cx, cy) = (1.0 / (grid.dx * grid.dx), 1.0 / (grid.dy * grid.dy));
         let mut fx = vec![0.0; nx * ny];
         let mut fy = vec![0.0; nx * ny];
-        let mut wall = vec![0.0; nx * ny];
+        let mut wall = [vec![0.0; nx * ny], vec![0.0; nx * ny]];
         // The cells on either side of face `f` of an axis of `n` cells (the
         // table of the `mac` module).
         let sides = |f: usize, n: usize, b: Boundary| -> (Option<usize>, Option<usize>) {
@@ -371,7 +397,7 @@ impl Level {
             }
             match sides(f, nx, grid.boundary_x) {
                 (Some(lo), Some(hi)) if lo != hi => fx[lo * ny + j] += cx,
-                (Some(c), None) | (None, Some(c)) => wall[c * ny + j] += cx,
+                (Some(c), None) | (None, Some(c)) => wall[0][c * ny + j] += cx,
                 _ => {}
             }
         }
@@ -382,7 +408,7 @@ impl Level {
             }
             match sides(f, ny, grid.boundary_y) {
                 (Some(lo), Some(hi)) if lo != hi => fy[i * ny + lo] += cy,
-                (Some(c), None) | (None, Some(c)) => wall[i * ny + c] += cy,
+                (Some(c), None) | (None, Some(c)) => wall[1][i * ny + c] += cy,
                 _ => {}
             }
         }
@@ -396,41 +422,84 @@ impl Level {
             fx,
             fy,
             wall,
+            [vec![1.0; nx], vec![1.0; ny]],
             active,
         )
     }
 
-    /// The next coarser level (see the module docs).
+    /// The next coarser level (see the module docs): a coupling or wall term
+    /// scales with the distance it spans, `a_c = Σ a_f (d_f / d_c) / 4`
+    /// (`d` the distance between the two cell centres, or from the centre to
+    /// the wall; `/4` the area of a merged cell), which is `Σ a_f / 8` where
+    /// both cells have two children along the axis.
     fn coarsen(&self) -> Self {
         let (nx, ny) = (self.nx, self.ny);
         let (cnx, cny) = (nx.div_ceil(2), ny.div_ceil(2));
+        let merge = |w: &[f64]| -> Vec<f64> { w.chunks(2).map(|c| c.iter().sum()).collect() };
+        let (wx, wy) = (&self.widths[0], &self.widths[1]);
+        let (cwx, cwy) = (merge(wx), merge(wy));
         let mut fx = vec![0.0; cnx * cny];
         let mut fy = vec![0.0; cnx * cny];
-        let mut wall = vec![0.0; cnx * cny];
-        let mut active = vec![false; cnx * cny];
+        let mut wall = [vec![0.0; cnx * cny], vec![0.0; cnx * cny]];
+        // A coarse cell is active if all its children are: the coarse grids
+        // cover the fluid away from obstacles, and a coarse correction is
+        // zero in (so a face to) a cell that an obstacle cuts.
+        let mut active = vec![true; cnx * cny];
+        for k in 0..nx * ny {
+            if !self.is_active(k) {
+                active[(k / ny / 2) * cny + (k % ny) / 2] = false;
+            }
+        }
         for i in 0..nx {
             for j in 0..ny {
                 let k = i * ny + j;
+                let (ci, cj) = (i / 2, j / 2);
+                let parent = ci * cny + cj;
                 if !self.is_active(k) {
                     continue;
                 }
-                let parent = (i / 2) * cny + j / 2;
-                active[parent] = true;
-                wall[parent] += self.wall[k] / 8.0;
-                // A face between two children of different parents becomes
-                // (part of) the coarse face east or north of `parent`.
                 let east = if i + 1 < nx { i + 1 } else { 0 };
-                if self.fx[k] != 0.0 && east / 2 != i / 2 {
-                    fx[parent] += self.fx[k] / 8.0;
-                }
                 let north = if j + 1 < ny { j + 1 } else { 0 };
-                if self.fy[k] != 0.0 && north / 2 != j / 2 {
-                    fy[parent] += self.fy[k] / 8.0;
+                let east_parent = (east / 2) * cny + cj;
+                let north_parent = ci * cny + north / 2;
+                let x_ratio = (wx[i] + wx[east]) / (cwx[ci] + cwx[east / 2]) / 4.0;
+                let y_ratio = (wy[j] + wy[north]) / (cwy[cj] + cwy[north / 2]) / 4.0;
+                let cross_x = self.fx[k] != 0.0 && east / 2 != ci;
+                let cross_y = self.fy[k] != 0.0 && north / 2 != cj;
+                if active[parent] {
+                    wall[0][parent] += self.wall[0][k] * wx[i] / cwx[ci] / 4.0;
+                    wall[1][parent] += self.wall[1][k] * wy[j] / cwy[cj] / 4.0;
+                }
+                if cross_x {
+                    let a = self.fx[k] * x_ratio;
+                    match (active[parent], active[east_parent]) {
+                        (true, true) => fx[parent] += a,
+                        (true, false) => wall[0][parent] += a,
+                        (false, true) => wall[0][east_parent] += a,
+                        (false, false) => {}
+                    }
+                }
+                if cross_y {
+                    let a = self.fy[k] * y_ratio;
+                    match (active[parent], active[north_parent]) {
+                        (true, true) => fy[parent] += a,
+                        (true, false) => wall[1][parent] += a,
+                        (false, true) => wall[1][north_parent] += a,
+                        (false, false) => {}
+                    }
                 }
             }
         }
         let active = (self.active.is_some()).then_some(active);
-        Level::from_faces((cnx, cny), (self.bx, self.by), fx, fy, wall, active)
+        Level::from_faces(
+            (cnx, cny),
+            (self.bx, self.by),
+            fx,
+            fy,
+            wall,
+            [cwx, cwy],
+            active,
+        )
     }
 
     /// `Σ a x_neighbour` at `(i, j)`, in f64.
@@ -705,6 +774,12 @@ impl CoarseSolve {
             }
             e[c] = 0.0;
         }
+        if level.widths[0].first().is_some_and(|&w| w > 1.0) {
+            // No correction on the inactive cells of a coarse level.
+            for k in (0..n).filter(|&k| !level.is_active(k)) {
+                a[k * n + k] = 0.0;
+            }
+        }
         let mut inv_pivot = vec![0.0; n];
         for j in 0..n {
             let scale = a[j * n + j];
@@ -858,11 +933,8 @@ impl Multigrid {
             ));
         }
         let shape = [fine.nx, fine.ny];
-        let singular = fine
-            .wall
-            .iter()
-            .enumerate()
-            .all(|(k, &w)| w == 0.0 || !fine.is_active(k));
+        let singular = (0..fine.cells())
+            .all(|k| fine.wall[0][k] + fine.wall[1][k] == 0.0 || !fine.is_active(k));
         let mut levels = vec![fine];
         let mut transfers = Vec::new();
         loop {
@@ -1105,6 +1177,84 @@ mod tests {
                 let a = LinearOperator::<f64>::apply(&Laplacian2::negative(g), x.view()).unwrap();
                 for (p, q) in r.iter().zip(a.iter()) {
                     assert!((-p - q).abs() < 1e-9 * q.abs().max(1.0), "{bx:?} {by:?}");
+                }
+            }
+        }
+    }
+
+    /// Staggered grids of every kind, with odd sizes and an obstacle.
+    fn macs(nx: usize, ny: usize) -> Vec<(&'static str, MacGrid)> {
+        use crate::CellMask;
+        let g = |bx, by| grid(nx, ny, Boundary::Closed, Boundary::Closed).with_boundaries(bx, by);
+        let obstacle = |g: &Grid2| {
+            CellMask::from_fn2(g, |c| {
+                let (x, y) = (c[0] - 0.45, c[1] - 0.6);
+                x * x + y * y > 0.04 && !(c[0] > 0.7 && c[1] < 0.4)
+            })
+        };
+        let (closed, open) = (
+            g(Boundary::Closed, Boundary::Closed),
+            g(Boundary::ZeroDirichlet, Boundary::Closed),
+        );
+        vec![
+            ("closed", MacGrid::new(closed)),
+            (
+                "open",
+                MacGrid::new(g(Boundary::ZeroDirichlet, Boundary::ZeroDirichlet)),
+            ),
+            (
+                "periodic",
+                MacGrid::new(g(Boundary::Periodic, Boundary::Periodic)),
+            ),
+            (
+                "masked-closed",
+                MacGrid::with_mask(closed, obstacle(&closed)).unwrap(),
+            ),
+            (
+                "masked-open",
+                MacGrid::with_mask(open, obstacle(&open)).unwrap(),
+            ),
+        ]
+    }
+
+    #[test]
+    fn the_mac_level_operator_is_the_pressure_operator() {
+        for (name, mac) in macs(11, 9) {
+            let level = &Multigrid::for_mac(&mac, 1).unwrap().levels[0];
+            let x = test_array::<f64>(&[11, 9], 1);
+            let mut r = vec![0.0; 99];
+            level.residual(x.as_slice().unwrap(), &[0.0; 99], &mut r);
+            let a = LinearOperator::<f64>::apply(&mac.pressure_operator(), x.view()).unwrap();
+            for (p, q) in r.iter().zip(a.iter()) {
+                assert!((-p - q).abs() < 1e-9 * q.abs().max(1.0), "{name}");
+            }
+        }
+    }
+
+    #[test]
+    fn coarse_levels_are_semidefinite_and_cover_whole_fluid_cells() {
+        for (name, mac) in macs(40, 27) {
+            let mg = Multigrid::for_mac(&mac, 2).unwrap();
+            assert!(mg.levels() >= 3, "{name}");
+            for level in &mg.levels[1..] {
+                // Each coupling is stored once, so symmetry holds by
+                // construction; the diagonal dominates (semidefinite).
+                for k in 0..level.cells() {
+                    let (i, j) = (k / level.ny, k % level.ny);
+                    let off: f64 = level.couplings(i, j).iter().map(|c| c.1).sum();
+                    assert!(level.diag[k] >= off - 1e-12 * off.abs(), "{name}");
+                }
+            }
+            // A coarse cell is active exactly when all its children are.
+            if let Some(fine) = &mg.levels[0].active {
+                let coarse = mg.levels[1].active.as_ref().unwrap();
+                let cny = mg.levels[1].ny;
+                for (c, &a) in coarse.iter().enumerate() {
+                    let (ci, cj) = (c / cny, c % cny);
+                    let all = (2 * ci..(2 * ci + 2).min(40))
+                        .flat_map(|i| (2 * cj..(2 * cj + 2).min(27)).map(move |j| (i, j)))
+                        .all(|(i, j)| fine[i * 27 + j]);
+                    assert_eq!(a, all, "{name}: coarse cell {c}");
                 }
             }
         }

@@ -1,13 +1,18 @@
 //! The implicit gradient `∂L/∂b` of `L = ½‖A⁻¹b − p*‖²` (the harness's scene:
 //! `A = −∇²`, zero Dirichlet walls, f64) with CG preconditioned by a multigrid
 //! V-cycle (MG-PCG, forward and adjoint), against plain CG and the exact
-//! sparse-Cholesky gradient, from 64² to 2048².
+//! sparse-Cholesky gradient, from 256² to 2048².
 //!
 //! Run: `cargo bench --bench multigrid` (`-- --quick` for a shorter criterion
 //! part). Before timing it prints, for every size, the MG-PCG iterations to
 //! relative residual 1e-8 (forward + adjoint), the seconds of each gradient
-//! (MG-PCG best of 3, plain CG and exact one run) and their ratios, and the gradient error against exact where the
-//! exact gradient runs (up to 1024²: its factor at 2048² takes minutes).
+//! (MG-PCG best of 3, the cycle built inside the timing; plain CG and exact
+//! one run) and their ratios, and the MG gradient's relative error against
+//! exact. Exact runs up to 1024² (its factor at 2048² takes minutes), plain
+//! CG up to 512² (about 3000 iterations per solve at 1024²).
+//!
+//! `MG_BENCH_SIZES=256,1024` picks the sizes of the report, `MG_SWEEPS=1`
+//! the smoothing sweeps of the cycle (default 2).
 
 use std::hint::black_box;
 use std::sync::Arc;

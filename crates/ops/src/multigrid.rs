@@ -1318,7 +1318,7 @@ mod tests {
                 "{bx:?}: the rate grows with size, {r32} → {r512}"
             );
         }
-        // A size that is not a power of two (80 × 48 coarsens to 5 × 3), with
+        // A size that is not a power of two (80 × 48 coarsens to 10 × 6), with
         // cells of aspect ratio 2.2: measured 0.33.
         assert!(rate(&grid(80, 48, Boundary::ZeroDirichlet, Boundary::Closed)) < 0.4);
     }

@@ -342,7 +342,7 @@ impl<T: Real, A: LinearOperator<T>> PoissonSolve<T, A> {
     /// the same symmetric solver.
     ///
     /// # Errors
-    /// [`OpsError::ShapeMismatch`](crate::OpsError::ShapeMismatch) if the
+    /// [`OpsError::ShapeMismatch`] if the
     /// cycle's grid does not have the operator's shape.
     pub fn with_multigrid(mut self, mg: Arc<Multigrid>) -> Result<Self> {
         let expected = self.op.input_shape();

@@ -25,9 +25,13 @@
 //! cell is active only if all its children are, and a face to a cell that an
 //! obstacle cuts becomes a zero Dirichlet wall of the coarse problem: the
 //! coarse grids correct the fluid away from obstacles, the smoother the cut
-//! cells (any child active instead gives coarse cells much weaker than their
-//! fluid, and a cycle that diverges as a stationary iteration). Every level
-//! is symmetric and semidefinite.
+//! cells. Every level is symmetric and semidefinite. Measured alternatives:
+//! any child active makes coarse cells much weaker than their fluid (a cycle
+//! that diverges as a stationary iteration, 26–31 PCG iterations at 64²);
+//! cut faces closed instead of Dirichlet save 10–20 % of the PCG iterations
+//! but the stationary iteration diverges too. With obstacles the PCG
+//! iterations grow slowly with the grid (21, 26, 39 at 64², 128², 256² for a
+//! disc and a block in a closed box, against 314, 604, 1087 for plain CG).
 //!
 //! Between levels:
 //!

@@ -15,7 +15,9 @@
 //! The first gradient is also computed exactly (sparse Cholesky in f64) and the
 //! relative error reported. Tutorial: docs/03-implicit-gradients.md. Run:
 //! `cargo run --release --example differentiate_pressure`
-//! (`-- --small` or `-- --iterations N` for fewer iterations, `-- --out DIR`).
+//! (`-- --small` or `-- --iterations N` for fewer iterations, `-- --out DIR`,
+//! `-- --preconditioner multigrid` for multigrid-preconditioned CG in both
+//! pressure solves instead of plain CG, `none`).
 
 mod common;
 
@@ -310,14 +312,44 @@ fn write_charts(
     Ok(())
 }
 
+/// `--preconditioner none|multigrid` taken out of the command line, the
+/// other arguments left for [`common::ExampleArgs`].
+fn preconditioner_flag() -> Result<(bool, Vec<String>), BoxError> {
+    let mut rest = Vec::new();
+    let mut multigrid = false;
+    let mut it = std::env::args().skip(1);
+    while let Some(arg) = it.next() {
+        if arg == "--preconditioner" {
+            multigrid = match it.next().as_deref() {
+                Some("multigrid") => true,
+                Some("none") => false,
+                other => {
+                    return Err(
+                        format!("--preconditioner: none or multigrid, not {other:?}").into(),
+                    )
+                }
+            };
+        } else {
+            rest.push(arg);
+        }
+    }
+    Ok((multigrid, rest))
+}
+
 fn main() -> Result<(), BoxError> {
-    let args = common::ExampleArgs::parse("differentiate_pressure")?;
+    let (multigrid, rest) = preconditioner_flag()?;
+    let args = common::ExampleArgs::parse_from("differentiate_pressure", rest.into_iter())?;
     let iterations = args.iterations.unwrap_or(args.pick(30, 5));
     let scene = Scene::new()?;
-    let projection = Arc::new(PressureProjection::new(
-        scene.mac.clone(),
-        CgParams::default().with_rel_tol(1e-5),
-    ));
+    let mut projection =
+        PressureProjection::new(scene.mac.clone(), CgParams::default().with_rel_tol(1e-5));
+    if multigrid {
+        // One V(2,2) cycle per CG iteration, forward and adjoint.
+        projection = projection.with_multigrid(2)?;
+    }
+    let projection = Arc::new(projection);
+    let preconditioner = if multigrid { "multigrid" } else { "none" };
+    println!("pressure solves: CG, preconditioner {preconditioner}");
     let log = SolveLog::<f64>::new();
     let op = ProjectionOp::new(Arc::clone(&projection))
         .with_warm_start(WarmStart::both())
@@ -423,6 +455,7 @@ fn main() -> Result<(), BoxError> {
     ])?;
     common::print_json_line(&serde_json::json!({
         "example": "differentiate_pressure",
+        "preconditioner": preconditioner,
         "losses": losses,
         "max_abs_divergence": divergence,
         "seconds_per_gradient_step": seconds / steps,

@@ -22,13 +22,21 @@ impl ExampleArgs {
     /// Reads `--small`, `--out DIR` and `--iterations N` from the command line;
     /// `default_out` names the folder under `out/` when `--out` is not given.
     pub fn parse(default_out: &str) -> Result<Self, String> {
+        Self::parse_from(default_out, std::env::args().skip(1))
+    }
+
+    /// [`ExampleArgs::parse`] of the arguments `it` (an example that takes
+    /// options of its own removes them first).
+    pub fn parse_from(
+        default_out: &str,
+        mut it: impl Iterator<Item = String>,
+    ) -> Result<Self, String> {
         let mut args = ExampleArgs {
             small: false,
             out: PathBuf::from("out").join(default_out),
             iterations: None,
             npy: false,
         };
-        let mut it = std::env::args().skip(1);
         while let Some(arg) = it.next() {
             match arg.as_str() {
                 "--small" => args.small = true,

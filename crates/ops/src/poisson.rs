@@ -54,8 +54,9 @@ use std::sync::Arc;
 use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError, Var};
 use ndarray::IxDyn;
 
-use crate::cg::{conjugate_gradient, CgError, CgInfo, CgParams};
-use crate::{LinearOperator, Result};
+use crate::cg::{conjugate_gradient, CgError, CgInfo, CgParams, Preconditioner};
+use crate::multigrid::Multigrid;
+use crate::{LinearOperator, OpsError, Result};
 
 /// `p = A⁻¹ b` by conjugate gradient from a zero initial guess (with a null
 /// space in `params`: the zero-mean solution of `A p = Π b`).
@@ -331,6 +332,28 @@ impl<T: Real, A: LinearOperator<T>> PoissonSolve<T, A> {
     pub fn with_adjoint_params(mut self, params: CgParams) -> Self {
         self.adjoint = params;
         self
+    }
+
+    /// With `mg` (built for this operator: [`Multigrid::new`] for a
+    /// [`Laplacian2::negative`](crate::stencil::Laplacian2::negative),
+    /// [`Multigrid::for_mac`] for a MAC pressure operator) as the
+    /// preconditioner of both solves, forward and adjoint: MG-PCG. The
+    /// implicit gradient stays exact (to the tolerance): the adjoint solve is
+    /// the same symmetric solver.
+    ///
+    /// # Errors
+    /// [`OpsError::ShapeMismatch`] if the
+    /// cycle's grid does not have the operator's shape.
+    pub fn with_multigrid(mut self, mg: Arc<Multigrid>) -> Result<Self> {
+        let expected = self.op.input_shape();
+        let found = LinearOperator::<T>::input_shape(&*mg);
+        if expected != found {
+            return Err(OpsError::shape("poisson_solve multigrid", expected, found));
+        }
+        let pre = Preconditioner::Multigrid(mg);
+        self.forward.preconditioner = pre.clone();
+        self.adjoint.preconditioner = pre;
+        Ok(self)
     }
 
     /// With warm starts.

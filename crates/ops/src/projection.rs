@@ -55,8 +55,9 @@ use std::sync::Arc;
 use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError, Var};
 use ndarray::{IxDyn, Zip};
 
-use crate::cg::{conjugate_gradient, CgInfo, CgParams};
+use crate::cg::{conjugate_gradient, CgInfo, CgParams, Preconditioner};
 use crate::mac::{MacGrid, PressureOperator};
+use crate::multigrid::Multigrid;
 use crate::poisson::{SolveLog, WarmStart};
 use crate::{OpsError, Result};
 
@@ -114,6 +115,22 @@ impl PressureProjection {
     pub fn with_adjoint_params(mut self, params: CgParams) -> Self {
         self.adjoint = params.with_null_space(self.mac.null_space());
         self
+    }
+
+    /// With a multigrid V-cycle of `sweeps` smoothing sweeps
+    /// ([`Multigrid::for_mac`]: obstacle masks and open boundaries included)
+    /// as the preconditioner of both pressure solves, forward and adjoint
+    /// (MG-PCG); the gradient stays the implicit one of the same solver.
+    /// Call it after [`PressureProjection::with_adjoint_params`], which
+    /// replaces the adjoint parameters.
+    ///
+    /// # Errors
+    /// As [`Multigrid::for_mac`] (`sweeps` of 0).
+    pub fn with_multigrid(mut self, sweeps: usize) -> Result<Self> {
+        let mg = Preconditioner::Multigrid(Arc::new(Multigrid::for_mac(&self.mac, sweeps)?));
+        self.forward.preconditioner = mg.clone();
+        self.adjoint.preconditioner = mg;
+        Ok(self)
     }
 
     /// The staggered grid.

@@ -177,7 +177,7 @@ impl<'a, T: Real, A: LinearOperator<T> + ?Sized> Solver<'a, T, A> {
     /// `z = B r` by one multigrid cycle, then `<r, z>` and `<k, z>` into `sums`.
     fn multigrid_sums(&mut self, mut sums: Sums) -> Sums {
         if let Some(mg) = &self.multigrid {
-            mg.apply_slice(&self.r, &mut self.z);
+            mg.apply_vec(&self.r, &mut self.z);
             let k = self.k.as_deref();
             sums.rz = dot(&self.r, &self.z);
             sums.kz = weighted_sum(&self.z, k);

@@ -287,3 +287,25 @@ fn quick_run_with_selected_methods_ends_with_their_keys_and_the_policy() {
     }
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+#[test]
+fn naive_alone_is_sized_by_a_plain_solve_stopped_at_the_tape_limit() {
+    // 32² in f64: 7 arrays of 8 KiB per unrolled iteration; room for 10.
+    let per_iteration = 7 * 32 * 32 * 8;
+    let config = SweepConfig {
+        sizes: vec![32],
+        iters: vec![],
+        rtols: vec![1e-8],
+        precisions: vec![Precision::F64],
+        methods: vec![Method::Naive],
+        naive_tape_limit_bytes: 10 * per_iteration,
+        ..SweepConfig::quick()
+    };
+    let rows = run_sweep(&config, None, &NoProgress).unwrap();
+    assert_eq!(rows.len(), 1);
+    let r = &rows[0];
+    assert_eq!(r.status, diffphys_compare::report::RunStatus::Skipped);
+    // Plain CG needs far more than 11 iterations at 32²; the count stopped there.
+    let e = r.error.as_deref().unwrap();
+    assert!(e.contains("at least 11 unrolled iterations"), "{e}");
+}

@@ -248,9 +248,15 @@ fn refused_row(
     row
 }
 
-/// Forward CG iterations a plain (unpreconditioned) solve needs under `stop`:
-/// to size a naive tape when no implicit or baseline run said. Untimed.
-fn plain_cg_iterations<T: Real>(problem: &Problem<T>, stop: Stop) -> Option<usize> {
+/// Forward CG iterations a plain (unpreconditioned) solve needs to reach
+/// `rtol`, counting at most `cap`: to size a naive tape when no implicit or
+/// baseline run said. Untimed. The cap keeps a solve whose tape could never fit
+/// short: `Some(cap)` means at least that many.
+fn plain_cg_iterations<T: Real>(problem: &Problem<T>, rtol: f64, cap: usize) -> Option<usize> {
+    let stop = Stop::Tolerance {
+        rtol,
+        max_iters: cap.max(1),
+    };
     let params = crate::methods::implicit::cg_params(stop)
         .with_null_space(problem.spec.operator.null_space());
     let mut x = ndarray::ArrayD::<T>::zeros(problem.b.shape());
@@ -455,18 +461,28 @@ fn sweep_scene<T: Real>(
             &format!("naive {}", stop_label(stop)),
             policy,
         ));
-        let expected_iters = match stop {
-            Stop::Iterations(k) => k,
-            Stop::Tolerance { max_iters, .. } => implicit_iters
-                .or(baseline_iters)
-                .or_else(|| {
-                    // Neither implicit nor the baseline ran this rule: count
-                    // the iterations of a plain solve (only if the scene's
-                    // fields fit, which the check above established).
-                    plain_cg_iterations(&problem, stop)
-                })
-                .unwrap_or(max_iters)
-                .min(max_iters),
+        // The iterations the naive tape will hold, and whether that is only a
+        // lower bound (a count stopped at the tape limit).
+        let (expected_iters, at_least) = match stop {
+            Stop::Iterations(k) => (k, false),
+            Stop::Tolerance { rtol, max_iters } => {
+                match implicit_iters.or(baseline_iters) {
+                    Some(k) => (k.min(max_iters), false),
+                    None => {
+                        // Neither implicit nor the baseline ran this rule: count
+                        // the iterations of a plain solve, no further than one
+                        // past what the tape limit allows (the scene's fields
+                        // fit, as checked above).
+                        let fit = config.naive_tape_limit_bytes
+                            / naive_bytes_per_iteration::<T>(n).max(1);
+                        let cap = max_iters.min(fit.saturating_add(1));
+                        match plain_cg_iterations(&problem, rtol, cap) {
+                            Some(k) => (k, k == cap && cap < max_iters),
+                            None => (max_iters, false),
+                        }
+                    }
+                }
+            }
         };
         let unknowns = n * n;
         let estimate = expected_iters.saturating_mul(naive_bytes_per_iteration::<T>(n));
@@ -490,7 +506,9 @@ fn sweep_scene<T: Real>(
                 MethodKind::Naive,
                 Some(stop),
                 CompareError::Skipped(format!(
-                    "~{expected_iters} unrolled iterations would need a tape of about {} (limit {})",
+                    "{}{expected_iters} unrolled iterations would need a tape of {}{} (limit {})",
+                    if at_least { "at least " } else { "~" },
+                    if at_least { "more than " } else { "about " },
                     crate::report::format_bytes(estimate),
                     crate::report::format_bytes(config.naive_tape_limit_bytes)
                 )),

@@ -7,7 +7,8 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use crate::progress::Progress;
 
-/// A progress bar on stderr, hidden when stderr is not a terminal (CI, pipes).
+/// A progress bar on stderr, hidden when stderr is not a terminal (CI, pipes),
+/// redrawn every second.
 pub fn progress_bar(len: usize, what: &str) -> ProgressBar {
     let target = if std::io::stderr().is_terminal() {
         ProgressDrawTarget::stderr()
@@ -21,6 +22,9 @@ pub fn progress_bar(len: usize, what: &str) -> ProgressBar {
         bar.set_style(style);
     }
     bar.set_prefix(what.to_string());
+    // Redraw every second, so the elapsed time moves during one long run (the
+    // exact gradient or plain CG at 2048²).
+    bar.enable_steady_tick(std::time::Duration::from_secs(1));
     bar
 }
 

@@ -6,28 +6,36 @@
 //! cargo run --release -p diffphys-compare                       # the default study
 //! cargo run --release -p diffphys-compare -- --quick --out tmp  # seconds, for CI
 //! cargo run --release -p diffphys-compare -- --sizes 64,128 --rtol 1e-6,1e-10 --precision f64
+//! cargo run --release -p diffphys-compare -- --sizes 64,128,256,512,1024,2048 --rtol 1e-8 \
+//!     --precision f64 --operators laplacian --methods exact,implicit,implicit_mgpcg
 //! cargo run --release -p diffphys-compare -- stability          # where methods fail
 //! cargo run --release -p diffphys-compare -- stability --quick  # seconds, for CI
 //! ```
 //!
-//! Stdout ends with one JSON line of key figures (counts, floors, output folder).
+//! Every timed method runs under one policy (`--warmup`, `--repeat`,
+//! `--statistic`; by default one untimed warm-up run, then the best of 3), stated
+//! in the output and in the closing line. Stdout ends with one JSON line of key
+//! figures (counts, per-method summaries, floors, the timing policy, output
+//! folder).
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
 
+use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::{Args, Parser, Subcommand};
 use diffphys_compare::alloc::CountingAllocator;
 use diffphys_compare::cli::progress_bar;
 use diffphys_compare::harness::{
     cg_speedup, compute_floors, prepare_out_dir, run_sweep, run_sweep_npy, write_charts, Precision,
-    SweepConfig, FLOOR_N,
+    Statistic, SweepConfig, FLOOR_N,
 };
 use diffphys_compare::npy::NpyWriter;
 use diffphys_compare::problem::OperatorKind;
+use diffphys_compare::progress::{LineProgress, Progress};
 use diffphys_compare::report::{
-    floors_text, is_skipped, key_figures_line, render_table, write_report_md, write_results_json,
-    Report,
+    floors_text, is_skipped, key_figures_value, method_summary, render_table, write_report_md,
+    write_results_json, Method, Report,
 };
 use diffphys_compare::stability::{
     converged_rtol, render_stability_md, result_rows, run_stability, stability_key_figures,
@@ -82,6 +90,26 @@ struct SweepArgs {
     /// Operators: laplacian, aniso<ratio> [default: laplacian,aniso100].
     #[arg(long, value_delimiter = ',', value_parser = parse_operator)]
     operators: Vec<OperatorKind>,
+    /// Methods to run, comma-separated [default: all]. `implicit_mgpcg` is the
+    /// implicit gradient with multigrid-preconditioned CG solves; exact's
+    /// gradient is the error reference whether or not its row is run.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        value_parser = PossibleValuesParser::new(Method::SELECTABLE.map(Method::name))
+            .try_map(|s| Method::parse(&s))
+    )]
+    methods: Vec<Method>,
+    /// Untimed warm-up runs before the timed runs of every timed method [default: 1].
+    #[arg(long)]
+    warmup: Option<usize>,
+    /// Timed runs of every timed method; the row reports the one --statistic
+    /// picks [default: 3; 1 with --quick].
+    #[arg(long)]
+    repeat: Option<usize>,
+    /// Which timed run a row reports: best (fastest) or median [default: best].
+    #[arg(long, value_parser = parse_statistic)]
+    statistic: Option<Statistic>,
     /// Iteration cap of tolerance runs [default: 20000].
     #[arg(long)]
     max_iters: Option<usize>,
@@ -106,6 +134,10 @@ struct SweepArgs {
 
 fn parse_precision(s: &str) -> std::result::Result<Precision, String> {
     Precision::parse(s).map_err(|e| e.to_string())
+}
+
+fn parse_statistic(s: &str) -> std::result::Result<Statistic, String> {
+    Statistic::parse(s).map_err(|e| e.to_string())
 }
 
 fn parse_operator(s: &str) -> std::result::Result<OperatorKind, String> {
@@ -150,6 +182,22 @@ impl SweepArgs {
             c.naive_tape_limit_bytes = mib.saturating_mul(1 << 20);
         }
         c.memory_limit_mib = self.memory_limit_mib;
+        if !self.methods.is_empty() {
+            // In the sweep's order, each once.
+            c.methods = Method::SELECTABLE
+                .into_iter()
+                .filter(|m| self.methods.contains(m))
+                .collect();
+        }
+        if let Some(w) = self.warmup {
+            c.timing.warmup = w;
+        }
+        if let Some(r) = self.repeat {
+            c.timing.repeats = r;
+        }
+        if let Some(s) = self.statistic {
+            c.timing.statistic = s;
+        }
         c.validate()?;
         Ok(c)
     }
@@ -196,6 +244,17 @@ fn describe(config: &SweepConfig, args: &SweepArgs) -> Vec<String> {
             "operators: {}",
             list(config.operators.iter().map(|o| o.label()).collect())
         ),
+        format!(
+            "methods: {}",
+            list(
+                config
+                    .methods
+                    .iter()
+                    .map(|m| m.name().to_string())
+                    .collect()
+            )
+        ),
+        format!("timing: {}", config.timing.describe()),
         format!("loss: {:?}", config.loss),
         format!(
             "naive tape limit: {}",
@@ -218,18 +277,28 @@ fn describe(config: &SweepConfig, args: &SweepArgs) -> Vec<String> {
     ]
 }
 
+/// A bar on a terminal; elsewhere, one line per run on stderr, except in
+/// `--quick` runs (CI logs stay short).
+fn sweep_progress(quick: bool) -> Box<dyn Progress> {
+    use std::io::IsTerminal;
+    if std::io::stderr().is_terminal() || quick {
+        Box::new(progress_bar(0, "sweep"))
+    } else {
+        Box::new(LineProgress::default())
+    }
+}
+
 fn run(args: &SweepArgs, started: Instant) -> Result<String> {
     let config = args.config()?;
     let out = prepare_out_dir(&args.out)?;
+    println!("timing: {}", config.timing.describe());
+    let progress = sweep_progress(args.quick);
     let (rows, npy_index) = if args.npy {
         let mut npy = NpyWriter::new(out.join("npy"))?;
-        let rows = run_sweep_npy(&config, Some(&HEAP), &progress_bar(0, "sweep"), &mut npy)?;
+        let rows = run_sweep_npy(&config, Some(&HEAP), progress.as_ref(), &mut npy)?;
         (rows, Some(npy.finish()?))
     } else {
-        (
-            run_sweep(&config, Some(&HEAP), &progress_bar(0, "sweep"))?,
-            None,
-        )
+        (run_sweep(&config, Some(&HEAP), progress.as_ref())?, None)
     };
     let (timing, timing_note) = cg_speedup(&config);
     // Like the other floors, the speedup is judged at 256²; on smaller grids the
@@ -267,6 +336,7 @@ fn run(args: &SweepArgs, started: Instant) -> Result<String> {
     write_report_md(&out.join("report.md"), &report)?;
 
     println!("{}", render_table(&rows));
+    println!("timing: {}", config.timing.describe());
     println!("Performance floors:\n{}", floors_text(&floors));
     for n in &notes {
         println!("note: {n}");
@@ -286,12 +356,15 @@ fn run(args: &SweepArgs, started: Instant) -> Result<String> {
             out.join("results.json").display()
         )));
     }
-    Ok(key_figures_line(
-        &rows,
-        &floors,
-        &out,
-        started.elapsed().as_secs_f64(),
-    ))
+    let mut tail = key_figures_value(&rows, &floors, &out, started.elapsed().as_secs_f64());
+    tail["methods"] = method_summary(&rows);
+    tail["timing"] = serde_json::json!({
+        "warmup": config.timing.warmup,
+        "repeats": config.timing.repeats,
+        "statistic": config.timing.statistic,
+        "policy": config.timing.describe(),
+    });
+    Ok(tail.to_string())
 }
 
 fn run_stability_mode(out: &Path, quick: bool, started: Instant) -> Result<String> {

@@ -21,6 +21,9 @@ pub enum Method {
     Naive,
     /// The Poisson op with its implicit adjoint.
     Implicit,
+    /// The implicit gradient with multigrid-preconditioned CG for the forward
+    /// and the adjoint solve.
+    ImplicitMgpcg,
     /// The sparse Cholesky reference.
     Exact,
     /// The straightforward CG, forward only.
@@ -30,14 +33,53 @@ pub enum Method {
 }
 
 impl Method {
-    /// The name in results: `naive`, `implicit`, `exact`, `baseline_cg`, `setup`.
+    /// The methods a sweep can run (`--methods`), in the order a sweep runs them.
+    pub const SELECTABLE: [Method; 5] = [
+        Method::Exact,
+        Method::BaselineCg,
+        Method::Implicit,
+        Method::ImplicitMgpcg,
+        Method::Naive,
+    ];
+
+    /// The name in results: `naive`, `implicit`, `implicit_mgpcg`, `exact`,
+    /// `baseline_cg`, `setup`.
     pub fn name(self) -> &'static str {
         match self {
             Method::Naive => "naive",
             Method::Implicit => "implicit",
+            Method::ImplicitMgpcg => "implicit_mgpcg",
             Method::Exact => "exact",
             Method::BaselineCg => "baseline_cg",
             Method::Setup => "setup",
+        }
+    }
+
+    /// Parses the name of one of [`Method::SELECTABLE`].
+    ///
+    /// # Errors
+    /// [`CompareError::InvalidArgument`] naming the valid methods.
+    pub fn parse(s: &str) -> Result<Self> {
+        Method::SELECTABLE
+            .into_iter()
+            .find(|m| m.name() == s)
+            .ok_or_else(|| {
+                CompareError::invalid(format!(
+                    "unknown method '{s}': expected one of {}",
+                    Method::SELECTABLE.map(Method::name).join(", ")
+                ))
+            })
+    }
+
+    /// The gradient method of this kind, if it is one (not the forward-only
+    /// baseline or the setup).
+    pub fn gradient_kind(self) -> Option<MethodKind> {
+        match self {
+            Method::Naive => Some(MethodKind::Naive),
+            Method::Implicit => Some(MethodKind::Implicit),
+            Method::ImplicitMgpcg => Some(MethodKind::ImplicitMgpcg),
+            Method::Exact => Some(MethodKind::Exact),
+            Method::BaselineCg | Method::Setup => None,
         }
     }
 }
@@ -53,6 +95,7 @@ impl From<MethodKind> for Method {
         match kind {
             MethodKind::Naive => Method::Naive,
             MethodKind::Implicit => Method::Implicit,
+            MethodKind::ImplicitMgpcg => Method::ImplicitMgpcg,
             MethodKind::Exact => Method::Exact,
         }
     }
@@ -172,6 +215,15 @@ pub struct ResultRow {
     /// finite difference of the method's own loss (small grids only): small for a
     /// gradient that is the derivative of what the method computed.
     pub fd_rel_err: Option<f64>,
+    /// Untimed warm-up runs before the timed ones
+    /// ([`TimingPolicy`](crate::harness::TimingPolicy)).
+    #[serde(default)]
+    pub warmup_runs: usize,
+    /// Forward + backward seconds of every timed run, in run order; the row's
+    /// times are those of the run the policy's statistic picked. Empty for a
+    /// run that was not timed.
+    #[serde(default)]
+    pub run_times_s: Vec<f64>,
 }
 
 impl ResultRow {
@@ -198,6 +250,8 @@ impl ResultRow {
             reached_relative_residual: None,
             loss: None,
             fd_rel_err: None,
+            warmup_runs: 0,
+            run_times_s: Vec::new(),
         }
     }
 
@@ -608,6 +662,37 @@ pub fn key_figures_value(
         "out": out_dir.display().to_string(),
         "elapsed_s": (elapsed_s * 1000.0).round() / 1000.0,
     })
+}
+
+/// Per method that has rows: how many runs it had, completed, failed and were
+/// not attempted (skipped or refused for memory), the most forward iterations
+/// of a completed run, the worst gradient error against exact and the longest
+/// gradient time (forward + backward, seconds). For the closing JSON line.
+pub fn method_summary(rows: &[ResultRow]) -> serde_json::Value {
+    let mut map = serde_json::Map::new();
+    for m in Method::SELECTABLE {
+        let mine: Vec<&ResultRow> = rows.iter().filter(|r| r.method == m).collect();
+        if mine.is_empty() {
+            continue;
+        }
+        let ok: Vec<&&ResultRow> = mine.iter().filter(|r| r.error.is_none()).collect();
+        let max_f = |v: &mut dyn Iterator<Item = f64>| {
+            v.fold(None, |a: Option<f64>, x| Some(a.map_or(x, |a| a.max(x))))
+        };
+        map.insert(
+            m.name().to_string(),
+            serde_json::json!({
+                "runs": mine.len(),
+                "ok": ok.len(),
+                "failed": mine.iter().filter(|r| r.failed()).count(),
+                "not_run": mine.iter().filter(|r| matches!(r.status, RunStatus::Skipped | RunStatus::MemoryLimit)).count(),
+                "max_iterations": ok.iter().filter_map(|r| r.iterations).max(),
+                "worst_grad_rel_err": max_f(&mut ok.iter().filter_map(|r| r.grad_rel_err)),
+                "max_gradient_s": max_f(&mut ok.iter().filter_map(|r| r.total_s())),
+            }),
+        );
+    }
+    serde_json::Value::Object(map)
 }
 
 #[cfg(test)]

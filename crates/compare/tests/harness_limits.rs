@@ -5,6 +5,7 @@
 use diffphys_compare::harness::{run_sweep, run_sweep_npy, stop_label, Precision, SweepConfig};
 use diffphys_compare::methods::exact::ExactCholesky;
 use diffphys_compare::methods::implicit::ImplicitSolve;
+use diffphys_compare::methods::mgpcg::ImplicitMgpcg;
 use diffphys_compare::methods::naive::NaiveUnrolled;
 use diffphys_compare::methods::{GradientMethod, Stop};
 use diffphys_compare::npy::{NpyEntry, NpyWriter};
@@ -58,8 +59,13 @@ fn harness_npy_reads_back_bit_for_bit() {
         .collect::<Vec<_>>();
     for stop in config.stops() {
         let implicit = ImplicitSolve.run(&problem, stop).unwrap();
+        let mgpcg = ImplicitMgpcg::default().run(&problem, stop).unwrap();
         let naive = NaiveUnrolled::default().run(&problem, stop).unwrap();
-        for (method, gradient) in [("implicit", implicit.gradient), ("naive", naive.gradient)] {
+        for (method, gradient) in [
+            ("implicit", implicit.gradient),
+            ("implicit_mgpcg", mgpcg.gradient),
+            ("naive", naive.gradient),
+        ] {
             let name = format!("n8_grad_{method}_{}", stop_label(stop));
             same_bits(&dir.join(format!("{name}.npy")), &gradient);
             names.push(name);

@@ -2,7 +2,9 @@
 //! table, results.json, report.md and charts.
 
 use diffphys_compare::alloc::CountingAllocator;
-use diffphys_compare::harness::{compute_floors, run_sweep, write_charts, Precision, SweepConfig};
+use diffphys_compare::harness::{
+    compute_floors, run_sweep, write_charts, Precision, SweepConfig, TimingPolicy,
+};
 use diffphys_compare::problem::{LossKind, OperatorKind};
 use diffphys_compare::progress::NoProgress;
 use diffphys_compare::report::{
@@ -100,6 +102,8 @@ fn tiny_sweep_writes_table_json_report_and_charts() {
         fd_max_n: 6,
         naive_tape_limit_bytes: 64 << 20,
         memory_limit_mib: None,
+        methods: Method::SELECTABLE.to_vec(),
+        timing: TimingPolicy::quick(),
     };
     let rows = run_sweep(&config, Some(&HEAP), &NoProgress).unwrap();
     assert_eq!(rows.len(), config.run_count());
@@ -165,7 +169,7 @@ fn tiny_sweep_writes_table_json_report_and_charts() {
     assert!(table.starts_with("method"));
 
     let floors = compute_floors(&rows, None);
-    assert_eq!(floors.len(), 6);
+    assert_eq!(floors.len(), 9);
     // No 256² run: nothing measured, so nothing fails.
     assert!(floors.iter().all(|f| f.holds().is_none()));
 
@@ -175,7 +179,8 @@ fn tiny_sweep_writes_table_json_report_and_charts() {
         assert!(text.contains("<svg"), "{file}");
     }
     // Charts without data are notes, not failures.
-    assert_eq!(charts.len() + notes.len(), 5, "{charts:?} {notes:?}");
+    assert_eq!(charts.len() + notes.len(), 6, "{charts:?} {notes:?}");
+    assert!(charts.iter().any(|(f, _)| f == "iterations_vs_size.svg"));
     assert!(charts.iter().any(|(f, _)| f == "memory_vs_iterations.svg"));
 
     let report = Report {

@@ -51,7 +51,8 @@ pub(crate) fn series_by_method<'a>(
 
 /// Draws the harness's charts into `out_dir` from `rows`: gradient error vs
 /// time, gradient error vs the reached residual of tolerance runs, peak memory
-/// vs iterations, time vs grid size, and the stability map
+/// vs iterations, time vs grid size, CG iterations vs grid size (plain CG
+/// against MG-PCG), and the stability map
 /// (error, or non-finite, against fixed iteration counts). Returns the charts
 /// drawn (file, caption) and notes on those that could not be.
 pub fn write_charts(out_dir: &Path, rows: &[ResultRow]) -> (Vec<(String, String)>, Vec<String>) {
@@ -162,6 +163,32 @@ pub fn write_charts(out_dir: &Path, rows: &[ResultRow]) -> (Vec<(String, String)
             title: &caption,
             x_label: "grid size n (n × n cells)",
             y_label: "forward + backward time (s)",
+            log_x: true,
+            log_y: true,
+            series: &series,
+        },
+        &mut charts,
+        &mut notes,
+    );
+
+    let caption = format!("CG iterations vs grid size (laplacian, rtol {tightest:e})");
+    let series = series_by_method(
+        rows.iter().filter(|r| {
+            r.operator == laplacian
+                && r.rtol == Some(tightest)
+                && r.error.is_none()
+                && matches!(r.method, Method::Implicit | Method::ImplicitMgpcg)
+        }),
+        |r| Some((r.n as f64, r.iterations? as f64)),
+    );
+    write_chart(
+        out_dir,
+        "iterations_vs_size.svg",
+        &caption,
+        LineChart {
+            title: &caption,
+            x_label: "grid size n (n × n cells)",
+            y_label: "forward CG iterations to the tolerance",
             log_x: true,
             log_y: true,
             series: &series,

@@ -13,13 +13,30 @@ use crate::methods::{GradientMethod, RunOutcome, Stop};
 use crate::problem::Problem;
 use crate::report::{Method, ResultRow};
 
+use super::policy::{Timed, TimingPolicy};
 use super::{relative_error, Precision};
 
-/// Runs `method` once on `problem` and measures it into a row: its timings and
-/// tape bytes, the peak heap (if `heap` is the installed global allocator), the
-/// error against `exact` (the `f64` reference gradient, if known), and any
-/// failure as the row's `error`. A failing method is a result, not an error.
+/// Runs `method` once on `problem` and measures it into a row
+/// ([`measure_with`] under [`TimingPolicy::single`]): for studies of accuracy,
+/// where the time of one run is enough.
 pub fn measure<T: Real>(
+    method: &dyn GradientMethod<T>,
+    problem: &Problem<T>,
+    stop: Option<Stop>,
+    heap: Option<&CountingAllocator>,
+    exact: Option<&Array2<f64>>,
+) -> (ResultRow, Option<RunOutcome<T>>) {
+    measure_with(&TimingPolicy::single(), method, problem, stop, heap, exact)
+}
+
+/// Runs `method` on `problem` under `policy` (its warm-up runs, then its timed
+/// runs, [`TimingPolicy::run`]) and measures the picked run into a row: its
+/// timings and tape bytes, its peak heap (if `heap` is the installed global
+/// allocator; each run in its own window), the error against `exact` (the `f64`
+/// reference gradient, if known), every timed run's total seconds, and any
+/// failure as the row's `error`. A failing method is a result, not an error.
+pub fn measure_with<T: Real>(
+    policy: &TimingPolicy,
     method: &dyn GradientMethod<T>,
     problem: &Problem<T>,
     stop: Option<Stop>,
@@ -34,12 +51,25 @@ pub fn measure<T: Real>(
     );
     row.rtol = stop.and_then(|s| s.rtol());
     row.max_iters = stop.map(|s| s.max_iters());
-    let window = heap.map(HeapWindow::start);
+    row.warmup_runs = policy.warmup;
     // A direct method ignores the stopping rule.
-    let result = method.run(problem, stop.unwrap_or(Stop::Iterations(0)));
-    row.peak_heap_bytes = window.map(|w| w.peak_above_baseline());
+    let stop = stop.unwrap_or(Stop::Iterations(0));
+    let result = policy.run(
+        || {
+            let window = heap.map(HeapWindow::start);
+            let out = method.run(problem, stop)?;
+            Ok((out, window.map(|w| w.peak_above_baseline())))
+        },
+        |(out, _)| out.forward_s + out.backward_s.unwrap_or(0.0),
+    );
     match result {
-        Ok(out) => {
+        Ok(Timed {
+            value: (out, peak),
+            times,
+            ..
+        }) => {
+            row.peak_heap_bytes = peak;
+            row.run_times_s = times;
             row.forward_s = Some(out.forward_s);
             row.backward_s = out.backward_s;
             row.tape_bytes = out.tape_bytes;
@@ -111,9 +141,21 @@ pub fn finite_difference_error<T: Real>(
     (scale > 0.0 && fd.is_finite()).then(|| (fd - analytic).abs() / scale)
 }
 
-/// Times the straightforward CG ([`baseline_cg`]) on `problem`'s forward solve:
-/// a forward-only row (`method = baseline_cg`, no backward, no gradient).
+/// Times the straightforward CG ([`baseline_cg`]) on `problem`'s forward solve
+/// once ([`measure_baseline_with`] under [`TimingPolicy::single`]).
 pub fn measure_baseline<T: Real>(
+    problem: &Problem<T>,
+    stop: Stop,
+    heap: Option<&CountingAllocator>,
+) -> ResultRow {
+    measure_baseline_with(&TimingPolicy::single(), problem, stop, heap)
+}
+
+/// Times the straightforward CG ([`baseline_cg`]) on `problem`'s forward solve
+/// under `policy`: a forward-only row (`method = baseline_cg`, no backward, no
+/// gradient) of the picked run.
+pub fn measure_baseline_with<T: Real>(
+    policy: &TimingPolicy,
     problem: &Problem<T>,
     stop: Stop,
     heap: Option<&CountingAllocator>,
@@ -126,21 +168,39 @@ pub fn measure_baseline<T: Real>(
     );
     row.rtol = stop.rtol();
     row.max_iters = Some(stop.max_iters());
+    row.warmup_runs = policy.warmup;
     let a = StraightforwardLaplacian::negative(&problem.grid);
     let b = problem.b.as_standard_layout();
     let b = b.as_slice().expect("standard layout");
-    let window = heap.map(HeapWindow::start);
-    let start = Instant::now();
-    let mut x = vec![T::zero(); b.len()];
-    let result = baseline_cg(&a, b, &mut x, stop);
-    let elapsed = start.elapsed().as_secs_f64();
-    row.peak_heap_bytes = window.map(|w| w.peak_above_baseline());
+    let result = policy.run(
+        || {
+            let window = heap.map(HeapWindow::start);
+            let start = Instant::now();
+            let mut x = vec![T::zero(); b.len()];
+            let info = baseline_cg(&a, b, &mut x, stop)?;
+            let elapsed = start.elapsed().as_secs_f64();
+            let finite = x.iter().all(|v| v.is_finite());
+            Ok((
+                info,
+                elapsed,
+                finite,
+                window.map(|w| w.peak_above_baseline()),
+            ))
+        },
+        |&(_, elapsed, _, _)| elapsed,
+    );
     match result {
-        Ok(info) => {
+        Ok(Timed {
+            value: (info, elapsed, finite, peak),
+            times,
+            ..
+        }) => {
+            row.peak_heap_bytes = peak;
+            row.run_times_s = times;
             row.forward_s = Some(elapsed);
             row.iterations = Some(info.iterations);
             row.reached_relative_residual = Some(info.relative_residual);
-            row.finite = x.iter().all(|v| v.is_finite());
+            row.finite = finite;
         }
         Err(e) => {
             row.finite = !e.is_non_finite();

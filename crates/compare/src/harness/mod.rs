@@ -9,6 +9,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::methods::exact::ExactCholesky;
 use crate::methods::implicit::ImplicitSolve;
+use crate::methods::mgpcg::ImplicitMgpcg;
 use crate::methods::naive::NaiveUnrolled;
 use crate::methods::GradientMethod;
 use crate::{CompareError, Result};
@@ -16,6 +17,7 @@ use crate::{CompareError, Result};
 mod charts;
 mod floors;
 mod measure;
+mod policy;
 mod sweep;
 mod timing;
 
@@ -23,8 +25,11 @@ mod timing;
 pub use crate::cli::progress_bar;
 pub use charts::write_charts;
 pub(crate) use charts::{series_by_method, write_chart};
-pub use floors::{compute_floors, FLOOR_N, FLOOR_RTOL};
-pub use measure::{finite_difference_error, measure, measure_baseline};
+pub use floors::{compute_floors, FLOOR_N, FLOOR_RTOL, MGPCG_FLOOR_N};
+pub use measure::{
+    finite_difference_error, measure, measure_baseline, measure_baseline_with, measure_with,
+};
+pub use policy::{Statistic, Timed, TimingPolicy};
 pub(crate) use sweep::{exact_reference, ExactCache};
 pub use sweep::{naive_bytes_per_iteration, run_sweep, run_sweep_npy, stop_label, SweepConfig};
 pub use timing::{cg_speedup, time_cg_iterations, time_fused_cg, IterationTiming};
@@ -81,6 +86,8 @@ pub enum MethodKind {
     Naive,
     /// The Poisson op with its implicit adjoint.
     Implicit,
+    /// The implicit gradient with MG-PCG solves ([`ImplicitMgpcg`]).
+    ImplicitMgpcg,
     /// The sparse Cholesky reference.
     Exact,
 }
@@ -91,6 +98,7 @@ impl MethodKind {
         match self {
             MethodKind::Naive => "naive",
             MethodKind::Implicit => "implicit",
+            MethodKind::ImplicitMgpcg => "implicit_mgpcg",
             MethodKind::Exact => "exact",
         }
     }
@@ -101,6 +109,7 @@ pub fn method<T: Real>(kind: MethodKind) -> Box<dyn GradientMethod<T>> {
     match kind {
         MethodKind::Naive => Box::new(NaiveUnrolled::default()),
         MethodKind::Implicit => Box::new(ImplicitSolve),
+        MethodKind::ImplicitMgpcg => Box::new(ImplicitMgpcg::default()),
         MethodKind::Exact => Box::new(ExactCholesky),
     }
 }

@@ -17,7 +17,8 @@ use crate::progress::Progress;
 use crate::report::{Method, ResultRow};
 use crate::{CompareError, Result};
 
-use super::measure::{finite_difference_error, measure, measure_baseline};
+use super::measure::{finite_difference_error, measure_baseline_with, measure_with};
+use super::policy::TimingPolicy;
 use super::{method, MethodKind, Precision};
 
 /// What a sweep runs.
@@ -49,6 +50,17 @@ pub struct SweepConfig {
     /// machine has available ([`crate::memory::MemoryBudget::new`]).
     #[serde(default)]
     pub memory_limit_mib: Option<usize>,
+    /// The methods to run, from [`Method::SELECTABLE`] (each at most once; the
+    /// sweep runs them in that order whatever the order here).
+    #[serde(default = "all_methods")]
+    pub methods: Vec<Method>,
+    /// The warm-up and repetition policy of every timed run.
+    #[serde(default)]
+    pub timing: TimingPolicy,
+}
+
+fn all_methods() -> Vec<Method> {
+    Method::SELECTABLE.to_vec()
 }
 
 impl SweepConfig {
@@ -68,6 +80,8 @@ impl SweepConfig {
             fd_max_n: 32,
             naive_tape_limit_bytes: 3 << 30,
             memory_limit_mib: None,
+            methods: all_methods(),
+            timing: TimingPolicy::default(),
         }
     }
 
@@ -84,6 +98,8 @@ impl SweepConfig {
             fd_max_n: 16,
             naive_tape_limit_bytes: 256 << 20,
             memory_limit_mib: None,
+            methods: all_methods(),
+            timing: TimingPolicy::quick(),
         }
     }
 
@@ -103,12 +119,30 @@ impl SweepConfig {
     ///
     /// # Errors
     /// [`CompareError::InvalidArgument`] for an empty list, a size below 2, a
-    /// tolerance not in `(0, 1)`, or a zero iteration count or cap.
+    /// tolerance not in `(0, 1)`, a zero iteration count or cap, a method that
+    /// is not one of [`Method::SELECTABLE`], or no timed run in the policy.
     pub fn validate(&self) -> Result<()> {
         let fail = |m: String| Err(CompareError::invalid(m));
-        if self.sizes.is_empty() || self.precisions.is_empty() || self.operators.is_empty() {
-            return fail("sizes, precisions and operators must each list at least one".into());
+        if self.sizes.is_empty()
+            || self.precisions.is_empty()
+            || self.operators.is_empty()
+            || self.methods.is_empty()
+        {
+            return fail(
+                "sizes, precisions, operators and methods must each list at least one".into(),
+            );
         }
+        if let Some(m) = self
+            .methods
+            .iter()
+            .find(|m| !Method::SELECTABLE.contains(m))
+        {
+            return fail(format!(
+                "method '{m}' cannot be run by a sweep: choose from {}",
+                Method::SELECTABLE.map(Method::name).join(", ")
+            ));
+        }
+        self.timing.validate()?;
         if self.iters.is_empty() && self.rtols.is_empty() {
             return fail(
                 "give at least one iteration count (--iters) or tolerance (--rtol)".into(),
@@ -126,10 +160,23 @@ impl SweepConfig {
         Ok(())
     }
 
+    /// True if the sweep runs `method`.
+    pub fn runs(&self, method: Method) -> bool {
+        self.methods.contains(&method)
+    }
+
+    /// Rows per scene: one each for exact and the baseline, one per stopping
+    /// rule for each iterative gradient method, as selected.
+    fn rows_per_scene(&self) -> usize {
+        let once = [Method::Exact, Method::BaselineCg];
+        let per_stop = [Method::Implicit, Method::ImplicitMgpcg, Method::Naive];
+        let count = |ms: &[Method]| ms.iter().filter(|m| self.runs(**m)).count();
+        count(&once) + count(&per_stop) * self.stops().len()
+    }
+
     /// How many rows a sweep produces (for the progress bar).
     pub fn run_count(&self) -> usize {
-        let per_scene = 1 + 1 + 2 * self.stops().len(); // exact, baseline, naive + implicit per stop
-        per_scene * self.sizes.len() * self.precisions.len() * self.operators.len()
+        self.rows_per_scene() * self.sizes.len() * self.precisions.len() * self.operators.len()
     }
 }
 
@@ -201,6 +248,36 @@ fn refused_row(
     row
 }
 
+/// Forward CG iterations a plain (unpreconditioned) solve needs to reach
+/// `rtol`, counting at most `cap`: to size a naive tape when no implicit or
+/// baseline run said. Untimed. The cap keeps a solve whose tape could never fit
+/// short: `Some(cap)` means at least that many.
+fn plain_cg_iterations<T: Real>(problem: &Problem<T>, rtol: f64, cap: usize) -> Option<usize> {
+    let stop = Stop::Tolerance {
+        rtol,
+        max_iters: cap.max(1),
+    };
+    let params = crate::methods::implicit::cg_params(stop)
+        .with_null_space(problem.spec.operator.null_space());
+    let mut x = ndarray::ArrayD::<T>::zeros(problem.b.shape());
+    diffphys_ops::cg::conjugate_gradient(
+        &problem.operator,
+        problem.b.view().into_dyn(),
+        x.view_mut(),
+        &params,
+    )
+    .ok()
+    .map(|info| info.iterations)
+}
+
+/// The progress message of one run: what runs, on what, under which policy.
+fn run_message(label: &str, what: &str, policy: &TimingPolicy) -> String {
+    format!(
+        "{label} {what} ({} warm-up + {} timed)",
+        policy.warmup, policy.repeats
+    )
+}
+
 #[allow(clippy::too_many_arguments)]
 fn sweep_scene<T: Real>(
     config: &SweepConfig,
@@ -215,7 +292,8 @@ fn sweep_scene<T: Real>(
     let label = format!("{} {} n={}", spec.operator.label(), T::NAME, spec.n);
     let value_bytes = std::mem::size_of::<T>();
     let stops = config.stops();
-    let per_scene = 2 + 2 * stops.len();
+    let per_scene = config.rows_per_scene();
+    let policy = &config.timing;
     // A scene whose fields alone do not fit: every run of it is refused, each
     // with its own method's estimate.
     if budget
@@ -228,16 +306,26 @@ fn sweep_scene<T: Real>(
                 .expect_err("a run needs at least its scene's fields");
             refused_row(kind, Precision::of::<T>(), &spec, stop, &e)
         };
-        rows.push(refuse(Method::Exact, Storage::Cholesky, None));
-        rows.push(refuse(Method::BaselineCg, Storage::Fields, None));
+        if config.runs(Method::Exact) {
+            rows.push(refuse(Method::Exact, Storage::Cholesky, None));
+        }
+        if config.runs(Method::BaselineCg) {
+            rows.push(refuse(Method::BaselineCg, Storage::Fields, None));
+        }
         for &stop in &stops {
-            rows.push(refuse(Method::Implicit, Storage::Fields, Some(stop)));
-            let iterations = stop.max_iters();
-            rows.push(refuse(
-                Method::Naive,
-                Storage::NaiveTape { iterations },
-                Some(stop),
-            ));
+            for kind in [Method::Implicit, Method::ImplicitMgpcg] {
+                if config.runs(kind) {
+                    rows.push(refuse(kind, Storage::Fields, Some(stop)));
+                }
+            }
+            if config.runs(Method::Naive) {
+                let iterations = stop.max_iters();
+                rows.push(refuse(
+                    Method::Naive,
+                    Storage::NaiveTape { iterations },
+                    Some(stop),
+                ));
+            }
         }
         bar.inc(per_scene as u64);
         return;
@@ -277,10 +365,9 @@ fn sweep_scene<T: Real>(
         }
     }
 
-    bar.set_message(format!("{label} exact"));
     let with_fd = n <= config.fd_max_n;
     let measure_fd = |m: &dyn GradientMethod<T>, stop: Option<Stop>| {
-        let (mut row, out) = measure(m, &problem, stop, heap, exact);
+        let (mut row, out) = measure_with(policy, m, &problem, stop, heap, exact);
         if let (true, Some(out)) = (with_fd, &out) {
             let stop = stop.unwrap_or(Stop::Iterations(0));
             row.fd_rel_err = finite_difference_error(m, &problem, stop, &out.gradient);
@@ -301,13 +388,16 @@ fn sweep_scene<T: Real>(
         }
         rows.push(row);
     };
-    rows.push(
-        match budget.check("exact", n, value_bytes, Storage::Cholesky) {
-            Err(e) => failed_row(MethodKind::Exact, None, e),
-            Ok(()) => measure_fd(method::<T>(MethodKind::Exact).as_ref(), None).0,
-        },
-    );
-    bar.inc(1);
+    if config.runs(Method::Exact) {
+        bar.set_message(run_message(&label, "exact (sparse Cholesky)", policy));
+        rows.push(
+            match budget.check("exact", n, value_bytes, Storage::Cholesky) {
+                Err(e) => failed_row(MethodKind::Exact, None, e),
+                Ok(()) => measure_fd(method::<T>(MethodKind::Exact).as_ref(), None).0,
+            },
+        );
+        bar.inc(1);
+    }
 
     let tightest = config.rtols.iter().copied().fold(f64::INFINITY, f64::min);
     let baseline_stop = if tightest.is_finite() {
@@ -318,47 +408,81 @@ fn sweep_scene<T: Real>(
     } else {
         Stop::Iterations(config.iters.iter().copied().max().unwrap_or(1))
     };
-    bar.set_message(format!("{label} baseline CG"));
-    let baseline = match budget.check("baseline_cg", n, value_bytes, Storage::Fields) {
-        Ok(()) => measure_baseline(&problem, baseline_stop, heap),
-        Err(e) => refused_row(
-            Method::BaselineCg,
-            Precision::of::<T>(),
-            &spec,
-            Some(baseline_stop),
-            &e,
-        ),
-    };
     // Iterations the tightest tolerance needs, to size naive tapes if the
     // implicit run cannot tell.
-    let baseline_iters = baseline.iterations.filter(|_| baseline.error.is_none());
-    rows.push(baseline);
-    bar.inc(1);
+    let mut baseline_iters = None;
+    if config.runs(Method::BaselineCg) {
+        bar.set_message(run_message(&label, "baseline CG", policy));
+        let baseline = match budget.check("baseline_cg", n, value_bytes, Storage::Fields) {
+            Ok(()) => measure_baseline_with(policy, &problem, baseline_stop, heap),
+            Err(e) => refused_row(
+                Method::BaselineCg,
+                Precision::of::<T>(),
+                &spec,
+                Some(baseline_stop),
+                &e,
+            ),
+        };
+        baseline_iters = baseline.iterations.filter(|_| baseline.error.is_none());
+        rows.push(baseline);
+        bar.inc(1);
+    }
 
     for stop in stops {
         // The implicit run first: its iteration count sizes the naive tape.
-        bar.set_message(format!("{label} implicit {stop:?}"));
-        let implicit_iters = match budget.check("implicit", n, value_bytes, Storage::Fields) {
-            Ok(()) => {
-                let measured = measure_fd(method::<T>(MethodKind::Implicit).as_ref(), Some(stop));
-                let it = measured.0.iterations;
-                record(rows, MethodKind::Implicit, stop, measured);
-                it
+        let mut implicit_iters = None;
+        for kind in [MethodKind::Implicit, MethodKind::ImplicitMgpcg] {
+            if !config.runs(kind.into()) {
+                continue;
             }
-            Err(e) => {
-                rows.push(failed_row(MethodKind::Implicit, Some(stop), e));
-                None
+            bar.set_message(run_message(
+                &label,
+                &format!("{} {}", kind.name(), stop_label(stop)),
+                policy,
+            ));
+            match budget.check(kind.name(), n, value_bytes, Storage::Fields) {
+                Ok(()) => {
+                    let measured = measure_fd(method::<T>(kind).as_ref(), Some(stop));
+                    if kind == MethodKind::Implicit {
+                        implicit_iters = measured.0.iterations;
+                    }
+                    record(rows, kind, stop, measured);
+                }
+                Err(e) => rows.push(failed_row(kind, Some(stop), e)),
             }
-        };
-        bar.inc(1);
+            bar.inc(1);
+        }
+        if !config.runs(Method::Naive) {
+            continue;
+        }
 
-        bar.set_message(format!("{label} naive {stop:?}"));
-        let expected_iters = match stop {
-            Stop::Iterations(k) => k,
-            Stop::Tolerance { max_iters, .. } => implicit_iters
-                .or(baseline_iters)
-                .unwrap_or(max_iters)
-                .min(max_iters),
+        bar.set_message(run_message(
+            &label,
+            &format!("naive {}", stop_label(stop)),
+            policy,
+        ));
+        // The iterations the naive tape will hold, and whether that is only a
+        // lower bound (a count stopped at the tape limit).
+        let (expected_iters, at_least) = match stop {
+            Stop::Iterations(k) => (k, false),
+            Stop::Tolerance { rtol, max_iters } => {
+                match implicit_iters.or(baseline_iters) {
+                    Some(k) => (k.min(max_iters), false),
+                    None => {
+                        // Neither implicit nor the baseline ran this rule: count
+                        // the iterations of a plain solve, no further than one
+                        // past what the tape limit allows (the scene's fields
+                        // fit, as checked above).
+                        let fit = config.naive_tape_limit_bytes
+                            / naive_bytes_per_iteration::<T>(n).max(1);
+                        let cap = max_iters.min(fit.saturating_add(1));
+                        match plain_cg_iterations(&problem, rtol, cap) {
+                            Some(k) => (k, k == cap && cap < max_iters),
+                            None => (max_iters, false),
+                        }
+                    }
+                }
+            }
         };
         let unknowns = n * n;
         let estimate = expected_iters.saturating_mul(naive_bytes_per_iteration::<T>(n));
@@ -382,7 +506,9 @@ fn sweep_scene<T: Real>(
                 MethodKind::Naive,
                 Some(stop),
                 CompareError::Skipped(format!(
-                    "~{expected_iters} unrolled iterations would need a tape of about {} (limit {})",
+                    "{}{expected_iters} unrolled iterations would need a tape of {}{} (limit {})",
+                    if at_least { "at least " } else { "~" },
+                    if at_least { "more than " } else { "about " },
                     crate::report::format_bytes(estimate),
                     crate::report::format_bytes(config.naive_tape_limit_bytes)
                 )),

@@ -42,8 +42,9 @@ impl IterationTiming {
 
 /// Times `iterations` CG iterations from `x = 0` on `problem.b` with the
 /// baseline and with `fused` (which must run exactly that many iterations and
-/// return the count it ran), alternating the two `repeats` times and keeping each
-/// one's best, so that both see the same machine load.
+/// return the count it ran), after one untimed warm-up run of each, alternating
+/// the two `repeats` times and keeping each one's best, so that both see the
+/// same machine load.
 ///
 /// # Errors
 /// [`CompareError::InvalidArgument`] if `iterations` or `repeats` is zero or a
@@ -63,6 +64,10 @@ pub fn time_cg_iterations<T: Real>(
     let b = problem.b.as_standard_layout();
     let b = b.as_slice().expect("standard layout");
     let (mut best_base, mut best_fused) = (f64::INFINITY, f64::INFINITY);
+    // One untimed run of each first, as for every timed method of the sweep.
+    let mut x = vec![T::zero(); b.len()];
+    baseline_cg(&a, b, &mut x, Stop::Iterations(iterations))?;
+    fused(problem, iterations)?;
     for _ in 0..repeats {
         let mut x = vec![T::zero(); b.len()];
         let start = Instant::now();
@@ -112,7 +117,7 @@ pub fn time_fused_cg<T: Real>(
 
 /// The per-iteration CG speedup of a sweep: timed at [`FLOOR_N`] if the sweep
 /// includes it, else at its largest size, in `f64` if included; 200 iterations
-/// (fewer on tiny grids, where the residual could vanish), best of 5. Returns the
+/// (fewer on tiny grids, where the residual could vanish), one warm-up, best of 5. Returns the
 /// ratio and a note saying where it was measured, or `None` with the failure.
 pub fn cg_speedup(config: &SweepConfig) -> (Option<IterationTiming>, String) {
     let n = if config.sizes.contains(&FLOOR_N) {
@@ -133,7 +138,7 @@ pub fn cg_speedup(config: &SweepConfig) -> (Option<IterationTiming>, String) {
     match result {
         Ok(t) => {
             let note = format!(
-                "{}², {}, {} iterations, best of 5: baseline {} vs fused {} per iteration",
+                "{}², {}, {} iterations, 1 warm-up then best of 5: baseline {} vs fused {} per iteration",
                 t.n,
                 t.precision,
                 t.iterations,

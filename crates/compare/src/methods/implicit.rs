@@ -14,7 +14,7 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use diffphys_ops::cg::{conjugate_gradient, CgParams};
+use diffphys_ops::cg::{conjugate_gradient, CgParams, Preconditioner};
 use diffphys_ops::poisson::{poisson_solve_tape, poisson_solve_vjp, PoissonSolve, SolveLog};
 use diffphys_ops::stencil::Laplacian2;
 use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, Tape, TapeError};
@@ -113,12 +113,27 @@ pub fn run_implicit<T: Real>(
     forward: Stop,
     adjoint: Stop,
 ) -> Result<RunOutcome<T>> {
+    run_implicit_preconditioned(problem, forward, adjoint, Preconditioner::None)
+}
+
+/// [`run_implicit`] with `preconditioner` in both the forward and the adjoint
+/// CG solve (a symmetric positive definite preconditioner keeps the adjoint
+/// solve the same solver).
+///
+/// # Errors
+/// As [`run_implicit`].
+pub fn run_implicit_preconditioned<T: Real>(
+    problem: &Problem<T>,
+    forward: Stop,
+    adjoint: Stop,
+    preconditioner: Preconditioner,
+) -> Result<RunOutcome<T>> {
     let tape = Tape::<T>::new();
     let solve = PoissonSolve::new(
         Arc::new(problem.operator.clone()),
-        problem_params(problem, forward),
+        problem_params(problem, forward).with_preconditioner(preconditioner.clone()),
     )
-    .with_adjoint_params(problem_params(problem, adjoint));
+    .with_adjoint_params(problem_params(problem, adjoint).with_preconditioner(preconditioner));
     let log = solve.log();
 
     let start = Instant::now();

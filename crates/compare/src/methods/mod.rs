@@ -7,6 +7,7 @@
 pub mod baseline;
 pub mod exact;
 pub mod implicit;
+pub mod mgpcg;
 pub mod naive;
 
 use diffphys_tape::Real;

@@ -3,7 +3,7 @@
 //!
 //! Every kernel here splits its arrays into fixed chunks of [`CHUNK`] elements
 //! (a length that depends on nothing but the array), runs the chunks on rayon's
-//! thread pool when the array has at least [`PARALLEL_MIN_LEN`] elements and on
+//! thread pool when the array has at least [`min_parallel_len`] elements and on
 //! the calling thread otherwise, and combines per-chunk partial sums serially in
 //! chunk order. So a reduction is bitwise the same on 1, 2 or N threads, and the
 //! same whether it ran in parallel or not.
@@ -23,6 +23,7 @@
 //! ```
 
 use std::ops::Range;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use rayon::prelude::*;
 
@@ -32,11 +33,29 @@ use crate::Real;
 /// a chunk's partial sum stays in the first-level cache).
 pub const CHUNK: usize = 4096;
 
-/// Arrays shorter than this run on the calling thread: below it, handing chunks
-/// to the pool costs more than it saves (measured with the `cg/iteration` and
-/// `tape_overhead` benches on two cores, where the break-even lies near 10⁴
-/// elements).
-pub const PARALLEL_MIN_LEN: usize = 16 * 1024;
+/// The default of [`min_parallel_len`]: arrays shorter than this run on the
+/// calling thread. Measured with the harness on two cores: at 256² (65,536
+/// cells) a CG iteration took 104 µs on one thread and 236 µs on two while
+/// another process kept one core busy (the second thread waits for a core at
+/// every one of the iteration's three synchronisations), while at 1024² two
+/// threads halved it (1.66 ms against 3.4 ms). Chunking does not depend on it,
+/// so results do not either.
+pub const PARALLEL_MIN_LEN: usize = 1 << 18;
+
+static MIN_PARALLEL_LEN: AtomicUsize = AtomicUsize::new(PARALLEL_MIN_LEN);
+
+/// The length from which kernels split an array across threads
+/// ([`PARALLEL_MIN_LEN`] unless [`set_min_parallel_len`] changed it).
+pub fn min_parallel_len() -> usize {
+    MIN_PARALLEL_LEN.load(Ordering::Relaxed)
+}
+
+/// Sets the length from which kernels split arrays across threads, for the
+/// whole process (on a quiet machine smaller arrays may pay). Results do not
+/// change: the chunks are the same either way.
+pub fn set_min_parallel_len(len: usize) {
+    MIN_PARALLEL_LEN.store(len.max(1), Ordering::Relaxed);
+}
 
 /// Accumulator lanes of the chunk kernels: independent sums the compiler keeps
 /// in vector registers.
@@ -76,13 +95,13 @@ pub fn threads() -> usize {
 
 /// Whether an array of `len` elements is worth splitting across threads.
 pub fn is_parallel(len: usize) -> bool {
-    len >= PARALLEL_MIN_LEN && rayon::current_num_threads() > 1
+    len >= min_parallel_len() && rayon::current_num_threads() > 1
 }
 
 /// Chunks of `chunk_len` per rayon task: enough that an array below
-/// [`PARALLEL_MIN_LEN`] is never split.
+/// [`min_parallel_len`] is never split.
 fn min_tasks_len(chunk_len: usize) -> usize {
-    PARALLEL_MIN_LEN.div_ceil(chunk_len.max(1)).max(1)
+    min_parallel_len().div_ceil(chunk_len.max(1)).max(1)
 }
 
 /// `f` applied to the ranges `[0, CHUNK)`, `[CHUNK, 2 CHUNK)`, … covering
@@ -313,6 +332,10 @@ pub fn count_non_finite<T: Real>(a: &[T]) -> usize {
 mod tests {
     use super::*;
 
+    /// The tests' threshold: low, so that small arrays take the parallel path
+    /// (every test sets the same value; results do not depend on it).
+    pub(crate) const TEST_MIN_LEN: usize = 2 * CHUNK;
+
     fn data(n: usize, seed: f64) -> Vec<f64> {
         (0..n).map(|i| ((i as f64) * seed).sin() * 1e3).collect()
     }
@@ -321,7 +344,8 @@ mod tests {
     /// the same chunking, agree bitwise; and agree with plain sums to rounding.
     #[test]
     fn reductions_do_not_depend_on_the_number_of_threads() {
-        for n in [0, 5, CHUNK + 3, PARALLEL_MIN_LEN + 17, 10 * CHUNK + 1] {
+        set_min_parallel_len(TEST_MIN_LEN);
+        for n in [0, 5, CHUNK + 3, TEST_MIN_LEN + 17, 10 * CHUNK + 1] {
             let (a, b) = (data(n, 0.37), data(n, 0.11));
             let run = || (dot(&a, &b), dot_in(&a, &b), sum_in(&a));
             let one = with_threads(1, run);
@@ -341,7 +365,8 @@ mod tests {
 
     #[test]
     fn chunk_maps_cover_every_element_once() {
-        let n = 3 * PARALLEL_MIN_LEN + 5;
+        set_min_parallel_len(TEST_MIN_LEN);
+        let n = 3 * TEST_MIN_LEN + 5;
         let a = data(n, 0.2);
         let mut out = vec![0.0; n];
         with_threads(3, || zip_map_into(&a, &a, &mut out, |x, y| x + y));
@@ -370,7 +395,8 @@ mod tests {
     #[test]
     fn tape_ops_do_not_depend_on_the_number_of_threads() {
         use crate::{test_array, Tape};
-        let n = PARALLEL_MIN_LEN + 1000;
+        set_min_parallel_len(TEST_MIN_LEN);
+        let n = 3 * TEST_MIN_LEN + 1000;
         let (x0, y0) = (test_array::<f64>(&[n], 1), test_array::<f64>(&[n], 2));
         let run = || {
             let tape = Tape::<f64>::new();
@@ -401,7 +427,8 @@ mod tests {
     fn with_threads_sets_the_pool_size() {
         assert_eq!(with_threads(3, threads), 3);
         assert!(!with_threads(1, || is_parallel(1 << 20)));
-        assert!(with_threads(2, || is_parallel(PARALLEL_MIN_LEN)));
-        assert!(!with_threads(2, || is_parallel(PARALLEL_MIN_LEN - 1)));
+        set_min_parallel_len(TEST_MIN_LEN);
+        assert!(with_threads(2, || is_parallel(TEST_MIN_LEN)));
+        assert!(!with_threads(2, || is_parallel(TEST_MIN_LEN - 1)));
     }
 }

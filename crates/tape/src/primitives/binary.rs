@@ -128,6 +128,46 @@ fn forward_contiguous<T: Real, K: BinaryKernel<T>>(
     Some(y)
 }
 
+/// `sink(i, g_i · ∂y_i/∂input_W)` for the elements `off..off + ys.len()`, one
+/// loop per operand layout so that each compiles without a branch inside.
+#[inline(always)]
+fn partials<T: Real, K: BinaryKernel<T>, const W: usize>(
+    a: Operand<'_, T>,
+    b: Operand<'_, T>,
+    off: usize,
+    ys: &[T],
+    gs: &[T],
+    mut sink: impl FnMut(usize, T),
+) {
+    let pick = |(da, db): (T, T)| if W == 0 { da } else { db };
+    let n = ys.len();
+    match (a, b) {
+        (Operand::Full(a), Operand::Full(b)) => {
+            let (a, b) = (&a[off..off + n], &b[off..off + n]);
+            for i in 0..n {
+                sink(i, gs[i] * pick(K::df(a[i], b[i], ys[i])));
+            }
+        }
+        (Operand::Full(a), Operand::Scalar(b)) => {
+            let a = &a[off..off + n];
+            for i in 0..n {
+                sink(i, gs[i] * pick(K::df(a[i], b, ys[i])));
+            }
+        }
+        (Operand::Scalar(a), Operand::Full(b)) => {
+            let b = &b[off..off + n];
+            for i in 0..n {
+                sink(i, gs[i] * pick(K::df(a, b[i], ys[i])));
+            }
+        }
+        (Operand::Scalar(a), Operand::Scalar(b)) => {
+            for i in 0..n {
+                sink(i, gs[i] * pick(K::df(a, b, ys[i])));
+            }
+        }
+    }
+}
+
 /// The backward on contiguous operands (see [`forward_contiguous`]): a full
 /// input's gradient is mapped into a pooled buffer, a single value's is the
 /// chunked (deterministic) sum of its partials; `None` for other layouts.
@@ -146,27 +186,36 @@ fn backward_contiguous<T: Real, K: BinaryKernel<T>>(
     if !(y.is_standard_layout() && args.grad_out().is_standard_layout()) {
         return None;
     }
-    let partial = move |which: usize, i: usize| {
-        let (da, db) = K::df(a.at(i), b.at(i), ys[i]);
-        gs[i] * if which == 0 { da } else { db }
-    };
     let grad_for = |which: usize, x: Operand<'_, T>| -> ArrayD<T> {
         match x {
             Operand::Full(_) => {
                 let mut g = crate::pool::take_array::<T>(y.shape());
                 let out = g.as_slice_mut().expect("pooled arrays are contiguous");
                 parallel::for_each_chunk_mut(out, |off, o| {
-                    for (i, o) in o.iter_mut().enumerate() {
-                        *o = partial(which, off + i);
+                    let r = off..off + o.len();
+                    let (ys, gs) = (&ys[r.clone()], &gs[r]);
+                    if which == 0 {
+                        partials::<T, K, 0>(a, b, off, ys, gs, |i, v| o[i] = v);
+                    } else {
+                        partials::<T, K, 1>(a, b, off, ys, gs, |i, v| o[i] = v);
                     }
                 });
                 g
             }
             Operand::Scalar(_) => {
-                let sum =
-                    parallel::map_chunks(len, |r| r.fold(T::zero(), |s, i| s + partial(which, i)))
-                        .into_iter()
-                        .fold(T::zero(), |s, p| s + p);
+                let sum = parallel::map_chunks(len, |r| {
+                    let off = r.start;
+                    let (ys, gs) = (&ys[r.clone()], &gs[r]);
+                    let mut acc = T::zero();
+                    if which == 0 {
+                        partials::<T, K, 0>(a, b, off, ys, gs, |_, v| acc += v);
+                    } else {
+                        partials::<T, K, 1>(a, b, off, ys, gs, |_, v| acc += v);
+                    }
+                    acc
+                })
+                .into_iter()
+                .fold(T::zero(), |s, p| s + p);
                 ArrayD::from_elem(args.input(which).shape(), sum)
             }
         }

@@ -8,7 +8,10 @@
 //!   path: stencil fused with `<p, A p>`, boundary outside the inner loop) and
 //!   `baseline` ([`baseline_cg`], one loop per vector operation, the boundary
 //!   tested at every cell). Throughput is cells × iterations per sample, so the
-//!   report reads as cells per second of one CG iteration.
+//!   report reads as cells per second of one CG iteration. `fused_1_thread` is
+//!   `fused` on a one-thread pool (`diffphys::tape::parallel::with_threads`):
+//!   the ratio to `fused` is what the second core brings (kernels split arrays
+//!   from `parallel::min_parallel_len()` cells, 2¹⁸ by default).
 //! - `cg/gradient`: the whole gradient `∂L/∂b` of `L = ½‖A⁻¹b − p*‖²` (forward
 //!   solve, loss, backward), CG to relative tolerance 1e-8, `naive` (CG unrolled
 //!   on the tape) and `implicit` (the Poisson op, one adjoint solve), at 64² and
@@ -32,6 +35,7 @@ use diffphys::compare::methods::naive::NaiveUnrolled;
 use diffphys::compare::methods::{GradientMethod, Stop};
 use diffphys::compare::problem::{Problem, ProblemSpec};
 use diffphys::ops::cg::conjugate_gradient;
+use diffphys::tape::parallel;
 use ndarray::{ArrayD, IxDyn};
 
 const ITERATION_SIZES: [usize; 5] = [64, 128, 256, 512, 1024];
@@ -97,6 +101,9 @@ fn iteration(c: &mut Criterion) {
         group.throughput(Throughput::Elements((n * n * ITERATIONS) as u64));
         group.bench_with_input(BenchmarkId::new("fused", n * n), &n, |bench, _| {
             bench.iter(|| black_box(fused(black_box(&problem))))
+        });
+        group.bench_with_input(BenchmarkId::new("fused_1_thread", n * n), &n, |bench, _| {
+            parallel::with_threads(1, || bench.iter(|| black_box(fused(black_box(&problem)))))
         });
         group.bench_with_input(BenchmarkId::new("baseline", n * n), &n, |bench, _| {
             bench.iter(|| black_box(baseline(&a, black_box(b))))

@@ -21,7 +21,7 @@ use std::sync::Arc;
 use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError, Var};
 use ndarray::ArrayViewMutD;
 
-use crate::{LinearOperator, Result};
+use crate::{LinearOperator, OpsError, Result};
 
 /// A tape op that applies a linear operator `A`: forward `y = A x`, backward
 /// `grad_x = Aᵀ grad_y` (computed only when `x` needs a gradient).
@@ -59,7 +59,15 @@ impl<T: Real, A: LinearOperator<T>> Op<T> for LinearOp<A> {
                 found: inputs.len(),
             });
         }
-        Ok(vec![self.op.apply(inputs[0].view())?])
+        let x = inputs[0].view();
+        if x.shape() != self.op.input_shape() {
+            return Err(OpsError::shape(self.op.name(), self.op.input_shape(), x.shape()).into());
+        }
+        // A pooled buffer (on an unrolled solver's tape, one per iteration),
+        // zeroed: `apply_into` may accumulate into its output.
+        let mut out = diffphys_tape::pool::take_zeroed_array(self.op.output_shape());
+        self.op.apply_into(x, out.view_mut());
+        Ok(vec![out])
     }
 
     fn backward(
@@ -69,7 +77,13 @@ impl<T: Real, A: LinearOperator<T>> Op<T> for LinearOp<A> {
         if !args.needs(0) {
             return Ok(vec![None]);
         }
-        Ok(vec![Some(self.op.apply_transpose(args.grad_out().view())?)])
+        let g = args.grad_out();
+        if g.shape() != self.op.output_shape() {
+            return Err(OpsError::shape(self.op.name(), self.op.output_shape(), g.shape()).into());
+        }
+        let mut out = diffphys_tape::pool::take_zeroed_array(self.op.input_shape());
+        self.op.apply_transpose_into(g.view(), out.view_mut());
+        Ok(vec![Some(out)])
     }
 }
 

@@ -187,9 +187,16 @@ impl<T: Real> Tape<T> {
                     check_finite(name, Pass::Backward, &g.view())?;
                 }
                 match &mut grads[i] {
-                    Some(acc) => *acc += &g,
+                    Some(acc) => {
+                        accumulate(acc, &g);
+                        crate::pool::recycle_array(g);
+                    }
                     slot => *slot = Some(g),
                 }
+            }
+            drop(grad_views);
+            for g in grad_outputs.into_iter().flatten() {
+                crate::pool::recycle_array(g);
             }
         }
 
@@ -206,6 +213,22 @@ impl<T: Real> Tape<T> {
             grads: requested_grads,
             nodes_visited,
         })
+    }
+}
+
+/// `acc += g` (same shapes), in parallel for large contiguous arrays.
+fn accumulate<T: Real>(acc: &mut ArrayD<T>, g: &ArrayD<T>) {
+    let same_layout = acc.is_standard_layout() && g.is_standard_layout();
+    match (acc.as_slice_mut(), g.as_slice()) {
+        (Some(a), Some(b)) if same_layout => {
+            crate::parallel::for_each_chunk_mut(a, |off, a| {
+                let n = a.len();
+                for (a, &b) in a.iter_mut().zip(&b[off..off + n]) {
+                    *a += b;
+                }
+            });
+        }
+        _ => *acc += g,
     }
 }
 

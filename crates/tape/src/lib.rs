@@ -25,6 +25,8 @@ pub mod gradcheck;
 mod op;
 mod operators;
 pub mod optim;
+pub mod parallel;
+pub mod pool;
 pub mod primitives;
 mod real;
 mod tape;

@@ -103,7 +103,10 @@ fn bytes_of<T>(a: &ArrayD<T>) -> usize {
 
 /// Counts non-finite entries; the error names `op`.
 pub(crate) fn check_finite<T: Real>(op: &str, pass: Pass, a: &ArrayViewD<'_, T>) -> Result<()> {
-    let count = a.iter().filter(|x| !x.is_finite()).count();
+    let count = match a.as_slice_memory_order() {
+        Some(s) => crate::parallel::count_non_finite(s),
+        None => a.iter().filter(|x| !x.is_finite()).count(),
+    };
     if count == 0 {
         Ok(())
     } else {
@@ -275,14 +278,31 @@ impl<T: Real> Tape<T> {
     /// so no [`Var`] of this tape can outlive it.
     pub fn clear(&mut self) {
         let inner = self.inner.get_mut();
-        inner.slots.clear();
+        inner.recycle_values();
         inner.nodes.clear();
         inner.saved_bytes = 0;
         inner.value_bytes = 0;
     }
 }
 
+/// The values of a dropped tape go to the buffer pool for the next one.
+impl<T: Real> Drop for Inner<T> {
+    fn drop(&mut self) {
+        self.recycle_values();
+    }
+}
+
 impl<T: Real> Inner<T> {
+    /// Drops every value, handing the buffers nobody else holds (no
+    /// [`Var::value`] outstanding) to [`crate::pool`].
+    fn recycle_values(&mut self) {
+        for slot in self.slots.drain(..) {
+            if let Ok(a) = Rc::try_unwrap(slot.data) {
+                crate::pool::recycle_array(a);
+            }
+        }
+    }
+
     fn push_slot(&mut self, data: ArrayD<T>, requires_grad: bool) -> usize {
         self.value_bytes += bytes_of(&data);
         self.slots.push(Slot {

@@ -1,7 +1,11 @@
 //! The fused vector kernels of an iteration: lane-split dot products and
 //! updates that read each vector once, with deterministic reductions.
+//!
+//! Every kernel runs over the fixed chunks of [`parallel`] (on all cores for
+//! large vectors) and adds per-chunk partial sums in chunk order, so a solve
+//! gives bitwise the same iterates on any number of threads.
 
-use diffphys_tape::Real;
+use diffphys_tape::{parallel, Real};
 
 use crate::linear::wide;
 
@@ -13,19 +17,7 @@ fn lanes_total(acc: [f64; LANES]) -> f64 {
 
 /// `Σ a_i b_i` in f64.
 pub(super) fn dot<T: Real>(a: &[T], b: &[T]) -> f64 {
-    let mut acc = [0.0; LANES];
-    let (ac, bc) = (a.chunks_exact(LANES), b.chunks_exact(LANES));
-    let (ar, br) = (ac.remainder(), bc.remainder());
-    for (a, b) in ac.zip(bc) {
-        let (a, b) = (lanes(a), lanes(b));
-        for l in 0..LANES {
-            acc[l] += wide(a[l]) * wide(b[l]);
-        }
-    }
-    for (a, b) in ar.iter().zip(br) {
-        acc[0] += wide(*a) * wide(*b);
-    }
-    lanes_total(acc)
+    parallel::dot(a, b)
 }
 
 /// A chunk of `chunks_exact(LANES)` as an array, so that the lane loops compile
@@ -48,27 +40,32 @@ fn lanes_mut<T: Copy>(chunk: &mut [T]) -> &mut [T; LANES] {
 pub(super) fn weighted_sum<T: Real>(a: &[T], k: Option<&[T]>) -> f64 {
     match k {
         Some(k) => dot(a, k),
-        None => {
-            let mut acc = [0.0; LANES];
-            let ac = a.chunks_exact(LANES);
-            let rest: f64 = ac.remainder().iter().map(|&v| wide(v)).sum();
-            for a in ac {
-                let a = lanes(a);
-                for l in 0..LANES {
-                    acc[l] += wide(a[l]);
-                }
-            }
-            lanes_total(acc) + rest
+        None => parallel::sum_chunks(a.len(), |r| sum_chunk(&a[r])),
+    }
+}
+
+fn sum_chunk<T: Real>(a: &[T]) -> f64 {
+    let mut acc = [0.0; LANES];
+    let ac = a.chunks_exact(LANES);
+    let rest: f64 = ac.remainder().iter().map(|&v| wide(v)).sum();
+    for a in ac {
+        let a = lanes(a);
+        for l in 0..LANES {
+            acc[l] += wide(a[l]);
         }
     }
+    lanes_total(acc) + rest
 }
 
 /// `v −= m·k` (`k = 1` if `None`).
 pub(super) fn subtract_multiple<T: Real>(v: &mut [T], m: T, k: Option<&[T]>) {
-    match k {
-        Some(k) => v.iter_mut().zip(k).for_each(|(v, &k)| *v -= m * k),
+    parallel::for_each_chunk_mut(v, |off, v| match k {
+        Some(k) => {
+            let k = &k[off..off + v.len()];
+            v.iter_mut().zip(k).for_each(|(v, &k)| *v -= m * k);
+        }
         None => v.iter_mut().for_each(|v| *v -= m),
-    }
+    });
 }
 
 /// The sums one residual pass produces (f64).
@@ -86,6 +83,25 @@ pub(super) struct Sums {
 
 /// `r −= α q`, returning `<r, r>` and `<k, r>` (`k = 1` if `None`).
 pub(super) fn update_residual<T: Real>(alpha: T, q: &[T], r: &mut [T], k: Option<&[T]>) -> Sums {
+    let parts = parallel::map_chunks_mut(r, |off, r| {
+        let range = off..off + r.len();
+        update_residual_chunk(alpha, &q[range.clone()], r, k.map(|k| &k[range]))
+    });
+    let (mut rr, mut kr) = (0.0, 0.0);
+    for (a, b) in parts {
+        rr += a;
+        kr += b;
+    }
+    Sums {
+        rr,
+        rz: rr,
+        kr,
+        kz: kr,
+    }
+}
+
+/// [`update_residual`] on one chunk: `(<r, r>, <k, r>)`.
+fn update_residual_chunk<T: Real>(alpha: T, q: &[T], r: &mut [T], k: Option<&[T]>) -> (f64, f64) {
     let mut rr = [0.0; LANES];
     let mut kr = [0.0; LANES];
     let n = r.len();
@@ -131,13 +147,7 @@ pub(super) fn update_residual<T: Real>(alpha: T, q: &[T], r: &mut [T], k: Option
         rr[0] += v * v;
         kr[0] += v * k.map_or(1.0, |k| wide(k[split + i]));
     }
-    let (rr, kr) = (lanes_total(rr), lanes_total(kr));
-    Sums {
-        rr,
-        rz: rr,
-        kr,
-        kz: kr,
-    }
+    (lanes_total(rr), lanes_total(kr))
 }
 
 /// `r −= α q; z = d⁻¹ ⊙ r`, returning all four sums.
@@ -149,18 +159,29 @@ pub(super) fn update_residual_jacobi<T: Real>(
     z: &mut [T],
     k: Option<&[T]>,
 ) -> Sums {
-    let mut s = Sums::default();
-    for (i, (((r, &q), &d), z)) in r.iter_mut().zip(q).zip(inv_d).zip(z).enumerate() {
-        *r -= alpha * q;
-        *z = *r * d;
-        let (rv, zv) = (wide(*r), wide(*z));
-        let kv = k.map_or(1.0, |k| wide(k[i]));
-        s.rr += rv * rv;
-        s.rz += rv * zv;
-        s.kr += kv * rv;
-        s.kz += kv * zv;
-    }
-    s
+    let parts = parallel::map_chunks_mut2(r, z, |off, r, z| {
+        let mut s = Sums::default();
+        let range = off..off + r.len();
+        let (q, inv_d) = (&q[range.clone()], &inv_d[range.clone()]);
+        let k = k.map(|k| &k[range]);
+        for (i, (((r, &q), &d), z)) in r.iter_mut().zip(q).zip(inv_d).zip(z).enumerate() {
+            *r -= alpha * q;
+            *z = *r * d;
+            let (rv, zv) = (wide(*r), wide(*z));
+            let kv = k.map_or(1.0, |k| wide(k[i]));
+            s.rr += rv * rv;
+            s.rz += rv * zv;
+            s.kr += kv * rv;
+            s.kz += kv * zv;
+        }
+        s
+    });
+    parts.into_iter().fold(Sums::default(), |a, b| Sums {
+        rr: a.rr + b.rr,
+        rz: a.rz + b.rz,
+        kr: a.kr + b.kr,
+        kz: a.kz + b.kz,
+    })
 }
 
 /// `x += α p; p = (z − m k) + β p` (`k = 1` if `None`).
@@ -173,25 +194,32 @@ pub(super) fn update_direction<T: Real>(
     x: &mut [T],
     k: Option<&[T]>,
 ) {
-    match k {
-        None => {
-            for ((p, x), &z) in p.iter_mut().zip(x.iter_mut()).zip(z) {
-                *x += alpha * *p;
-                *p = (z - m) + beta * *p;
+    parallel::map_chunks_mut2(p, x, |off, p, x| {
+        let range = off..off + p.len();
+        let z = &z[range.clone()];
+        match k {
+            None => {
+                for ((p, x), &z) in p.iter_mut().zip(x.iter_mut()).zip(z) {
+                    *x += alpha * *p;
+                    *p = (z - m) + beta * *p;
+                }
+            }
+            Some(k) => {
+                for (((p, x), &z), &k) in p.iter_mut().zip(x.iter_mut()).zip(z).zip(&k[range]) {
+                    *x += alpha * *p;
+                    *p = (z - m * k) + beta * *p;
+                }
             }
         }
-        Some(k) => {
-            for (((p, x), &z), &k) in p.iter_mut().zip(x.iter_mut()).zip(z).zip(k) {
-                *x += alpha * *p;
-                *p = (z - m * k) + beta * *p;
-            }
-        }
-    }
+    });
 }
 
 /// `x += α p`.
 pub(super) fn axpy<T: Real>(alpha: T, p: &[T], x: &mut [T]) {
-    x.iter_mut().zip(p).for_each(|(x, &p)| *x += alpha * p);
+    parallel::for_each_chunk_mut(x, |off, x| {
+        let p = &p[off..off + x.len()];
+        x.iter_mut().zip(p).for_each(|(x, &p)| *x += alpha * p);
+    });
 }
 
 #[cfg(test)]

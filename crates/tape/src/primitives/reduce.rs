@@ -5,7 +5,7 @@ use ndarray::{ArrayD, ArrayViewD, Axis, IxDyn, Zip};
 
 use super::check_axis;
 use super::linear::{Linear, LinearMap};
-use crate::{BackwardArgs, Op, Real, Result, TapeError, Var};
+use crate::{parallel, BackwardArgs, Op, Real, Result, TapeError, Var};
 
 /// `y = Σᵢ xᵢ` (0-d). Adjoint: `grad_x = grad_y` broadcast to x's shape.
 struct Sum;
@@ -14,11 +14,11 @@ impl<T: Real> LinearMap<T> for Sum {
     const NAME: &'static str = "sum";
 
     fn forward(&self, x: ArrayViewD<'_, T>) -> Result<ArrayD<T>> {
-        Ok(ArrayD::from_elem(IxDyn(&[]), x.sum()))
+        Ok(ArrayD::from_elem(IxDyn(&[]), sum_of(&x)))
     }
 
     fn adjoint(&self, grad: ArrayViewD<'_, T>, x_shape: &[usize]) -> ArrayD<T> {
-        ArrayD::from_elem(x_shape, scalar_of(&grad))
+        filled(x_shape, scalar_of(&grad))
     }
 }
 
@@ -36,12 +36,12 @@ impl<T: Real> LinearMap<T> for Mean {
             ));
         }
         let n = T::from_usize(x.len());
-        Ok(ArrayD::from_elem(IxDyn(&[]), x.sum() / n))
+        Ok(ArrayD::from_elem(IxDyn(&[]), sum_of(&x) / n))
     }
 
     fn adjoint(&self, grad: ArrayViewD<'_, T>, x_shape: &[usize]) -> ArrayD<T> {
         let n = T::from_usize(x_shape.iter().product());
-        ArrayD::from_elem(x_shape, scalar_of(&grad) / n)
+        filled(x_shape, scalar_of(&grad) / n)
     }
 }
 
@@ -67,6 +67,22 @@ impl<T: Real> LinearMap<T> for SumAxis {
     }
 }
 
+/// `Σ x`, chunked over all cores (deterministic) when `x` is contiguous.
+fn sum_of<T: Real>(x: &ArrayViewD<'_, T>) -> T {
+    match x.as_slice_memory_order() {
+        Some(s) => parallel::sum_in(s),
+        None => x.sum(),
+    }
+}
+
+/// An array of `shape` holding `v` everywhere, from the buffer pool.
+fn filled<T: Real>(shape: &[usize], v: T) -> ArrayD<T> {
+    let mut a = crate::pool::take_array::<T>(shape);
+    let s = a.as_slice_mut().expect("pooled arrays are contiguous");
+    parallel::for_each_chunk_mut(s, |_, o| o.fill(v));
+    a
+}
+
 /// The single value of a 0-d gradient.
 fn scalar_of<T: Real>(grad: &ArrayViewD<'_, T>) -> T {
     grad.first().copied().unwrap_or_else(T::zero)
@@ -86,15 +102,29 @@ impl<T: Real> Op<T> for Dot {
         if a.shape() != b.shape() {
             return Err(TapeError::shape("dot", a.shape(), b.shape()));
         }
-        let y = Zip::from(a)
-            .and(b)
-            .fold(T::zero(), |acc, &a, &b| acc + a * b);
+        let y = match (a.as_slice(), b.as_slice()) {
+            (Some(a), Some(b)) => parallel::dot_in(a, b),
+            _ => Zip::from(a)
+                .and(b)
+                .fold(T::zero(), |acc, &a, &b| acc + a * b),
+        };
         Ok(vec![ArrayD::from_elem(IxDyn(&[]), y)])
     }
 
     fn backward(&self, args: &BackwardArgs<'_, T>) -> Result<Vec<Option<ArrayD<T>>>> {
         let g = scalar_of(args.grad_out());
-        let scaled = |which: usize| args.input(1 - which).mapv(|v| v * g);
+        let scaled = |which: usize| {
+            let other = args.input(1 - which);
+            match other.as_slice() {
+                Some(x) if x.len() >= crate::pool::MIN_POOLED_LEN => {
+                    let mut out = crate::pool::take_array::<T>(other.shape());
+                    let o = out.as_slice_mut().expect("pooled arrays are contiguous");
+                    parallel::map_into(x, o, |v| v * g);
+                    out
+                }
+                _ => other.mapv(|v| v * g),
+            }
+        };
         Ok(vec![
             args.needs(0).then(|| scaled(0)),
             args.needs(1).then(|| scaled(1)),

@@ -54,6 +54,14 @@ struct Cli {
     command: Option<Command>,
     #[command(flatten)]
     sweep: SweepArgs,
+    /// Threads of the parallel kernels (0: one per core) [default: one per core,
+    /// or RAYON_NUM_THREADS]. Results do not depend on it.
+    #[arg(long, global = true)]
+    threads: Option<usize>,
+    /// Arrays of at least this many elements are split across threads [default:
+    /// 262144, or DIFFPHYS_PARALLEL_MIN_LEN]. Results do not depend on it.
+    #[arg(long, global = true)]
+    parallel_min_len: Option<usize>,
 }
 
 #[derive(Debug, Subcommand)]
@@ -292,6 +300,11 @@ fn run(args: &SweepArgs, started: Instant) -> Result<String> {
     let config = args.config()?;
     let out = prepare_out_dir(&args.out)?;
     println!("timing: {}", config.timing.describe());
+    println!(
+        "threads: {}, arrays split across them from {} elements",
+        diffphys_tape::parallel::threads(),
+        diffphys_tape::parallel::min_parallel_len()
+    );
     let progress = sweep_progress(args.quick);
     let (rows, npy_index) = if args.npy {
         let mut npy = NpyWriter::new(out.join("npy"))?;
@@ -364,6 +377,8 @@ fn run(args: &SweepArgs, started: Instant) -> Result<String> {
         "statistic": config.timing.statistic,
         "policy": config.timing.describe(),
     });
+    tail["threads"] = diffphys_tape::parallel::threads().into();
+    tail["parallel_min_len"] = diffphys_tape::parallel::min_parallel_len().into();
     Ok(tail.to_string())
 }
 
@@ -444,6 +459,15 @@ fn main() -> ExitCode {
             return ExitCode::from(64);
         }
     };
+    if let Some(n) = cli.threads {
+        if let Err(e) = diffphys_tape::parallel::set_threads(n) {
+            eprintln!("error: --threads {n}: {e}");
+            return ExitCode::from(64);
+        }
+    }
+    if let Some(len) = cli.parallel_min_len {
+        diffphys_tape::parallel::set_min_parallel_len(len);
+    }
     let started = Instant::now();
     let (mode, result) = match &cli.command {
         None => ("sweep", run(&cli.sweep, started)),

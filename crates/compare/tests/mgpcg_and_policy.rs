@@ -65,14 +65,20 @@ fn mgpcg_needs_far_fewer_iterations_than_plain_cg_and_hardly_more_on_finer_grids
 }
 
 #[test]
-fn mgpcg_on_a_grid_that_does_not_coarsen_is_a_typed_error() {
-    // 2·67 cells a side: halving stops at 67×67, more than the coarsest direct solve.
+fn mgpcg_handles_sizes_that_halve_to_odd_grids() {
+    // 134 = 2·67: the hierarchy goes 134 → 67 → 34 → 17 → …, with odd levels on
+    // the way; iterations stay those of a power of two.
     let problem = Problem::<f64>::new(ProblemSpec::laplacian(134)).unwrap();
-    let e = ImplicitMgpcg::default()
-        .run(&problem, tol(1e-8))
-        .unwrap_err();
-    assert!(matches!(e, CompareError::Ops(_)), "{e:?}");
-    assert!(e.to_string().contains("multigrid"), "{e}");
+    let exact = ExactCholesky.run(&problem, Stop::Iterations(0)).unwrap();
+    let mg = ImplicitMgpcg::default().run(&problem, tol(1e-8)).unwrap();
+    let err = relative_error(&mg.gradient, &exact.gradient).unwrap();
+    assert!(err <= 1e-6, "relative error {err:e}");
+    assert!(mg.iterations.unwrap() <= 15, "{:?}", mg.iterations);
+    assert!(
+        mg.adjoint_iterations.unwrap() <= 15,
+        "{:?}",
+        mg.adjoint_iterations
+    );
 }
 
 #[test]
@@ -308,4 +314,68 @@ fn naive_alone_is_sized_by_a_plain_solve_stopped_at_the_tape_limit() {
     // Plain CG needs far more than 11 iterations at 32²; the count stopped there.
     let e = r.error.as_deref().unwrap();
     assert!(e.contains("at least 11 unrolled iterations"), "{e}");
+}
+
+/// Runs the quick sweep with every array split across `threads` threads and
+/// returns its results.json rows and its JSON tail.
+fn quick_rows_on(threads: usize) -> (Vec<serde_json::Value>, serde_json::Value) {
+    let dir = std::env::temp_dir().join(format!(
+        "diffphys-cli-threads-{threads}-{}",
+        std::process::id()
+    ));
+    let out = harness()
+        .args(["--quick", "--methods", "implicit,naive,implicit_mgpcg"])
+        .args(["--threads", &threads.to_string(), "--parallel-min-len", "1"])
+        .arg("--out")
+        .arg(&dir)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let last = stdout.lines().rfind(|l| !l.trim().is_empty()).unwrap();
+    let tail: serde_json::Value = serde_json::from_str(last).unwrap();
+    let results: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("results.json")).unwrap()).unwrap();
+    std::fs::remove_dir_all(dir).unwrap();
+    let rows = results["rows"]
+        .as_array()
+        .or_else(|| results.as_array())
+        .expect("results.json holds the rows")
+        .clone();
+    (rows, tail)
+}
+
+#[test]
+fn the_thread_count_changes_no_result_of_the_harness() {
+    let (one, tail_one) = quick_rows_on(1);
+    let (three, tail_three) = quick_rows_on(3);
+    assert_eq!(tail_one["threads"], 1);
+    assert_eq!(tail_three["threads"], 3);
+    assert_eq!(tail_one["parallel_min_len"], 1);
+    assert_eq!(one.len(), three.len());
+    assert!(!one.is_empty());
+    let mut compared = 0;
+    for (a, b) in one.iter().zip(&three) {
+        assert_eq!(a["method"], b["method"]);
+        // Every array was split across the threads (threshold 1), and the
+        // chunked reductions make the numbers bitwise equal.
+        for key in [
+            "loss",
+            "grad_rel_err",
+            "iterations",
+            "reached_relative_residual",
+        ] {
+            assert_eq!(
+                a[key], b[key],
+                "{key} of {} differs: {a} vs {b}",
+                a["method"]
+            );
+            compared += usize::from(!a[key].is_null());
+        }
+    }
+    assert!(compared > 0);
 }

@@ -42,12 +42,32 @@ pub const CHUNK: usize = 4096;
 /// so results do not either.
 pub const PARALLEL_MIN_LEN: usize = 1 << 18;
 
-static MIN_PARALLEL_LEN: AtomicUsize = AtomicUsize::new(PARALLEL_MIN_LEN);
+/// The environment variable that sets [`min_parallel_len`] for a process (a
+/// positive integer; anything else is ignored).
+pub const MIN_LEN_ENV: &str = "DIFFPHYS_PARALLEL_MIN_LEN";
 
-/// The length from which kernels split an array across threads
-/// ([`PARALLEL_MIN_LEN`] unless [`set_min_parallel_len`] changed it).
+/// 0 until the first read, which takes [`MIN_LEN_ENV`] or [`PARALLEL_MIN_LEN`].
+static MIN_PARALLEL_LEN: AtomicUsize = AtomicUsize::new(0);
+
+/// The length from which kernels split an array across threads:
+/// [`set_min_parallel_len`]'s value if it was called, else the
+/// `DIFFPHYS_PARALLEL_MIN_LEN` environment variable if it holds a positive
+/// integer, else [`PARALLEL_MIN_LEN`].
 pub fn min_parallel_len() -> usize {
-    MIN_PARALLEL_LEN.load(Ordering::Relaxed)
+    let len = MIN_PARALLEL_LEN.load(Ordering::Relaxed);
+    if len != 0 {
+        return len;
+    }
+    let from_env = std::env::var(MIN_LEN_ENV)
+        .ok()
+        .and_then(|v| v.trim().parse::<usize>().ok())
+        .filter(|&n| n > 0)
+        .unwrap_or(PARALLEL_MIN_LEN);
+    // A concurrent set_min_parallel_len wins over the environment.
+    match MIN_PARALLEL_LEN.compare_exchange(0, from_env, Ordering::Relaxed, Ordering::Relaxed) {
+        Ok(_) => from_env,
+        Err(set) => set,
+    }
 }
 
 /// Sets the length from which kernels split arrays across threads, for the

@@ -2,6 +2,7 @@
 //! heap bytes, the error against the exact gradient and against finite
 //! differences.
 
+use std::cell::Cell;
 use std::time::Instant;
 
 use diffphys_tape::Real;
@@ -54,21 +55,23 @@ pub fn measure_with<T: Real>(
     row.warmup_runs = policy.warmup;
     // A direct method ignores the stopping rule.
     let stop = stop.unwrap_or(Stop::Iterations(0));
+    let first_peak = Cell::new(None);
     let result = policy.run(
         || {
-            let window = heap.map(HeapWindow::start);
+            let window = cold_heap_window(heap, &first_peak);
             let out = method.run(problem, stop)?;
-            Ok((out, window.map(|w| w.peak_above_baseline())))
+            if let Some(w) = window {
+                first_peak.set(Some(w.peak_above_baseline()));
+            }
+            Ok(out)
         },
-        |(out, _)| out.forward_s + out.backward_s.unwrap_or(0.0),
+        |out| out.forward_s + out.backward_s.unwrap_or(0.0),
     );
     match result {
         Ok(Timed {
-            value: (out, peak),
-            times,
-            ..
+            value: out, times, ..
         }) => {
-            row.peak_heap_bytes = peak;
+            row.peak_heap_bytes = first_peak.get();
             row.run_times_s = times;
             row.forward_s = Some(out.forward_s);
             row.backward_s = out.backward_s;
@@ -87,6 +90,23 @@ pub fn measure_with<T: Real>(
             (row, None)
         }
     }
+}
+
+/// The heap window of a policy's first run (warm-up or timed), `None` for the
+/// others. The first run starts from an empty tape buffer pool
+/// ([`diffphys_tape::pool::clear`]), so its peak counts every buffer the method
+/// needs; later runs reuse pooled buffers (which is what makes them faster) and
+/// would report only what the pool could not supply.
+fn cold_heap_window<'h>(
+    heap: Option<&'h CountingAllocator>,
+    first_peak: &Cell<Option<usize>>,
+) -> Option<HeapWindow<'h>> {
+    let heap = heap?;
+    if first_peak.get().is_some() {
+        return None;
+    }
+    diffphys_tape::pool::clear();
+    Some(HeapWindow::start(heap))
 }
 
 /// The relative error of `gradient`'s directional derivative along a fixed
@@ -172,30 +192,29 @@ pub fn measure_baseline_with<T: Real>(
     let a = StraightforwardLaplacian::negative(&problem.grid);
     let b = problem.b.as_standard_layout();
     let b = b.as_slice().expect("standard layout");
+    let first_peak = Cell::new(None);
     let result = policy.run(
         || {
-            let window = heap.map(HeapWindow::start);
+            let window = cold_heap_window(heap, &first_peak);
             let start = Instant::now();
             let mut x = vec![T::zero(); b.len()];
             let info = baseline_cg(&a, b, &mut x, stop)?;
             let elapsed = start.elapsed().as_secs_f64();
             let finite = x.iter().all(|v| v.is_finite());
-            Ok((
-                info,
-                elapsed,
-                finite,
-                window.map(|w| w.peak_above_baseline()),
-            ))
+            if let Some(w) = window {
+                first_peak.set(Some(w.peak_above_baseline()));
+            }
+            Ok((info, elapsed, finite))
         },
-        |&(_, elapsed, _, _)| elapsed,
+        |&(_, elapsed, _)| elapsed,
     );
     match result {
         Ok(Timed {
-            value: (info, elapsed, finite, peak),
+            value: (info, elapsed, finite),
             times,
             ..
         }) => {
-            row.peak_heap_bytes = peak;
+            row.peak_heap_bytes = first_peak.get();
             row.run_times_s = times;
             row.forward_s = Some(elapsed);
             row.iterations = Some(info.iterations);

@@ -9,6 +9,11 @@
 //! [`TimingPolicy::statistic`] (all its figures from that one run, so forward
 //! and backward add up), with every timed run's total in
 //! [`ResultRow::run_times_s`](crate::report::ResultRow::run_times_s).
+//!
+//! Peak heap is the exception: the tape keeps the buffers of a dropped tape in
+//! a pool ([`diffphys_tape::pool`]) for the next one, so a warm run allocates
+//! almost nothing new. The harness therefore reads a method's peak heap in its
+//! first run (warm-up or not), after emptying the pool.
 
 use serde::{Deserialize, Serialize};
 
@@ -120,7 +125,7 @@ impl TimingPolicy {
         Ok(())
     }
 
-    /// The policy in words: `1 untimed warm-up run, then the best of 3 timed runs`.
+    /// The policy in words: `1 untimed warm-up run, then the best of 3 timed runs, …`.
     pub fn describe(&self) -> String {
         let warm = match self.warmup {
             0 => "no warm-up run".to_string(),
@@ -132,7 +137,10 @@ impl TimingPolicy {
             (r, Statistic::Best) => format!("the best of {r} timed runs"),
             (r, Statistic::Median) => format!("the median of {r} timed runs"),
         };
-        format!("{warm}, then {timed}, for every timed method")
+        format!(
+            "{warm}, then {timed}, for every timed method; peak heap from the first run, \
+             started with an empty tape buffer pool"
+        )
     }
 
     /// Runs `run` `warmup + repeats` times, in that order, and returns the

@@ -22,6 +22,7 @@ pub trait Real: NdFloat + Default + Display + Debug + Send + Sync + 'static {
     /// clash with `num_traits::ToPrimitive::to_f64`, which returns an `Option`.
     fn as_f64(self) -> f64;
     /// Converts a `usize` (rounded for large values).
+    #[inline]
     fn from_usize(n: usize) -> Self {
         Self::from_f64(n as f64)
     }
@@ -36,9 +37,11 @@ pub trait Real: NdFloat + Default + Display + Debug + Send + Sync + 'static {
 impl Real for f32 {
     const NAME: &'static str = "f32";
     const EPS: Self = f32::EPSILON;
+    #[inline]
     fn from_f64(x: f64) -> Self {
         x as f32
     }
+    #[inline]
     fn as_f64(self) -> f64 {
         f64::from(self)
     }
@@ -47,9 +50,11 @@ impl Real for f32 {
 impl Real for f64 {
     const NAME: &'static str = "f64";
     const EPS: Self = f64::EPSILON;
+    #[inline]
     fn from_f64(x: f64) -> Self {
         x
     }
+    #[inline]
     fn as_f64(self) -> f64 {
         self
     }

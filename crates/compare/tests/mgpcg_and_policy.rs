@@ -240,6 +240,21 @@ fn harness() -> std::process::Command {
     std::process::Command::new(env!("CARGO_BIN_EXE_diffphys-compare"))
 }
 
+/// Runs `command`, asserts that it succeeded, and returns its stdout and the
+/// JSON of its last non-empty line.
+fn run_ok(command: &mut std::process::Command) -> (String, serde_json::Value) {
+    let out = command.output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let last = stdout.lines().rfind(|l| !l.trim().is_empty()).unwrap();
+    let tail = serde_json::from_str(last).unwrap();
+    (stdout, tail)
+}
+
 #[test]
 fn the_command_line_rejects_unknown_methods_listing_the_valid_ones() {
     let out = harness()
@@ -260,20 +275,12 @@ fn the_command_line_rejects_unknown_methods_listing_the_valid_ones() {
 #[test]
 fn quick_run_with_selected_methods_ends_with_their_keys_and_the_policy() {
     let dir = std::env::temp_dir().join(format!("diffphys-cli-methods-{}", std::process::id()));
-    let out = harness()
-        .args(["--quick", "--methods", "implicit_mgpcg,exact", "--out"])
-        .arg(&dir)
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
+    let (stdout, tail) = run_ok(
+        harness()
+            .args(["--quick", "--methods", "implicit_mgpcg,exact", "--out"])
+            .arg(&dir),
     );
     assert!(stdout.contains("timing: 1 untimed warm-up run, then 1 timed run"));
-    let last = stdout.lines().rfind(|l| !l.trim().is_empty()).unwrap();
-    let tail: serde_json::Value = serde_json::from_str(last).unwrap();
     let methods = tail["methods"].as_object().unwrap();
     let names: Vec<&str> = methods.keys().map(String::as_str).collect();
     assert_eq!(names.len(), 2, "{names:?}");
@@ -323,21 +330,13 @@ fn quick_rows_on(threads: usize) -> (Vec<serde_json::Value>, serde_json::Value) 
         "diffphys-cli-threads-{threads}-{}",
         std::process::id()
     ));
-    let out = harness()
-        .args(["--quick", "--methods", "implicit,naive,implicit_mgpcg"])
-        .args(["--threads", &threads.to_string(), "--parallel-min-len", "1"])
-        .arg("--out")
-        .arg(&dir)
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
+    let (_, tail) = run_ok(
+        harness()
+            .args(["--quick", "--methods", "implicit,naive,implicit_mgpcg"])
+            .args(["--threads", &threads.to_string(), "--parallel-min-len", "1"])
+            .arg("--out")
+            .arg(&dir),
     );
-    let last = stdout.lines().rfind(|l| !l.trim().is_empty()).unwrap();
-    let tail: serde_json::Value = serde_json::from_str(last).unwrap();
     let results: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("results.json")).unwrap()).unwrap();
     std::fs::remove_dir_all(dir).unwrap();

@@ -50,26 +50,6 @@ pub trait LinearOperator<T: Real> {
             .fold(0.0, |acc, &a, &b| acc + wide(a) * wide(b))
     }
 
-    /// The step of conjugate gradient that ends one iteration and starts the
-    /// next, in one pass over memory if the operator can: `x += α p`,
-    /// `p = (z − m) + β p`, then `q = A p`, returning `⟨p, A p⟩` in `f64` (the
-    /// scalars come as `(α, β, m)`; the slices are row-major, of the operator's
-    /// size). `None` (the default) means the operator has no such pass and the
-    /// solver takes the steps one by one. An implementation must give the same
-    /// values, bit for bit, as those separate steps (`x` and `p` cell by cell as
-    /// written, `q` and the dot product as [`LinearOperator::apply_into_dot`]),
-    /// so that whether it runs changes nothing but the time.
-    fn cg_step_fused(
-        &self,
-        _coefficients: (T, T, T),
-        _z: &[T],
-        _p: &mut [T],
-        _x: &mut [T],
-        _q: &mut [T],
-    ) -> Option<f64> {
-        None
-    }
-
     /// True if `A = Aᵀ` (then solvers may use `apply` for both directions).
     fn is_symmetric(&self) -> bool {
         false

@@ -273,19 +273,11 @@ impl<'a, T: Real, A: LinearOperator<T> + ?Sized> Solver<'a, T, A> {
         b_norm: f64,
     ) -> Result<Stop, CgError> {
         let tol2 = tol * tol;
-        // `<p, A p>` when the last iteration's fused step already computed `q`.
-        let mut fused_pq = None;
         while self.iterations < self.max_iters {
             let it = self.iterations;
-            let pq = match fused_pq.take() {
-                Some(pq) => pq,
-                None => {
-                    let mut q = std::mem::take(&mut self.q);
-                    let pq = self.apply(&self.p, &mut q);
-                    self.q = q;
-                    pq
-                }
-            };
+            let mut q = std::mem::take(&mut self.q);
+            let pq = self.apply(&self.p, &mut q);
+            self.q = q;
             if !pq.is_finite() {
                 return Err(CgError::non_finite(it, "the curvature <p, A p>"));
             }
@@ -360,18 +352,8 @@ impl<'a, T: Real, A: LinearOperator<T> + ?Sized> Solver<'a, T, A> {
             } else {
                 &self.r
             };
-            rz = rz_new;
-            // With the constants as null space (or none), the operator may do
-            // this update and the next iteration's product in one pass.
-            if k.is_none() && self.iterations < self.max_iters {
-                fused_pq =
-                    self.op
-                        .cg_step_fused((alpha_t, beta, m), z, &mut self.p, x, &mut self.q);
-                if fused_pq.is_some() {
-                    continue;
-                }
-            }
             update_direction(alpha_t, beta, m, z, &mut self.p, x, k);
+            rz = rz_new;
         }
         Ok(Stop::Cap)
     }

@@ -80,61 +80,6 @@ impl FivePoint {
         parts.into_iter().sum()
     }
 
-    /// Conjugate gradient's direction update fused with the next product:
-    /// `x += α p; p = (z − m) + β p`, then `q = A p`, returning `⟨p, A p⟩`.
-    ///
-    /// Each row of `p` (and `x`) is updated just before the row of `q` below it
-    /// reads it (the first and the last row, which a periodic axis wraps to,
-    /// before everything), so `p` is read and written once, while in cache,
-    /// instead of once by the update and again by the stencil. Serial. The
-    /// values are those of the update followed by [`FivePoint::run`], bit for
-    /// bit: the same arithmetic per cell, and the dot product summed in the
-    /// same blocks of rows in the same order.
-    pub(crate) fn direction_run<T: Real>(
-        &self,
-        (alpha, beta, m): (T, T, T),
-        z: &[T],
-        p: &mut [T],
-        x: &mut [T],
-        q: &mut [T],
-    ) -> f64 {
-        let (nx, ny) = (self.nx, self.ny);
-        let n = nx * ny;
-        assert!(
-            z.len() == n && p.len() == n && x.len() == n && q.len() == n,
-            "FivePoint: lengths"
-        );
-        if ny == 0 {
-            return 0.0;
-        }
-        let update = |p: &mut [T], x: &mut [T], i: usize| {
-            let r = i * ny..(i + 1) * ny;
-            for ((p, x), &z) in p[r.clone()].iter_mut().zip(&mut x[r.clone()]).zip(&z[r]) {
-                *x += alpha * *p;
-                *p = (z - m) + beta * *p;
-            }
-        };
-        update(p, x, 0);
-        if nx > 1 {
-            update(p, x, nx - 1);
-        }
-        let rows_per_block = (parallel::CHUNK / ny).max(1);
-        let mut parts = Vec::with_capacity(nx.div_ceil(rows_per_block));
-        for i0 in (0..nx).step_by(rows_per_block) {
-            let mut dot = 0.0;
-            for i in i0..(i0 + rows_per_block).min(nx) {
-                if i + 2 < nx {
-                    update(p, x, i + 1);
-                }
-                let o = &mut q[i * ny..(i + 1) * ny];
-                self.row(p, i, o);
-                dot += row_dot(&p[i * ny..(i + 1) * ny], o);
-            }
-            parts.push(dot);
-        }
-        parts.into_iter().sum()
-    }
-
     /// Row `i` of `A x` into `o`.
     #[inline]
     fn row<T: Real>(&self, x: &[T], i: usize, o: &mut [T]) {
@@ -258,20 +203,6 @@ macro_rules! five_point_operator {
             }
             fn apply_into_dot(&self, x: ArrayViewD<'_, T>, out: ArrayViewMutD<'_, T>) -> f64 {
                 self.stencil.apply_view::<T, true>(x, out)
-            }
-            fn cg_step_fused(
-                &self,
-                coefficients: (T, T, T),
-                z: &[T],
-                p: &mut [T],
-                x: &mut [T],
-                q: &mut [T],
-            ) -> Option<f64> {
-                // Large grids run the separate steps on all cores instead.
-                if diffphys_tape::parallel::is_parallel(p.len()) {
-                    return None;
-                }
-                Some(self.stencil.direction_run(coefficients, z, p, x, q))
             }
             fn is_symmetric(&self) -> bool {
                 true
@@ -416,51 +347,6 @@ mod tests {
         Boundary::ZeroDirichlet,
         Boundary::Closed,
     ];
-
-    /// The fused CG step (`x += αp; p = (z − m) + βp; q = Ap`, `⟨p, q⟩`) against
-    /// the same steps one by one, bit for bit, for every boundary pair and for
-    /// grids of one, two and three rows and of more rows than a block holds.
-    #[test]
-    fn fused_cg_step_equals_the_separate_steps_bit_for_bit() {
-        let pseudo = |n: usize, seed: u64| -> Vec<f64> {
-            (0..n)
-                .map(|i| ((i as f64 * 0.7548 + seed as f64 * 0.5698).sin() * 1e3).fract())
-                .collect()
-        };
-        let (alpha, beta, m) = (0.37, 0.81, 0.013);
-        for (nx, ny) in [(1, 9), (2, 7), (3, 5), (9, 11), (300, 37)] {
-            for bx in KINDS {
-                for by in KINDS {
-                    let grid = Grid2::new(nx, ny, 0.3, 0.2, bx)
-                        .unwrap()
-                        .with_boundaries(bx, by);
-                    let a = Laplacian2::negative(grid);
-                    let n = nx * ny;
-                    let z = pseudo(n, 1);
-                    let (mut p1, mut x1) = (pseudo(n, 2), pseudo(n, 3));
-                    let (mut p2, mut x2) = (p1.clone(), x1.clone());
-                    for ((p, x), &z) in p1.iter_mut().zip(&mut x1).zip(&z) {
-                        *x += alpha * *p;
-                        *p = (z - m) + beta * *p;
-                    }
-                    let mut q1 = vec![0.0; n];
-                    let d1 = a.stencil.run::<f64, true>(&p1, &mut q1);
-                    let mut q2 = vec![0.0; n];
-                    // The pass itself: `cg_step_fused` declines on grids that
-                    // another test's lowered threshold makes parallel.
-                    let d2 =
-                        a.stencil
-                            .direction_run((alpha, beta, m), &z, &mut p2, &mut x2, &mut q2);
-                    let label = format!("{nx}×{ny}, {bx:?}/{by:?}");
-                    assert_eq!(d1.to_bits(), d2.to_bits(), "dot, {label}");
-                    let bits = |v: &[f64]| v.iter().map(|e| e.to_bits()).collect::<Vec<_>>();
-                    assert_eq!(bits(&p1), bits(&p2), "p, {label}");
-                    assert_eq!(bits(&x1), bits(&x2), "x, {label}");
-                    assert_eq!(bits(&q1), bits(&q2), "q, {label}");
-                }
-            }
-        }
-    }
 
     /// `A x` from the triplets, as a dense product.
     fn apply_triplets(t: &[(usize, usize, f64)], x: &ArrayD<f64>) -> Vec<f64> {

@@ -8,9 +8,9 @@ mod common;
 
 use common::*;
 use diffphys_ops::advection::{
-    semi_lagrangian_1d, semi_lagrangian_1d_tape, semi_lagrangian_1d_vjp, semi_lagrangian_2d,
-    semi_lagrangian_2d_tape, semi_lagrangian_2d_vjp, upwind_1d, upwind_1d_tape, upwind_1d_vjp,
-    upwind_2d, upwind_2d_tape, upwind_2d_vjp, AdvectionParams, Wants,
+    semi_lagrangian1, SemiLagrangian1, semi_lagrangian1_vjp, semi_lagrangian2,
+    SemiLagrangian2, semi_lagrangian2_vjp, upwind1, Upwind1, upwind1_vjp,
+    upwind2, Upwind2, upwind2_vjp, AdvectionParams, Wants,
 };
 use diffphys_ops::{Boundary, Grid1, Grid2, OpsError};
 use ndarray::{Array1, Array3, ArrayViewD, Ix1, Ix2, Ix3};
@@ -90,7 +90,7 @@ fn upwind_op_matches_its_primitive_chain<T: Real>() {
                 let mut x = d;
                 for _ in 0..3 {
                     x = if fused {
-                        upwind_1d_tape(&grid, &p, x, u).unwrap()
+                        x.tape().apply(Upwind1::new(grid, p), &[x, u]).unwrap()
                     } else {
                         upwind_1d_primitives(&grid, p.dt, x, u).unwrap()
                     };
@@ -118,7 +118,7 @@ fn upwind_op_matches_its_primitive_chain<T: Real>() {
         let tape = Tape::<T>::new();
         let (d, u) = (tape.var(d0.clone()), tape.var(u0.clone()));
         let x = if fused {
-            upwind_2d_tape(&grid, &p, d, u).unwrap()
+            d.tape().apply(Upwind2::new(grid, p), &[d, u]).unwrap()
         } else {
             upwind_2d_primitives(&grid, p.dt, d, u).unwrap()
         };
@@ -150,7 +150,7 @@ fn upwind_field_adjoint_passes_the_dot_product_test<T: Real>() {
             .into_dimensionality::<Ix1>()
             .unwrap();
         let apply = |x: ArrayViewD<'_, T>| {
-            upwind_1d(&grid, &p, x.into_dimensionality().unwrap(), u.view())
+            upwind1(&grid, &p, x.into_dimensionality().unwrap(), u.view())
                 .unwrap()
                 .into_dyn()
         };
@@ -160,7 +160,7 @@ fn upwind_field_adjoint_passes_the_dot_product_test<T: Real>() {
                 field: true,
                 velocity: false,
             };
-            upwind_1d_vjp(
+            upwind1_vjp(
                 &grid,
                 &p,
                 z.view(),
@@ -197,7 +197,7 @@ fn upwind_2d_field_adjoint_passes_the_dot_product_test<T: Real>() {
             .into_dimensionality::<Ix3>()
             .unwrap();
         let apply = |x: ArrayViewD<'_, T>| {
-            upwind_2d(&grid, &p, x.into_dimensionality().unwrap(), u.view())
+            upwind2(&grid, &p, x.into_dimensionality().unwrap(), u.view())
                 .unwrap()
                 .into_dyn()
         };
@@ -208,7 +208,7 @@ fn upwind_2d_field_adjoint_passes_the_dot_product_test<T: Real>() {
                 velocity: false,
             };
             let y = y.into_dimensionality::<Ix2>().unwrap();
-            upwind_2d_vjp(&grid, &p, z.view(), u.view(), y, wants)
+            upwind2_vjp(&grid, &p, z.view(), u.view(), y, wants)
                 .unwrap()
                 .field
                 .unwrap()
@@ -242,8 +242,8 @@ fn upwind_2d_with_closed_walls_in_y_matches_finite_differences() {
             let u = velocity::<f64>(&[2, 6, 5], 44, sign, 1.5);
             assert_gradient(
                 |_, v| {
-                    let d1 = upwind_2d_tape(&grid, &p, v[0], v[1])?;
-                    upwind_2d_tape(&grid, &p, d1, v[1]).map_err(Into::into)
+                    let d1 = v[0].tape().apply(Upwind2::new(grid, p), &[v[0], v[1]])?;
+                    d1.tape().apply(Upwind2::new(grid, p), &[d1, v[1]]).map_err(Into::into)
                 },
                 &[d, u],
             );
@@ -261,8 +261,8 @@ fn upwind_gradients_match_finite_differences() {
             let u = velocity::<f64>(&[13], 11, sign, 2.0);
             assert_gradient(
                 |_, v| {
-                    let d1 = upwind_1d_tape(&grid, &p, v[0], v[1])?;
-                    upwind_1d_tape(&grid, &p, d1, v[1]).map_err(Into::into)
+                    let d1 = v[0].tape().apply(Upwind1::new(grid, p), &[v[0], v[1]])?;
+                    d1.tape().apply(Upwind1::new(grid, p), &[d1, v[1]]).map_err(Into::into)
                 },
                 &[d, u],
             );
@@ -271,8 +271,8 @@ fn upwind_gradients_match_finite_differences() {
             let u = velocity::<f64>(&[2, 6, 4], 13, sign, 1.5);
             assert_gradient(
                 |_, v| {
-                    let d1 = upwind_2d_tape(&grid2, &p, v[0], v[1])?;
-                    upwind_2d_tape(&grid2, &p, d1, v[1]).map_err(Into::into)
+                    let d1 = v[0].tape().apply(Upwind2::new(grid2, p), &[v[0], v[1]])?;
+                    d1.tape().apply(Upwind2::new(grid2, p), &[d1, v[1]]).map_err(Into::into)
                 },
                 &[d, u],
             );
@@ -310,8 +310,8 @@ fn semi_lagrangian_gradients_match_finite_differences() {
             let u = sl_velocity(&[12], 21, 2.0, sign);
             assert_gradient(
                 |_, v| {
-                    let d1 = semi_lagrangian_1d_tape(&grid, dt, v[0], v[1])?;
-                    semi_lagrangian_1d_tape(&grid, dt, d1, v[1]).map_err(Into::into)
+                    let d1 = v[0].tape().apply(SemiLagrangian1::new(grid, dt), &[v[0], v[1]])?;
+                    d1.tape().apply(SemiLagrangian1::new(grid, dt), &[d1, v[1]]).map_err(Into::into)
                 },
                 &[d, u],
             );
@@ -324,8 +324,8 @@ fn semi_lagrangian_gradients_match_finite_differences() {
                 .mapv_inplace(|v| 2.0 * v);
             assert_gradient(
                 |_, v| {
-                    let d1 = semi_lagrangian_2d_tape(&grid2, dt, v[0], v[1])?;
-                    semi_lagrangian_2d_tape(&grid2, dt, d1, v[1]).map_err(Into::into)
+                    let d1 = v[0].tape().apply(SemiLagrangian2::new(grid2, dt), &[v[0], v[1]])?;
+                    d1.tape().apply(SemiLagrangian2::new(grid2, dt), &[d1, v[1]]).map_err(Into::into)
                 },
                 &[d, u],
             );
@@ -345,7 +345,7 @@ fn semi_lagrangian_field_adjoint_passes_the_dot_product_test<T: Real>() {
             .unwrap();
         let dt = 0.35;
         let apply = |x: ArrayViewD<'_, T>| {
-            semi_lagrangian_2d(&grid, dt, x.into_dimensionality().unwrap(), u.view())
+            semi_lagrangian2(&grid, dt, x.into_dimensionality().unwrap(), u.view())
                 .unwrap()
                 .into_dyn()
         };
@@ -356,7 +356,7 @@ fn semi_lagrangian_field_adjoint_passes_the_dot_product_test<T: Real>() {
                 velocity: false,
             };
             let y = y.into_dimensionality::<Ix2>().unwrap();
-            semi_lagrangian_2d_vjp(&grid, dt, z.view(), u.view(), y, wants)
+            semi_lagrangian2_vjp(&grid, dt, z.view(), u.view(), y, wants)
                 .unwrap()
                 .field
                 .unwrap()
@@ -383,7 +383,7 @@ fn semi_lagrangian_1d_field_adjoint_passes_the_dot_product_test<T: Real>() {
             .unwrap();
         let dt = 0.5; // up to 3.25 cells
         let apply = |x: ArrayViewD<'_, T>| {
-            semi_lagrangian_1d(&grid, dt, x.into_dimensionality().unwrap(), u.view())
+            semi_lagrangian1(&grid, dt, x.into_dimensionality().unwrap(), u.view())
                 .unwrap()
                 .into_dyn()
         };
@@ -394,7 +394,7 @@ fn semi_lagrangian_1d_field_adjoint_passes_the_dot_product_test<T: Real>() {
                 velocity: false,
             };
             let y = y.into_dimensionality::<Ix1>().unwrap();
-            semi_lagrangian_1d_vjp(&grid, dt, z.view(), u.view(), y, wants)
+            semi_lagrangian1_vjp(&grid, dt, z.view(), u.view(), y, wants)
                 .unwrap()
                 .field
                 .unwrap()
@@ -420,9 +420,9 @@ fn upwind_at_courant_one_and_semi_lagrangian_at_whole_cells_shift_exactly() {
         .unwrap();
     // u = −1, dt = 0.1: Courant number 1 to the left, d'_i = d_{i+1}.
     let u = Array1::from_elem(10, -1.0);
-    let up = upwind_1d(&grid, &AdvectionParams::new(0.1), d.view(), u.view()).unwrap();
+    let up = upwind1(&grid, &AdvectionParams::new(0.1), d.view(), u.view()).unwrap();
     // The same velocity over 0.3 is three cells for semi-Lagrangian: d'_i = d_{i+3}.
-    let sl = semi_lagrangian_1d(&grid, 0.3, d.view(), u.view()).unwrap();
+    let sl = semi_lagrangian1(&grid, 0.3, d.view(), u.view()).unwrap();
     for i in 0..10 {
         assert!((up[i] - d[(i + 1) % 10]).abs() < 1e-15);
         assert!((sl[i] - d[(i + 3) % 10]).abs() < 1e-12);
@@ -436,7 +436,7 @@ fn cfl_violations_are_typed_errors_unless_allowed() {
     let mut u = Array3::<f64>::zeros((2, 4, 4));
     u[[1, 2, 3]] = -2.5; // Courant number 2.5·0.05/0.1 = 1.25
     let p = AdvectionParams::new(0.05);
-    match upwind_2d(&grid, &p, d.view(), u.view()) {
+    match upwind2(&grid, &p, d.view(), u.view()) {
         Err(OpsError::Cfl { courant, limit, op }) => {
             assert!((courant - 1.25).abs() < 1e-12);
             assert_eq!(limit, 1.0);
@@ -444,13 +444,13 @@ fn cfl_violations_are_typed_errors_unless_allowed() {
         }
         other => panic!("expected a CFL error, got {other:?}"),
     }
-    assert!(upwind_2d(&grid, &p.allowing_cfl_violation(), d.view(), u.view()).is_ok());
+    assert!(upwind2(&grid, &p.allowing_cfl_violation(), d.view(), u.view()).is_ok());
     // Semi-Lagrangian has no CFL limit.
-    assert!(semi_lagrangian_2d(&grid, 0.05, d.view(), u.view()).is_ok());
+    assert!(semi_lagrangian2(&grid, 0.05, d.view(), u.view()).is_ok());
     // On the tape the error names the op.
     let tape = Tape::<f64>::new();
     let dv = tape.var(d.into_dyn());
     let uv = tape.var(u.into_dyn());
-    let err = upwind_2d_tape(&grid, &p, dv, uv).unwrap_err();
+    let err = dv.tape().apply(Upwind2::new(grid, p), &[dv, uv]).unwrap_err();
     assert!(err.to_string().contains("upwind_2d"), "{err}");
 }

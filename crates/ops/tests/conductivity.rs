@@ -8,7 +8,7 @@ mod common;
 use common::*;
 use diffphys_ops::cg::{CgParams, NullSpace};
 use diffphys_ops::conductivity::{
-    conductivity_solve, conductivity_solve_tape, Conductivity2, ConductivitySolve,
+    conductivity_solve, Conductivity2, ConductivitySolve,
 };
 use diffphys_ops::reference::SparseCholesky;
 use diffphys_ops::{Boundary, Grid2, LinearOperator, OpsError};
@@ -97,10 +97,10 @@ fn gradients_in_b_and_k_match_finite_differences() {
         assert_gradient(
             |tape, v| {
                 let solve = ConductivitySolve::new(grid, params.clone());
-                let p = conductivity_solve_tape(solve, v[0], v[1])?;
+                let p = v[0].tape().apply(solve, &[v[0], v[1]])?;
                 // A second solve with the same k feeds p back in: k enters twice.
                 let q =
-                    conductivity_solve_tape(ConductivitySolve::new(grid, params.clone()), p, v[1])?;
+                    p.tape().apply(ConductivitySolve::new(grid, params.clone()), &[p, v[1]])?;
                 let d = q.sub(tape.constant(t.clone()))?;
                 d.mul(d)?.sum()?.mul_scalar(0.5)
             },
@@ -150,7 +150,7 @@ fn gradients_match_the_exact_gradient() {
         let (bv, kv) = (tape.var(b.clone()), tape.var(k.clone().into_dyn()));
         let solve = ConductivitySolve::new(grid, params);
         let log = solve.log();
-        let pv = conductivity_solve_tape(solve, bv, kv).unwrap();
+        let pv = bv.tape().apply(solve, &[bv, kv]).unwrap();
         let d = pv.sub(tape.constant(t.clone())).unwrap();
         let l = d.mul(d).unwrap().sum().unwrap().mul_scalar(0.5).unwrap();
         let grads = tape.backward(l, &[bv, kv]).unwrap();
@@ -209,7 +209,7 @@ fn bad_conductivities_and_boundaries_are_typed_errors() {
     let tape = Tape::<f64>::new();
     let b = tape.var(ArrayD::ones(vec![4, 3]));
     let kv = tape.var(ArrayD::from_elem(vec![4, 3], -1.0));
-    let e = conductivity_solve_tape(ConductivitySolve::new(grid, CgParams::default()), b, kv)
+    let e = b.tape().apply(ConductivitySolve::new(grid, CgParams::default()), &[b, kv])
         .unwrap_err();
     let text = e.to_string();
     assert!(

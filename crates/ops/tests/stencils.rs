@@ -11,7 +11,7 @@ use diffphys_ops::stencil::{
     DiffusionParams, Divergence1, Divergence2, ExplicitDiffusion1, ExplicitDiffusion2, Gradient1,
     Gradient2, Laplacian1, Laplacian2,
 };
-use diffphys_ops::tape_ops::{apply_linear, apply_linear_transpose};
+use diffphys_ops::tape_ops::LinearOp;
 use diffphys_ops::{Boundary, Grid1, Grid2, LinearOperator};
 use ndarray::{Array1, Array2, IxDyn};
 
@@ -182,9 +182,9 @@ fn gradients_through_the_tape_adapter<T: Real>() {
     // f(x) = ½ xᵀ(−∇²)x + Σ (Gᵀ G x)², ∂f/∂x = (−∇²) x + 4 GᵀG GᵀG x.
     assert_gradient(
         |tape, v| {
-            let ax = apply_linear(Arc::clone(&lap), v[0])?;
-            let gx = apply_linear(Arc::clone(&grad), v[0])?;
-            let gtgx = apply_linear_transpose(Arc::clone(&grad), gx)?;
+            let ax = v[0].tape().apply(LinearOp::new(Arc::clone(&lap)), &[v[0]])?;
+            let gx = v[0].tape().apply(LinearOp::new(Arc::clone(&grad)), &[v[0]])?;
+            let gtgx = gx.tape().apply(LinearOp::transposed(Arc::clone(&grad)), &[gx])?;
             let half = tape.scalar(T::from_f64(0.5));
             v[0].dot(ax)?.mul(half)?.add(gtgx.dot(gtgx)?)
         },

@@ -1,7 +1,7 @@
 //! Study 6: long unrolls of upwind advection at Courant numbers below and
 //! above 1.
 
-use diffphys_ops::advection::{upwind_1d_tape, AdvectionParams};
+use diffphys_ops::advection::{Upwind1, AdvectionParams};
 use diffphys_ops::{Boundary, Grid1, OpsError};
 use diffphys_tape::{Real, Tape, TapeError, Var};
 use ndarray::Array1;
@@ -54,7 +54,7 @@ fn unroll_scene(n: usize, cfl: f64) -> Result<(Grid1, AdvectionParams, [Array1<f
 ///
 /// # Errors
 /// [`CompareError::UnrollStep`] naming the step and the op (a non-finite value
-/// in the forward or the backward of `upwind_1d`, or of the loss); setup errors.
+/// in the forward or the backward of `upwind_1d` (the op's name in messages), or of the loss); setup errors.
 pub fn unroll_gradient<T: Real>(n: usize, cfl: f64, steps: usize) -> Result<(f64, f64, f64)> {
     let (grid, params, [d0, u, target]) = unroll_scene(n, cfl)?;
     let tape = Tape::<T>::new();
@@ -65,7 +65,7 @@ pub fn unroll_gradient<T: Real>(n: usize, cfl: f64, steps: usize) -> Result<(f64
     let mut step_inputs = Vec::with_capacity(steps + 1);
     for step in 0..steps {
         step_inputs.push(d);
-        d = upwind_1d_tape(&grid, &params, d, u)
+        d = d.tape().apply(Upwind1::new(grid, params), &[d, u])
             .map_err(|source| CompareError::UnrollStep { step, source })?;
     }
     step_inputs.push(d);

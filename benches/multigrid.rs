@@ -42,7 +42,7 @@ fn implicit_gradient(problem: &Problem<f64>, params: CgParams) -> (Array2<f64>, 
     let log = solve.log();
     let tape = Tape::<f64>::new();
     let b = tape.var(problem.b.clone().into_dyn());
-    let p = b.tape().apply(solve, &[b]).expect("the solve converges");
+    let p = tape.apply(solve, &[b]).expect("the solve converges");
     let d = p
         .sub(tape.constant(problem.target.clone().into_dyn()))
         .expect("shapes");

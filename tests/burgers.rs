@@ -59,9 +59,10 @@ fn simulate<'t>(
     mut u: Var<'t, f64>,
     steps: usize,
 ) -> diffphys::tape::Result<Var<'t, f64>> {
+    let tape = u.tape();
     for _ in 0..steps {
-        let diffused = u.tape().apply(LinearOp::new(Arc::clone(&s.diffusion)), &[u])?;
-        u = diffused.tape().apply(SemiLagrangian1::new(s.grid, s.dt), &[diffused, diffused])?;
+        let diffused = tape.apply(LinearOp::new(Arc::clone(&s.diffusion)), &[u])?;
+        u = tape.apply(SemiLagrangian1::new(s.grid, s.dt), &[diffused, diffused])?;
     }
     Ok(u)
 }

@@ -54,8 +54,10 @@ impl Burgers {
 
     /// One step on the tape: diffuse, then advect the diffused state by itself.
     pub fn step<'t>(&self, u: Var<'t, f64>) -> Result<Var<'t, f64>, BoxError> {
-        let diffused = u.tape().apply(LinearOp::new(Arc::clone(&self.diffusion)), &[u])?;
-        Ok(diffused.tape().apply(SemiLagrangian1::new(self.grid, self.dt), &[diffused, diffused])?)
+        let tape = u.tape();
+        let diffused = tape.apply(LinearOp::new(Arc::clone(&self.diffusion)), &[u])?;
+        let advect = SemiLagrangian1::new(self.grid, self.dt);
+        Ok(tape.apply(advect, &[diffused, diffused])?)
     }
 
     /// The observed state `P(u₀)` (16 steps) of one `[N]` state, on the tape.

@@ -62,7 +62,7 @@ fn poisson_gradients<T: Real + WithDType>(rtol: f64) -> (ArrayD<T>, ArrayD<T>) {
 
     let tape = Tape::<T>::new();
     let bt = tape.var(b);
-    let x = bt.tape().apply(PoissonSolve::new(op, params), &[bt]).unwrap();
+    let x = tape.apply(PoissonSolve::new(op, params), &[bt]).unwrap();
     let loss = x
         .mul(x)
         .unwrap()
@@ -103,7 +103,7 @@ fn upwind_gradients<T: Real + WithDType>() -> [(ArrayD<T>, ArrayD<T>); 2] {
 
     let tape = Tape::<T>::new();
     let (dt, ut) = (tape.var(d), tape.var(u));
-    let out = dt.tape().apply(Upwind1::new(grid, params), &[dt, ut]).unwrap();
+    let out = tape.apply(Upwind1::new(grid, params), &[dt, ut]).unwrap();
     let loss = out
         .mul(out)
         .unwrap()

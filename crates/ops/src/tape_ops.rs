@@ -8,7 +8,7 @@
 //! let lap = Arc::new(Laplacian1::new(Grid1::new(4, 1.0, 0.0, Boundary::Periodic)?));
 //! let tape = Tape::<f64>::new();
 //! let x = tape.var(arr_dyn(&[0.0, 1.0, 0.0, 0.0]));
-//! let y = x.tape().apply(LinearOp::new(Arc::clone(&lap)), &[x])?; // ∇²x = [1, −2, 1, 0]
+//! let y = tape.apply(LinearOp::new(Arc::clone(&lap)), &[x])?; // ∇²x = [1, −2, 1, 0]
 //! let loss = y.sum()?;
 //! let grads = tape.backward(loss, &[x])?;
 //! // grad_x = Aᵀ·1 = 0: the periodic Laplacian sums to zero over each column.

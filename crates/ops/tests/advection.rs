@@ -118,7 +118,7 @@ fn upwind_op_matches_its_primitive_chain<T: Real>() {
         let tape = Tape::<T>::new();
         let (d, u) = (tape.var(d0.clone()), tape.var(u0.clone()));
         let x = if fused {
-            d.tape().apply(Upwind2::new(grid, p), &[d, u]).unwrap()
+            tape.apply(Upwind2::new(grid, p), &[d, u]).unwrap()
         } else {
             upwind_2d_primitives(&grid, p.dt, d, u).unwrap()
         };
@@ -241,9 +241,9 @@ fn upwind_2d_with_closed_walls_in_y_matches_finite_differences() {
             let d = random_field::<f64>(&[6, 5], 43);
             let u = velocity::<f64>(&[2, 6, 5], 44, sign, 1.5);
             assert_gradient(
-                |_, v| {
-                    let d1 = v[0].tape().apply(Upwind2::new(grid, p), &[v[0], v[1]])?;
-                    d1.tape().apply(Upwind2::new(grid, p), &[d1, v[1]]).map_err(Into::into)
+                |t, v| {
+                    let d1 = t.apply(Upwind2::new(grid, p), &[v[0], v[1]])?;
+                    t.apply(Upwind2::new(grid, p), &[d1, v[1]]).map_err(Into::into)
                 },
                 &[d, u],
             );
@@ -260,9 +260,9 @@ fn upwind_gradients_match_finite_differences() {
             let d = random_field::<f64>(&[13], 10);
             let u = velocity::<f64>(&[13], 11, sign, 2.0);
             assert_gradient(
-                |_, v| {
-                    let d1 = v[0].tape().apply(Upwind1::new(grid, p), &[v[0], v[1]])?;
-                    d1.tape().apply(Upwind1::new(grid, p), &[d1, v[1]]).map_err(Into::into)
+                |t, v| {
+                    let d1 = t.apply(Upwind1::new(grid, p), &[v[0], v[1]])?;
+                    t.apply(Upwind1::new(grid, p), &[d1, v[1]]).map_err(Into::into)
                 },
                 &[d, u],
             );
@@ -270,9 +270,9 @@ fn upwind_gradients_match_finite_differences() {
             let d = random_field::<f64>(&[6, 4], 12);
             let u = velocity::<f64>(&[2, 6, 4], 13, sign, 1.5);
             assert_gradient(
-                |_, v| {
-                    let d1 = v[0].tape().apply(Upwind2::new(grid2, p), &[v[0], v[1]])?;
-                    d1.tape().apply(Upwind2::new(grid2, p), &[d1, v[1]]).map_err(Into::into)
+                |t, v| {
+                    let d1 = t.apply(Upwind2::new(grid2, p), &[v[0], v[1]])?;
+                    t.apply(Upwind2::new(grid2, p), &[d1, v[1]]).map_err(Into::into)
                 },
                 &[d, u],
             );
@@ -309,9 +309,9 @@ fn semi_lagrangian_gradients_match_finite_differences() {
             let d = random_field::<f64>(&[12], 20);
             let u = sl_velocity(&[12], 21, 2.0, sign);
             assert_gradient(
-                |_, v| {
-                    let d1 = v[0].tape().apply(SemiLagrangian1::new(grid, dt), &[v[0], v[1]])?;
-                    d1.tape().apply(SemiLagrangian1::new(grid, dt), &[d1, v[1]]).map_err(Into::into)
+                |t, v| {
+                    let d1 = t.apply(SemiLagrangian1::new(grid, dt), &[v[0], v[1]])?;
+                    t.apply(SemiLagrangian1::new(grid, dt), &[d1, v[1]]).map_err(Into::into)
                 },
                 &[d, u],
             );
@@ -323,9 +323,9 @@ fn semi_lagrangian_gradients_match_finite_differences() {
             u.index_axis_mut(ndarray::Axis(0), 1)
                 .mapv_inplace(|v| 2.0 * v);
             assert_gradient(
-                |_, v| {
-                    let d1 = v[0].tape().apply(SemiLagrangian2::new(grid2, dt), &[v[0], v[1]])?;
-                    d1.tape().apply(SemiLagrangian2::new(grid2, dt), &[d1, v[1]]).map_err(Into::into)
+                |t, v| {
+                    let d1 = t.apply(SemiLagrangian2::new(grid2, dt), &[v[0], v[1]])?;
+                    t.apply(SemiLagrangian2::new(grid2, dt), &[d1, v[1]]).map_err(Into::into)
                 },
                 &[d, u],
             );
@@ -451,6 +451,6 @@ fn cfl_violations_are_typed_errors_unless_allowed() {
     let tape = Tape::<f64>::new();
     let dv = tape.var(d.into_dyn());
     let uv = tape.var(u.into_dyn());
-    let err = dv.tape().apply(Upwind2::new(grid, p), &[dv, uv]).unwrap_err();
+    let err = tape.apply(Upwind2::new(grid, p), &[dv, uv]).unwrap_err();
     assert!(err.to_string().contains("upwind_2d"), "{err}");
 }

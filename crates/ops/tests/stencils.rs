@@ -182,9 +182,9 @@ fn gradients_through_the_tape_adapter<T: Real>() {
     // f(x) = ½ xᵀ(−∇²)x + Σ (Gᵀ G x)², ∂f/∂x = (−∇²) x + 4 GᵀG GᵀG x.
     assert_gradient(
         |tape, v| {
-            let ax = v[0].tape().apply(LinearOp::new(Arc::clone(&lap)), &[v[0]])?;
-            let gx = v[0].tape().apply(LinearOp::new(Arc::clone(&grad)), &[v[0]])?;
-            let gtgx = gx.tape().apply(LinearOp::transposed(Arc::clone(&grad)), &[gx])?;
+            let ax = tape.apply(LinearOp::new(Arc::clone(&lap)), &[v[0]])?;
+            let gx = tape.apply(LinearOp::new(Arc::clone(&grad)), &[v[0]])?;
+            let gtgx = tape.apply(LinearOp::transposed(Arc::clone(&grad)), &[gx])?;
             let half = tape.scalar(T::from_f64(0.5));
             v[0].dot(ax)?.mul(half)?.add(gtgx.dot(gtgx)?)
         },

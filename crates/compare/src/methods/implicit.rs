@@ -138,7 +138,7 @@ pub fn run_implicit_preconditioned<T: Real>(
 
     let start = Instant::now();
     let b = tape.var(problem.b.clone().into_dyn());
-    let p = b.tape().apply(solve, &[b])?;
+    let p = tape.apply(solve, &[b])?;
     let loss = problem.recorded_loss(p)?;
     let loss_value = loss.item()?.as_f64();
     let forward_s = start.elapsed().as_secs_f64();

@@ -477,9 +477,9 @@ mod tests {
                 let u = velocity(&[n], seed, 2.0);
                 let d = test_array::<f64>(&[n], 10 + seed);
                 let report = check_gradient(
-                    |_, v| {
-                        let d1 = v[0].tape().apply(SemiLagrangian1::new(grid, dt), &[v[0], v[1]])?;
-                        Ok(d1.tape().apply(SemiLagrangian1::new(grid, dt), &[d1, v[1]])?)
+                    |t, v| {
+                        let d1 = t.apply(SemiLagrangian1::new(grid, dt), &[v[0], v[1]])?;
+                        Ok(t.apply(SemiLagrangian1::new(grid, dt), &[d1, v[1]])?)
                     },
                     &[d, u],
                     GradCheckOptions::for_type::<f64>(),
@@ -502,9 +502,9 @@ mod tests {
                 let u = velocity(&[2, nx, ny], 5, 1.0);
                 let d = test_array::<f64>(&[nx, ny], 6);
                 let report = check_gradient(
-                    |_, v| {
-                        let d1 = v[0].tape().apply(SemiLagrangian2::new(grid, dt), &[v[0], v[1]])?;
-                        Ok(d1.tape().apply(SemiLagrangian2::new(grid, dt), &[d1, v[1]])?)
+                    |t, v| {
+                        let d1 = t.apply(SemiLagrangian2::new(grid, dt), &[v[0], v[1]])?;
+                        Ok(t.apply(SemiLagrangian2::new(grid, dt), &[d1, v[1]])?)
                     },
                     &[d, u],
                     GradCheckOptions::for_type::<f64>(),
@@ -522,7 +522,7 @@ mod tests {
         let grid = Grid1::new(n, 0.25, 0.0, Boundary::Periodic).unwrap();
         let u = velocity(&[n], 7, 2.0);
         let report = check_gradient(
-            |_, v| Ok(v[0].tape().apply(SemiLagrangian1::new(grid, 0.5), &[v[0], v[0]])?),
+            |t, v| Ok(t.apply(SemiLagrangian1::new(grid, 0.5), &[v[0], v[0]])?),
             &[u],
             GradCheckOptions::for_type::<f64>(),
         )

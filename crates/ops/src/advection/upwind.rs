@@ -505,10 +505,10 @@ mod tests {
             {
                 let d = test_array::<f64>(&[n], 10 + k as u64);
                 let report = check_gradient(
-                    |_, v| {
+                    |t, v| {
                         // two steps, so the field gradient also flows into the velocity one
-                        let d1 = v[0].tape().apply(Upwind1::new(grid, params), &[v[0], v[1]])?;
-                        Ok(d1.tape().apply(Upwind1::new(grid, params), &[d1, v[1]])?)
+                        let d1 = t.apply(Upwind1::new(grid, params), &[v[0], v[1]])?;
+                        Ok(t.apply(Upwind1::new(grid, params), &[d1, v[1]])?)
                     },
                     &[d, u],
                     GradCheckOptions::for_type::<f64>(),
@@ -538,9 +538,9 @@ mod tests {
                 {
                     let d = test_array::<f64>(&[nx, ny], 20 + k as u64);
                     let report = check_gradient(
-                        |_, v| {
-                            let d1 = v[0].tape().apply(Upwind2::new(grid, params), &[v[0], v[1]])?;
-                            Ok(d1.tape().apply(Upwind2::new(grid, params), &[d1, v[1]])?)
+                        |t, v| {
+                            let d1 = t.apply(Upwind2::new(grid, params), &[v[0], v[1]])?;
+                            Ok(t.apply(Upwind2::new(grid, params), &[d1, v[1]])?)
                         },
                         &[d, u],
                         GradCheckOptions::for_type::<f64>(),
@@ -599,7 +599,7 @@ mod tests {
         let tape = diffphys_tape::Tape::<f64>::new();
         let dv = tape.constant(d.into_dyn());
         let uv = tape.var(u.into_dyn());
-        let out = dv.tape().apply(Upwind1::new(grid, p), &[dv, uv]).unwrap().sum().unwrap();
+        let out = tape.apply(Upwind1::new(grid, p), &[dv, uv]).unwrap().sum().unwrap();
         let grads = tape.backward(out, &[uv]).unwrap();
         assert!(grads.get(uv).is_some());
     }
@@ -637,7 +637,7 @@ mod tests {
         let tape = diffphys_tape::Tape::<f64>::new();
         let dv = tape.var(d.into_dyn());
         let uv = tape.var(u.into_dyn());
-        let err = dv.tape().apply(Upwind1::new(grid, AdvectionParams::new(0.05)), &[dv, uv]).unwrap_err();
+        let err = tape.apply(Upwind1::new(grid, AdvectionParams::new(0.05)), &[dv, uv]).unwrap_err();
         assert!(err.to_string().contains("CFL"), "{err}");
     }
 

@@ -461,28 +461,3 @@ impl<T: Real> Op<T> for ConductivitySolve<T> {
         Ok(vec![args.needs(0).then_some(lambda), grad_k])
     }
 }
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::stencil::Laplacian2;
-    use diffphys_tape::test_array;
-
-    #[test]
-    fn unit_conductivity_is_the_negative_laplacian() {
-        for b in [Boundary::ZeroDirichlet, Boundary::Closed] {
-            let grid = Grid2::new(5, 4, 0.3, 0.2, b).unwrap();
-            let ones = ndarray::Array2::<f64>::ones((5, 4));
-            let a = Conductivity2::new(grid, ones.view()).unwrap();
-            let x = test_array::<f64>(&[5, 4], 3);
-            let want = Laplacian2::negative(grid).apply(x.view()).unwrap();
-            let got = LinearOperator::<f64>::apply(&a, x.view()).unwrap();
-            for (p, q) in got.iter().zip(&want) {
-                assert!(
-                    (p - q).abs() <= 1e-12 * q.abs().max(1.0),
-                    "{b:?}: {p} vs {q}"
-                );
-            }
-        }
-    }
-}

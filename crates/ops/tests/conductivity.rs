@@ -11,6 +11,7 @@ use diffphys_ops::conductivity::{
     conductivity_solve, Conductivity2, ConductivitySolve,
 };
 use diffphys_ops::reference::SparseCholesky;
+use diffphys_ops::stencil::Laplacian2;
 use diffphys_ops::{Boundary, Grid2, LinearOperator, OpsError};
 use ndarray::{Array2, ArrayD, Ix2};
 
@@ -217,3 +218,22 @@ fn bad_conductivities_and_boundaries_are_typed_errors() {
         "{text}"
     );
 }
+
+#[test]
+fn unit_conductivity_is_the_negative_laplacian() {
+    for b in [Boundary::ZeroDirichlet, Boundary::Closed] {
+        let grid = Grid2::new(5, 4, 0.3, 0.2, b).unwrap();
+        let ones = ndarray::Array2::<f64>::ones((5, 4));
+        let a = Conductivity2::new(grid, ones.view()).unwrap();
+        let x = diffphys_tape::test_array::<f64>(&[5, 4], 3);
+        let want = Laplacian2::negative(grid).apply(x.view()).unwrap();
+        let got = LinearOperator::<f64>::apply(&a, x.view()).unwrap();
+        for (p, q) in got.iter().zip(&want) {
+            assert!(
+                (p - q).abs() <= 1e-12 * q.abs().max(1.0),
+                "{b:?}: {p} vs {q}"
+            );
+        }
+    }
+}
+

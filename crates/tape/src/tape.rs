@@ -367,7 +367,7 @@ impl<'t, T: Real> Var<'t, T> {
     /// # Errors
     /// [`TapeError::InvalidArgument`] if the value is not 1-D.
     pub fn to_array1(&self) -> Result<Array1<T>> {
-        self.to_array_of::<Ix1>("to_array1")
+        self.array_of_rank::<Ix1>("to_array1")
     }
 
     /// A copy of its value as a 2-D array (the shape of a field on a `Grid2`).
@@ -375,10 +375,10 @@ impl<'t, T: Real> Var<'t, T> {
     /// # Errors
     /// [`TapeError::InvalidArgument`] if the value is not 2-D.
     pub fn to_array2(&self) -> Result<Array2<T>> {
-        self.to_array_of::<Ix2>("to_array2")
+        self.array_of_rank::<Ix2>("to_array2")
     }
 
-    fn to_array_of<D: Dimension>(&self, what: &str) -> Result<Array<T, D>> {
+    fn array_of_rank<D: Dimension>(&self, what: &str) -> Result<Array<T, D>> {
         self.to_array().into_dimensionality::<D>().map_err(|_| {
             TapeError::invalid(
                 what,

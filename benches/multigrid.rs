@@ -25,7 +25,7 @@ use diffphys::compare::methods::{GradientMethod, Stop};
 use diffphys::compare::problem::{Problem, ProblemSpec};
 use diffphys::ops::cg::{CgParams, Preconditioner};
 use diffphys::ops::multigrid::Multigrid;
-use diffphys::ops::poisson::{PoissonSolve};
+use diffphys::ops::poisson::PoissonSolve;
 use diffphys::Tape;
 use ndarray::Array2;
 

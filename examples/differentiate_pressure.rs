@@ -29,9 +29,7 @@ use diffphys::compare::chart::{heatmap_svg, line_chart_svg, quiver_svg, LineChar
 use diffphys::ops::cg::CgParams;
 use diffphys::ops::mac::MacGrid;
 use diffphys::ops::poisson::{SolveLog, WarmStart};
-use diffphys::ops::projection::{
-    max_abs_divergence, PressureProjection, ProjectionOp,
-};
+use diffphys::ops::projection::{max_abs_divergence, PressureProjection, ProjectionOp};
 use diffphys::ops::reference::SparseCholesky;
 use diffphys::{ArrayD, Boundary, Grid2, Tape};
 use ndarray::{Array2, Ix2, Zip};

@@ -5,9 +5,9 @@ use std::sync::Arc;
 
 use candle_core::{DType, Device, Tensor, Var as CandleVar, WithDType};
 use diffphys_candle::{CandlePoisson, CandleUpwind1};
-use diffphys_ops::advection::{Upwind1, AdvectionParams};
+use diffphys_ops::advection::{AdvectionParams, Upwind1};
 use diffphys_ops::cg::CgParams;
-use diffphys_ops::poisson::{PoissonSolve};
+use diffphys_ops::poisson::PoissonSolve;
 use diffphys_ops::stencil::Laplacian2;
 use diffphys_ops::{Boundary, Grid1, Grid2};
 use diffphys_tape::{test_array, ArrayD, Real, Tape};

@@ -149,7 +149,11 @@ impl<T: Scalar> Params<T> {
     /// constants are not recorded; do not pass the result to [`Params::step`].
     pub fn bind_frozen<'t>(&self, tape: &'t Tape<T>) -> Bound<'t, T> {
         Bound {
-            vars: self.values.iter().map(|v| tape.constant(v.clone())).collect(),
+            vars: self
+                .values
+                .iter()
+                .map(|v| tape.constant(v.clone()))
+                .collect(),
         }
     }
 

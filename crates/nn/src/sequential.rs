@@ -114,9 +114,7 @@ impl Mlp {
         if sizes.len() < 2 {
             return Err(NnError::Config {
                 layer: format!("mlp {name:?}"),
-                message: format!(
-                    "sizes {sizes:?}: need at least the input and the output size"
-                ),
+                message: format!("sizes {sizes:?}: need at least the input and the output size"),
             });
         }
         let last = sizes.len() - 2;

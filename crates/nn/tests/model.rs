@@ -2,8 +2,8 @@
 //! deterministic training, and a non-finite loss.
 
 use diffphys_nn::{
-    check_loss, stack, Activation, Conv1, Conv2, ConvConfig, Dense, Init, Layer, NnError,
-    Padding, Params, UNet, UNetConfig,
+    check_loss, stack, Activation, Conv1, Conv2, ConvConfig, Dense, Init, Layer, NnError, Padding,
+    Params, UNet, UNetConfig,
 };
 use diffphys_tape::{test_array, Adam, ArrayD, IxDyn, Tape, TapeError};
 use rand::SeedableRng;

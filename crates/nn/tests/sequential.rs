@@ -37,7 +37,10 @@ fn mlp_gradients_match_finite_differences() {
         )
         .unwrap();
         assert!(report.passed, "{activation:?}: {report:?}");
-        assert_eq!(report.entries, 4 * 3 + (3 * 5 + 5) + (5 * 4 + 4) + (4 * 2 + 2));
+        assert_eq!(
+            report.entries,
+            4 * 3 + (3 * 5 + 5) + (5 * 4 + 4) + (4 * 2 + 2)
+        );
     }
 }
 
@@ -77,7 +80,10 @@ fn sequential_gradients_match_finite_differences_and_equal_the_layers_in_turn() 
     let p = params.bind(&tape);
     let x = tape.constant(inputs[0].clone());
     let by_hand = d2
-        .forward(&p, Activation::Tanh.apply(d1.forward(&p, x).unwrap()).unwrap())
+        .forward(
+            &p,
+            Activation::Tanh.apply(d1.forward(&p, x).unwrap()).unwrap(),
+        )
         .unwrap();
     assert_eq!(net.forward(&p, x).unwrap().to_array(), by_hand.to_array());
 }

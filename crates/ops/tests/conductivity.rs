@@ -7,9 +7,7 @@ mod common;
 
 use common::*;
 use diffphys_ops::cg::{CgParams, NullSpace};
-use diffphys_ops::conductivity::{
-    conductivity_solve, Conductivity2, ConductivitySolve,
-};
+use diffphys_ops::conductivity::{conductivity_solve, Conductivity2, ConductivitySolve};
 use diffphys_ops::reference::SparseCholesky;
 use diffphys_ops::stencil::Laplacian2;
 use diffphys_ops::{Boundary, Grid2, LinearOperator, OpsError};
@@ -100,8 +98,7 @@ fn gradients_in_b_and_k_match_finite_differences() {
                 let solve = ConductivitySolve::new(grid, params.clone());
                 let p = tape.apply(solve, &[v[0], v[1]])?;
                 // A second solve with the same k feeds p back in: k enters twice.
-                let q =
-                    tape.apply(ConductivitySolve::new(grid, params.clone()), &[p, v[1]])?;
+                let q = tape.apply(ConductivitySolve::new(grid, params.clone()), &[p, v[1]])?;
                 let d = q.sub(tape.constant(t.clone()))?;
                 d.mul(d)?.sum()?.mul_scalar(0.5)
             },
@@ -210,7 +207,8 @@ fn bad_conductivities_and_boundaries_are_typed_errors() {
     let tape = Tape::<f64>::new();
     let b = tape.var(ArrayD::ones(vec![4, 3]));
     let kv = tape.var(ArrayD::from_elem(vec![4, 3], -1.0));
-    let e = tape.apply(ConductivitySolve::new(grid, CgParams::default()), &[b, kv])
+    let e = tape
+        .apply(ConductivitySolve::new(grid, CgParams::default()), &[b, kv])
         .unwrap_err();
     let text = e.to_string();
     assert!(
@@ -236,4 +234,3 @@ fn unit_conductivity_is_the_negative_laplacian() {
         }
     }
 }
-

@@ -44,4 +44,3 @@ fn dense_operator_adjoint_diagonal_and_triplets() {
     let d = LinearOperator::<f64>::diagonal(&sq).unwrap();
     assert_eq!(d.as_slice().unwrap(), &[4.0, 3.0]);
 }
-

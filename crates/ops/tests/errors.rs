@@ -25,4 +25,3 @@ fn errors_keep_their_kind_through_the_tape() {
     };
     assert_eq!(TapeError::from(cg).kind(), ErrorKind::InvalidArgument);
 }
-

@@ -36,4 +36,3 @@ fn bad_grids_are_errors() {
     assert!(Grid2::new(3, 3, 1.0, -1.0, Boundary::Closed).is_err());
     assert!(Grid1::over(1.0, 1.0, 3, Boundary::Closed).is_err());
 }
-

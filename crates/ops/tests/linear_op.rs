@@ -57,13 +57,12 @@ fn constant_input_records_nothing_and_wrong_shape_is_an_error() {
     let grid = Grid2::new(3, 3, 1.0, 1.0, Boundary::Periodic).unwrap();
     let tape = Tape::<f64>::new();
     let c = tape.constant(ArrayD::zeros(vec![3, 3]));
-    tape.apply(LinearOp::new(Laplacian2::new(grid)), &[c]).unwrap();
+    tape.apply(LinearOp::new(Laplacian2::new(grid)), &[c])
+        .unwrap();
     assert_eq!(tape.stats().nodes, 0);
     let bad = tape.var(ArrayD::zeros(vec![3, 4]));
-    let err = tape.apply(LinearOp::new(Laplacian2::new(grid)), &[bad]).unwrap_err();
-    assert!(
-        matches!(err, TapeError::Op { .. }),
-        "{err:?}"
-    );
+    let err = tape
+        .apply(LinearOp::new(Laplacian2::new(grid)), &[bad])
+        .unwrap_err();
+    assert!(matches!(err, TapeError::Op { .. }), "{err:?}");
 }
-

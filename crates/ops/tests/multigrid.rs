@@ -14,7 +14,7 @@ use common::*;
 use diffphys_ops::cg::{conjugate_gradient, CgError, CgParams, NullSpace, Preconditioner};
 use diffphys_ops::mac::MacGrid;
 use diffphys_ops::multigrid::Multigrid;
-use diffphys_ops::poisson::{PoissonSolve};
+use diffphys_ops::poisson::PoissonSolve;
 use diffphys_ops::projection::PressureProjection;
 use diffphys_ops::reference::SparseCholesky;
 use diffphys_ops::stencil::Laplacian2;

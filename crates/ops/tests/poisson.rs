@@ -9,12 +9,10 @@ use std::sync::Arc;
 use common::*;
 use diffphys_ops::cg::{CgError, CgParams, NullSpace, Preconditioner};
 use diffphys_ops::multigrid::Multigrid;
-use diffphys_ops::poisson::{
-    poisson_solve, poisson_solve_vjp, PoissonSolve, SolveLog, WarmStart,
-};
+use diffphys_ops::poisson::{poisson_solve, poisson_solve_vjp, PoissonSolve, SolveLog, WarmStart};
 use diffphys_ops::reference::SparseCholesky;
 use diffphys_ops::stencil::Laplacian2;
-use diffphys_ops::{Boundary, Grid2, OpsError};
+use diffphys_ops::{Boundary, Grid2};
 use diffphys_tape::Op;
 use ndarray::ArrayD;
 
@@ -302,8 +300,5 @@ fn solver_failures_surface_as_tape_errors_naming_the_op() {
     let err = tape
         .apply(solve, &[tape.var(random_field(&[31, 32], 6))])
         .unwrap_err();
-    assert!(
-        matches!(err, TapeError::ShapeMismatch { .. }),
-        "{err:?}"
-    );
+    assert!(matches!(err, TapeError::ShapeMismatch { .. }), "{err:?}");
 }

@@ -10,9 +10,7 @@ use common::*;
 use diffphys_ops::cg::{CgError, CgParams, NullSpace};
 use diffphys_ops::mac::{MacGrid, MacPoisson, PressureOperator};
 use diffphys_ops::poisson::WarmStart;
-use diffphys_ops::projection::{
-    max_abs_divergence, PressureProjection, ProjectionOp,
-};
+use diffphys_ops::projection::{max_abs_divergence, PressureProjection, ProjectionOp};
 use diffphys_ops::reference::SparseCholesky;
 use diffphys_ops::stencil::Laplacian2;
 use diffphys_ops::CellMask;

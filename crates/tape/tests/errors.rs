@@ -358,7 +358,10 @@ fn a_plugin_error_keeps_its_source() {
     );
     assert_mentions(&err, &["solver failed", "diverged after 50 iterations"]);
     // The message carries the cause once; the cause keeps its own type.
-    assert!(err.source().is_none(), "the cause is in the message, not repeated");
+    assert!(
+        err.source().is_none(),
+        "the cause is in the message, not repeated"
+    );
     let cause = err.op_cause().expect("the plugin's error is kept");
     let inner = cause
         .downcast_ref::<SolverDiverged>()

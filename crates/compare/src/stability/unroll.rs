@@ -1,7 +1,7 @@
 //! Study 6: long unrolls of upwind advection at Courant numbers below and
 //! above 1.
 
-use diffphys_ops::advection::{Upwind1, AdvectionParams};
+use diffphys_ops::advection::{AdvectionParams, Upwind1};
 use diffphys_ops::{Boundary, Grid1, OpsError};
 use diffphys_tape::{Real, Tape, TapeError, Var};
 use ndarray::Array1;

@@ -29,8 +29,8 @@ use diffphys_tape::Real;
 use ndarray::{Array1, Array2, Array3, ArrayView1, ArrayView2, ArrayView3, Ix1, Ix2, Ix3};
 
 use super::{
-    check_dt, check_finite_velocity, check_shape, AdvectionGrads, AdvectionScheme,
-    AdvectionVjp, Wants,
+    check_dt, check_finite_velocity, check_shape, AdvectionGrads, AdvectionScheme, AdvectionVjp,
+    Wants,
 };
 use crate::{Boundary, Grid1, Grid2, Result};
 

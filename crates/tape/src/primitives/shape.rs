@@ -273,7 +273,8 @@ impl<'t, T: Real> Var<'t, T> {
     /// [`TapeError::InvalidArgument`] naming `slice` if `axis` is not an axis or
     /// the range is not within it.
     pub fn slice(self, axis: usize, start: usize, end: usize) -> Result<Var<'t, T>> {
-        self.tape.apply(Linear(SliceAxis { axis, start, end }), &[self])
+        self.tape
+            .apply(Linear(SliceAxis { axis, start, end }), &[self])
     }
 
     /// The periodic shift along `axis` (NumPy `roll`): `y[i] = x[(i − shift) mod n]`,
@@ -293,11 +294,14 @@ impl<'t, T: Real> Var<'t, T> {
     /// # Errors
     /// [`TapeError::InvalidArgument`] naming `pad` if `axis` is not an axis.
     pub fn pad(self, axis: usize, before: usize, after: usize) -> Result<Var<'t, T>> {
-        self.tape.apply(Linear(Pad {
+        self.tape.apply(
+            Linear(Pad {
                 axis,
                 before,
                 after,
-            }), &[self])
+            }),
+            &[self],
+        )
     }
 
     /// The values joined along `axis`; all other axes must agree. Adjoint: the

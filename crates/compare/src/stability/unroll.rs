@@ -54,7 +54,7 @@ fn unroll_scene(n: usize, cfl: f64) -> Result<(Grid1, AdvectionParams, [Array1<f
 ///
 /// # Errors
 /// [`CompareError::UnrollStep`] naming the step and the op (a non-finite value
-/// in the forward or the backward of `upwind_1d` (the op's name in messages), or of the loss); setup errors.
+/// in the forward or the backward of `upwind_1d`, or of the loss); setup errors.
 pub fn unroll_gradient<T: Real>(n: usize, cfl: f64, steps: usize) -> Result<(f64, f64, f64)> {
     let (grid, params, [d0, u, target]) = unroll_scene(n, cfl)?;
     let tape = Tape::<T>::new();

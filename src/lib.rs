@@ -42,6 +42,7 @@
 #![warn(missing_docs)]
 
 pub use diffphys_compare as compare;
+pub use diffphys_learn as learn;
 pub use diffphys_nn as nn;
 pub use diffphys_ops as ops;
 pub use diffphys_tape as tape;

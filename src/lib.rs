@@ -44,6 +44,7 @@
 
 pub use diffphys_compare as compare;
 pub use diffphys_flow as flow;
+pub use diffphys_learn as learn;
 pub use diffphys_nn as nn;
 pub use diffphys_ops as ops;
 pub use diffphys_tape as tape;

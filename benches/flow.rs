@@ -19,8 +19,8 @@ use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use diffphys::flow::{FlowState, FlowVars, ParamVars, Scene};
 use diffphys::tape::{Real, Tape};
-use diffphys_flow::{FlowState, FlowVars, ParamVars, Scene};
 
 fn forward<T: Real>(scene: &Scene, start: &FlowState<T>) -> FlowState<T> {
     scene
@@ -34,17 +34,22 @@ fn forward_backward<T: Real>(scene: &Scene, start: &FlowState<T>) -> T {
     let v0 = FlowVars::variables(&tape, start);
     let p = ParamVars::constants(&tape, &scene.params());
     let (v, _) = scene.step(&tape, &v0, &p).expect("the step runs");
-    let loss = v
-        .ux
-        .dot(v.ux)
-        .and_then(|a| a.add(v.uy.dot(v.uy)?))
-        .and_then(|l| l.mul_scalar(T::from_f64(0.5)))
-        .expect("the loss");
+    let loss =
+        v.ux.dot(v.ux)
+            .and_then(|a| a.add(v.uy.dot(v.uy)?))
+            .and_then(|l| l.mul_scalar(T::from_f64(0.5)))
+            .expect("the loss");
     let g = tape.backward(loss, &[v0.ux, v0.uy]).expect("backward");
     g.get(v0.ux).expect("a gradient")[[0, 0]]
 }
 
-fn bench_scene<T: Real>(c: &mut Criterion, group: &str, label: &str, scene: &Scene, start: &FlowState<T>) {
+fn bench_scene<T: Real>(
+    c: &mut Criterion,
+    group: &str,
+    label: &str,
+    scene: &Scene,
+    start: &FlowState<T>,
+) {
     let cells = (scene.grid().nx * scene.grid().ny) as u64;
     let mut g = c.benchmark_group(group);
     g.throughput(Throughput::Elements(cells));
@@ -68,7 +73,13 @@ fn wake(c: &mut Criterion) {
         }
         let scene = flow_common::wake_scene(res, None).expect("the wake scene builds");
         let start = flow_common::wake_start::<f32>(&scene).expect("the wake starts");
-        bench_scene(c, "flow_wake_f32", &format!("{res}x{}", 2 * res), &scene, &start);
+        bench_scene(
+            c,
+            "flow_wake_f32",
+            &format!("{res}x{}", 2 * res),
+            &scene,
+            &start,
+        );
     }
 }
 

@@ -24,11 +24,12 @@
 //! [--tol 1e-4] [--max-time T] [--small] [--out DIR]`
 
 mod common;
+mod flow_common;
 
 use std::path::PathBuf;
 use std::time::Instant;
 
-use diffphys_flow::{Advection, FlowState, Scene, Sides, ViscosityMode};
+use diffphys::flow::{Advection, FlowState, Scene, Sides, ViscosityMode};
 use ndarray::Array2;
 use serde_json::{json, Value};
 
@@ -48,18 +49,30 @@ struct Ghia {
 
 fn ghia(re: u32) -> Result<Ghia> {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/ghia1982_cavity.json");
-    let text = std::fs::read_to_string(&path)
-        .map_err(|e| format!("the cavity example needs {} (in the repository): {e}", path.display()))?;
+    let text = std::fs::read_to_string(&path).map_err(|e| {
+        format!(
+            "the cavity example needs {} (in the repository): {e}",
+            path.display()
+        )
+    })?;
     let table: Value = serde_json::from_str(&text)?;
     let key = format!("re{re}");
     let numbers = |v: &Value| -> Result<Vec<f64>> {
         v.as_array()
-            .ok_or_else(|| format!("{}: no table for Re = {re} (100, 400, 1000)", path.display()))?
+            .ok_or_else(|| {
+                format!(
+                    "{}: no table for Re = {re} (100, 400, 1000)",
+                    path.display()
+                )
+            })?
             .iter()
             .map(|x| x.as_f64().ok_or_else(|| "not a number".into()))
             .collect()
     };
-    let (u, v) = (&table["u_along_vertical_centreline"], &table["v_along_horizontal_centreline"]);
+    let (u, v) = (
+        &table["u_along_vertical_centreline"],
+        &table["v_along_horizontal_centreline"],
+    );
     Ok(Ghia {
         y: numbers(&u["y"])?,
         u: numbers(&u[&key])?,
@@ -108,7 +121,11 @@ fn centrelines(scene: &Scene, s: &FlowState<f64>) -> ((Vec<f64>, Vec<f64>), (Vec
 
 /// The largest change of any face between two states.
 fn max_change(a: &FlowState<f64>, b: &FlowState<f64>) -> f64 {
-    let d = |p: &Array2<f64>, q: &Array2<f64>| p.iter().zip(q).fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));
+    let d = |p: &Array2<f64>, q: &Array2<f64>| {
+        p.iter()
+            .zip(q)
+            .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()))
+    };
     d(&a.ux, &b.ux).max(d(&a.uy, &b.uy))
 }
 
@@ -138,7 +155,15 @@ fn parse() -> Result<(common::ExampleArgs, Options)> {
     if n < 8 || n % 2 != 0 {
         return Err(format!("--n must be even and at least 8, got {n}").into());
     }
-    Ok((args, Options { re, n, tol, max_time }))
+    Ok((
+        args,
+        Options {
+            re,
+            n,
+            tol,
+            max_time,
+        },
+    ))
 }
 
 fn main() -> Result<()> {
@@ -154,7 +179,11 @@ fn main() -> Result<()> {
         .advection(Advection::MacCormack { limiter: true });
     // the explicit diffusion number ν dt (1/dx² + 1/dy²); stable to ½
     let explicit = nu * dt * 2.0 / (h * h) <= 0.45;
-    let mode = if explicit { ViscosityMode::Explicit } else { ViscosityMode::Implicit };
+    let mode = if explicit {
+        ViscosityMode::Explicit
+    } else {
+        ViscosityMode::Implicit
+    };
     let scene = base.viscosity_mode(mode).build()?;
     // Ghia's flows take this long to settle from rest (lid time units, generous).
     let max_time = opt.max_time.unwrap_or(match opt.re {
@@ -187,7 +216,10 @@ fn main() -> Result<()> {
             rate = max_change(&state, &mark) / (WINDOW as f64 * dt);
             mark = state.clone();
             if steps % (20 * WINDOW) == 0 {
-                println!("  t = {:7.2}  steps {steps:6}  d|u|/dt = {rate:.2e}", steps as f64 * dt);
+                println!(
+                    "  t = {:7.2}  steps {steps:6}  d|u|/dt = {rate:.2e}",
+                    steps as f64 * dt
+                );
             }
             if rate < opt.tol {
                 break;
@@ -200,7 +232,12 @@ fn main() -> Result<()> {
     let ((y, u), (x, v)) = centrelines(&scene, &state);
     let u_at: Vec<f64> = table.y.iter().map(|&q| interpolate(&y, &u, q)).collect();
     let v_at: Vec<f64> = table.x.iter().map(|&q| interpolate(&x, &v, q)).collect();
-    let dev = |ours: &[f64], theirs: &[f64]| -> Vec<f64> { ours.iter().zip(theirs).map(|(a, b)| (a - b).abs()).collect() };
+    let dev = |ours: &[f64], theirs: &[f64]| -> Vec<f64> {
+        ours.iter()
+            .zip(theirs)
+            .map(|(a, b)| (a - b).abs())
+            .collect()
+    };
     let (du, dv) = (dev(&u_at, &table.u), dev(&v_at, &table.v));
     let worst = |d: &[f64]| d.iter().cloned().fold(0.0f64, f64::max);
     let (max_du, max_dv) = (worst(&du), worst(&dv));
@@ -248,7 +285,7 @@ fn main() -> Result<()> {
         "steps": steps, "time": steps as f64 * dt, "wall_s": seconds,
         "ms_per_step": seconds / steps as f64 * 1e3,
         "pressure_iterations_per_step": pressure_iterations as f64 / steps as f64,
-        "peak_rss_bytes": common::peak_rss_bytes(),
+        "peak_rss_bytes": flow_common::peak_rss_bytes(),
     }));
     Ok(())
 }
@@ -266,28 +303,55 @@ fn write_chart(
     root.fill(&WHITE)?;
     let (left, right) = root.split_horizontally(450);
     let mut c = ChartBuilder::on(&left)
-        .caption(format!("u along x = 0.5, Re = {re}, {n}x{n}"), ("sans-serif", 16))
+        .caption(
+            format!("u along x = 0.5, Re = {re}, {n}x{n}"),
+            ("sans-serif", 16),
+        )
         .margin(10)
         .x_label_area_size(35)
         .y_label_area_size(45)
         .build_cartesian_2d(-0.6..1.05, 0.0..1.0)?;
     c.configure_mesh().x_desc("u / U").y_desc("y").draw()?;
-    c.draw_series(LineSeries::new(u.iter().zip(y).map(|(&a, &b)| (a, b)), &BLUE))?
-        .label("diffphys-flow")
-        .legend(|(x, y)| PathElement::new([(x, y), (x + 16, y)], BLUE));
-    c.draw_series(table.u.iter().zip(&table.y).map(|(&a, &b)| Circle::new((a, b), 4, RED.stroke_width(2))))?
-        .label("Ghia et al. 1982")
-        .legend(|(x, y)| Circle::new((x + 8, y), 4, RED.stroke_width(2)));
-    c.configure_series_labels().border_style(BLACK).background_style(WHITE).draw()?;
+    c.draw_series(LineSeries::new(
+        u.iter().zip(y).map(|(&a, &b)| (a, b)),
+        &BLUE,
+    ))?
+    .label("diffphys-flow")
+    .legend(|(x, y)| PathElement::new([(x, y), (x + 16, y)], BLUE));
+    c.draw_series(
+        table
+            .u
+            .iter()
+            .zip(&table.y)
+            .map(|(&a, &b)| Circle::new((a, b), 4, RED.stroke_width(2))),
+    )?
+    .label("Ghia et al. 1982")
+    .legend(|(x, y)| Circle::new((x + 8, y), 4, RED.stroke_width(2)));
+    c.configure_series_labels()
+        .border_style(BLACK)
+        .background_style(WHITE)
+        .draw()?;
     let mut c = ChartBuilder::on(&right)
-        .caption(format!("v along y = 0.5, Re = {re}, {n}x{n}"), ("sans-serif", 16))
+        .caption(
+            format!("v along y = 0.5, Re = {re}, {n}x{n}"),
+            ("sans-serif", 16),
+        )
         .margin(10)
         .x_label_area_size(35)
         .y_label_area_size(45)
         .build_cartesian_2d(0.0..1.0, -0.6..0.45)?;
     c.configure_mesh().x_desc("x").y_desc("v / U").draw()?;
-    c.draw_series(LineSeries::new(x.iter().zip(v).map(|(&a, &b)| (a, b)), &BLUE))?;
-    c.draw_series(table.x.iter().zip(&table.v).map(|(&a, &b)| Circle::new((a, b), 4, RED.stroke_width(2))))?;
+    c.draw_series(LineSeries::new(
+        x.iter().zip(v).map(|(&a, &b)| (a, b)),
+        &BLUE,
+    ))?;
+    c.draw_series(
+        table
+            .x
+            .iter()
+            .zip(&table.v)
+            .map(|(&a, &b)| Circle::new((a, b), 4, RED.stroke_width(2))),
+    )?;
     root.present()?;
     Ok(())
 }

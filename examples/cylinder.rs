@@ -37,8 +37,8 @@ mod flow_common;
 use std::path::PathBuf;
 use std::time::Instant;
 
-use diffphys_flow::diagnostics::{obstacle_force, vorticity};
-use diffphys_flow::{Advection, FlowState, Obstacle, Scene, Sides, ViscosityMode};
+use diffphys::flow::diagnostics::{obstacle_force, vorticity};
+use diffphys::flow::{Advection, FlowState, Obstacle, Scene, Sides, ViscosityMode};
 use ndarray::Array2;
 use serde_json::{json, Value};
 
@@ -52,9 +52,14 @@ const NU: f64 = 1e-3;
 
 /// The reference intervals of one case, by name.
 fn intervals(case: &str) -> Result<serde_json::Map<String, Value>> {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/schaefer_turek1996_cylinder.json");
-    let text = std::fs::read_to_string(&path)
-        .map_err(|e| format!("the cylinder example needs {} (in the repository): {e}", path.display()))?;
+    let path =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/schaefer_turek1996_cylinder.json");
+    let text = std::fs::read_to_string(&path).map_err(|e| {
+        format!(
+            "the cylinder example needs {} (in the repository): {e}",
+            path.display()
+        )
+    })?;
     let table: Value = serde_json::from_str(&text)?;
     Ok(table["cases"][case]["intervals"]
         .as_object()
@@ -64,7 +69,10 @@ fn intervals(case: &str) -> Result<serde_json::Map<String, Value>> {
 
 fn interval(map: &serde_json::Map<String, Value>, key: &str) -> [f64; 2] {
     let v = &map[key];
-    [v[0].as_f64().unwrap_or(f64::NAN), v[1].as_f64().unwrap_or(f64::NAN)]
+    [
+        v[0].as_f64().unwrap_or(f64::NAN),
+        v[1].as_f64().unwrap_or(f64::NAN),
+    ]
 }
 
 /// How far `x` lies outside `[lo, hi]`, relative to the nearer bound (0 inside).
@@ -83,7 +91,8 @@ fn scene(cpd: usize, um: f64) -> Result<Scene> {
     let h = D / cpd as f64;
     let (nx, ny) = ((LENGTH / h).round() as usize, (HEIGHT / h).round() as usize);
     let dt = 0.4 * h / um;
-    let explicit = NU * dt * (1.0 / (LENGTH / nx as f64).powi(2) + 1.0 / (HEIGHT / ny as f64).powi(2)) <= 0.45;
+    let explicit =
+        NU * dt * (1.0 / (LENGTH / nx as f64).powi(2) + 1.0 / (HEIGHT / ny as f64).powi(2)) <= 0.45;
     Ok(Scene::builder(nx, ny, [LENGTH, HEIGHT])
         .sides(Sides::channel())
         .obstacle(Obstacle::cylinder(CENTRE, D / 2.0))
@@ -91,7 +100,11 @@ fn scene(cpd: usize, um: f64) -> Result<Scene> {
         .viscosity(NU)
         .dt(dt)
         .advection(Advection::MacCormack { limiter: true })
-        .viscosity_mode(if explicit { ViscosityMode::Explicit } else { ViscosityMode::Implicit })
+        .viscosity_mode(if explicit {
+            ViscosityMode::Explicit
+        } else {
+            ViscosityMode::Implicit
+        })
         .substepping(true)
         .build()?)
 }
@@ -129,16 +142,22 @@ fn pressure_difference(scene: &Scene, s: &FlowState<f64>) -> f64 {
         let first_solid = (0..g.nx).find(|&i| solid[[i, j]]).unwrap_or(g.nx - 1);
         let last_solid = (0..g.nx).rev().find(|&i| solid[[i, j]]).unwrap_or(0);
         let (f1, f0) = (first_solid - 1, first_solid - 2);
-        let p_front = s.pressure[[f1, j]] + (front - xc(f1)) * (s.pressure[[f1, j]] - s.pressure[[f0, j]]) / g.dx;
+        let p_front = s.pressure[[f1, j]]
+            + (front - xc(f1)) * (s.pressure[[f1, j]] - s.pressure[[f0, j]]) / g.dx;
         let (b1, b0) = (last_solid + 1, last_solid + 2);
-        let p_back = s.pressure[[b1, j]] + (back - xc(b1)) * (s.pressure[[b1, j]] - s.pressure[[b0, j]]) / g.dx;
+        let p_back = s.pressure[[b1, j]]
+            + (back - xc(b1)) * (s.pressure[[b1, j]] - s.pressure[[b0, j]]) / g.dx;
         dp += w * (p_front - p_back);
     }
     dp
 }
 
 fn largest_change(a: &FlowState<f64>, b: &FlowState<f64>) -> f64 {
-    let d = |p: &Array2<f64>, q: &Array2<f64>| p.iter().zip(q).fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));
+    let d = |p: &Array2<f64>, q: &Array2<f64>| {
+        p.iter()
+            .zip(q)
+            .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()))
+    };
     d(&a.ux, &b.ux).max(d(&a.uy, &b.uy))
 }
 
@@ -200,7 +219,11 @@ fn steady(cpd: usize, max_time: f64) -> Result<(Value, Scene, FlowState<f64>)> {
 }
 
 /// 2D-2 at `cpd`: run to `t_end`, analyse the last `window`.
-fn periodic(cpd: usize, t_end: f64, window: f64) -> Result<(Value, Scene, FlowState<f64>, Vec<[f64; 3]>)> {
+fn periodic(
+    cpd: usize,
+    t_end: f64,
+    window: f64,
+) -> Result<(Value, Scene, FlowState<f64>, Vec<[f64; 3]>)> {
     let (um, ubar) = (1.5, 1.0);
     let scene = scene(cpd, um)?;
     let params = scene.params();
@@ -221,8 +244,14 @@ fn periodic(cpd: usize, t_end: f64, window: f64) -> Result<(Value, Scene, FlowSt
         }
     }
     let seconds = t0.elapsed().as_secs_f64();
-    let cd_max = history.iter().map(|h| h[1]).fold(f64::NEG_INFINITY, f64::max);
-    let cl_max = history.iter().map(|h| h[2]).fold(f64::NEG_INFINITY, f64::max);
+    let cd_max = history
+        .iter()
+        .map(|h| h[1])
+        .fold(f64::NEG_INFINITY, f64::max);
+    let cl_max = history
+        .iter()
+        .map(|h| h[2])
+        .fold(f64::NEG_INFINITY, f64::max);
     let cl_min = history.iter().map(|h| h[2]).fold(f64::INFINITY, f64::min);
     let mean = history.iter().map(|h| h[2]).sum::<f64>() / history.len().max(1) as f64;
     // up-crossings of the mean lift, interpolated linearly
@@ -233,7 +262,13 @@ fn periodic(cpd: usize, t_end: f64, window: f64) -> Result<(Value, Scene, FlowSt
         .collect();
     let (strouhal, periods) = if crossings.len() >= 3 {
         let p = (crossings[crossings.len() - 1] - crossings[0]) / (crossings.len() - 1) as f64;
-        (D / (p * ubar), crossings.windows(2).map(|w| w[1] - w[0]).collect::<Vec<_>>())
+        (
+            D / (p * ubar),
+            crossings
+                .windows(2)
+                .map(|w| w[1] - w[0])
+                .collect::<Vec<_>>(),
+        )
     } else {
         (f64::NAN, Vec::new())
     };
@@ -262,7 +297,8 @@ fn orders(cpd: &[usize], errors: &[f64]) -> Vec<Option<f64>> {
     (1..errors.len())
         .map(|k| {
             let (e0, e1) = (errors[k - 1], errors[k]);
-            (e0 > 0.0 && e1 > 0.0).then(|| (e0 / e1).ln() / (cpd[k] as f64 / cpd[k - 1] as f64).ln())
+            (e0 > 0.0 && e1 > 0.0)
+                .then(|| (e0 / e1).ln() / (cpd[k] as f64 / cpd[k - 1] as f64).ln())
         })
         .collect()
 }
@@ -290,7 +326,14 @@ fn parse() -> Result<(common::ExampleArgs, Options)> {
                         .collect::<std::result::Result<Vec<_>, _>>()?,
                 )
             }
-            "--cases" => cases = Some(value("--cases")?.split(',').map(str::to_lowercase).collect::<Vec<_>>()),
+            "--cases" => {
+                cases = Some(
+                    value("--cases")?
+                        .split(',')
+                        .map(str::to_lowercase)
+                        .collect::<Vec<_>>(),
+                )
+            }
             "--t-end" => t_end = Some(value("--t-end")?.parse()?),
             "--window" => window = Some(value("--window")?.parse()?),
             "--max-time" => max_time = Some(value("--max-time")?.parse()?),
@@ -312,7 +355,16 @@ fn parse() -> Result<(common::ExampleArgs, Options)> {
         return Err(format!("--window must lie in (0, t_end = {t_end})").into());
     }
     let max_time = max_time.unwrap_or(args.pick(40.0, 8.0));
-    Ok((args, Options { cpd, cases, t_end, window, max_time }))
+    Ok((
+        args,
+        Options {
+            cpd,
+            cases,
+            t_end,
+            window,
+            max_time,
+        },
+    ))
 }
 
 fn main() -> Result<()> {
@@ -323,7 +375,11 @@ fn main() -> Result<()> {
 
     if opt.cases.iter().any(|c| c == "2d1") {
         let iv = intervals("2D-1")?;
-        let (cd_iv, cl_iv, dp_iv) = (interval(&iv, "cd"), interval(&iv, "cl"), interval(&iv, "dp"));
+        let (cd_iv, cl_iv, dp_iv) = (
+            interval(&iv, "cd"),
+            interval(&iv, "cl"),
+            interval(&iv, "dp"),
+        );
         println!("2D-1 (Re = 20, steady): reference cD {cd_iv:?}, cL {cl_iv:?}, dp {dp_iv:?}");
         let mut rows = Vec::new();
         let mut last = None;
@@ -333,14 +389,27 @@ fn main() -> Result<()> {
             last = Some((scene, s));
         }
         let err = |k: &str, iv: [f64; 2]| -> Vec<f64> {
-            rows.iter().map(|r| outside(r[k].as_f64().unwrap_or(f64::NAN), iv)).collect()
+            rows.iter()
+                .map(|r| outside(r[k].as_f64().unwrap_or(f64::NAN), iv))
+                .collect()
         };
         let (ecd, ecl, edp) = (err("cd", cd_iv), err("cl", cl_iv), err("dp", dp_iv));
-        println!("  cpd | cD error | cL error | dp error   (relative distance outside the interval)");
+        println!(
+            "  cpd | cD error | cL error | dp error   (relative distance outside the interval)"
+        );
         for (k, c) in opt.cpd.iter().enumerate() {
-            println!("  {c:3} | {:7.2} % | {:7.2} % | {:7.2} %", ecd[k] * 1e2, ecl[k] * 1e2, edp[k] * 1e2);
+            println!(
+                "  {c:3} | {:7.2} % | {:7.2} % | {:7.2} %",
+                ecd[k] * 1e2,
+                ecl[k] * 1e2,
+                edp[k] * 1e2
+            );
         }
-        let at = opt.cpd.iter().position(|&c| c == stated).expect("the stated grid ran");
+        let at = opt
+            .cpd
+            .iter()
+            .position(|&c| c == stated)
+            .expect("the stated grid ran");
         let floor_met = ecd[at] <= 0.05;
         println!(
             "  floor (2D-1 drag within 5 % of the interval at cpd {stated}): {} ({:.2} %)",
@@ -364,7 +433,11 @@ fn main() -> Result<()> {
 
     if opt.cases.iter().any(|c| c == "2d2") {
         let iv = intervals("2D-2")?;
-        let (st_iv, cd_iv, cl_iv) = (interval(&iv, "strouhal"), interval(&iv, "cd_max"), interval(&iv, "cl_max"));
+        let (st_iv, cd_iv, cl_iv) = (
+            interval(&iv, "strouhal"),
+            interval(&iv, "cd_max"),
+            interval(&iv, "cl_max"),
+        );
         println!(
             "2D-2 (Re = 100, periodic): reference St {st_iv:?}, max cD {cd_iv:?}, max cL {cl_iv:?}; t_end {}, window {}",
             opt.t_end, opt.window
@@ -377,14 +450,29 @@ fn main() -> Result<()> {
             last = Some((scene, s, history));
         }
         let err = |k: &str, iv: [f64; 2]| -> Vec<f64> {
-            rows.iter().map(|r| outside(r[k].as_f64().unwrap_or(f64::NAN), iv)).collect()
+            rows.iter()
+                .map(|r| outside(r[k].as_f64().unwrap_or(f64::NAN), iv))
+                .collect()
         };
-        let (est, ecd, ecl) = (err("strouhal", st_iv), err("cd_max", cd_iv), err("cl_max", cl_iv));
+        let (est, ecd, ecl) = (
+            err("strouhal", st_iv),
+            err("cd_max", cd_iv),
+            err("cl_max", cl_iv),
+        );
         println!("  cpd | St error | max cD error | max cL error   (relative distance outside the interval)");
         for (k, c) in opt.cpd.iter().enumerate() {
-            println!("  {c:3} | {:7.2} % | {:10.2} % | {:10.2} %", est[k] * 1e2, ecd[k] * 1e2, ecl[k] * 1e2);
+            println!(
+                "  {c:3} | {:7.2} % | {:10.2} % | {:10.2} %",
+                est[k] * 1e2,
+                ecd[k] * 1e2,
+                ecl[k] * 1e2
+            );
         }
-        let at = opt.cpd.iter().position(|&c| c == stated).expect("the stated grid ran");
+        let at = opt
+            .cpd
+            .iter()
+            .position(|&c| c == stated)
+            .expect("the stated grid ran");
         let floor_met = est[at] <= 0.05;
         println!(
             "  floor (2D-2 Strouhal within 5 % at cpd {stated}): {} ({:.2} %)",
@@ -397,12 +485,18 @@ fn main() -> Result<()> {
         let (wx, wy) = omega.dim();
         // node (a, b) of the vorticity lies between cells a..a+1 and b..b+1
         let mask = Array2::from_shape_fn((wx, wy), |(a, b)| {
-            (a..(a + 2).min(solid.dim().0)).any(|i| (b..(b + 2).min(solid.dim().1)).any(|j| solid[[i, j]]))
+            (a..(a + 2).min(solid.dim().0))
+                .any(|i| (b..(b + 2).min(solid.dim().1)).any(|j| solid[[i, j]]))
         });
         let path = args.out.join("cylinder_2d2_vorticity.svg");
         flow_common::write_heatmap(
             &path,
-            &format!("2D-2 vorticity at t = {:.2} ({}x{} cells; clipped at ±40 /s)", opt.t_end, scene.grid().nx, scene.grid().ny),
+            &format!(
+                "2D-2 vorticity at t = {:.2} ({}x{} cells; clipped at ±40 /s)",
+                opt.t_end,
+                scene.grid().nx,
+                scene.grid().ny
+            ),
             &omega,
             Some(&mask),
             [LENGTH, HEIGHT],
@@ -426,7 +520,10 @@ fn main() -> Result<()> {
             }),
         );
     }
-    out.insert("peak_rss_bytes".into(), json!(common::peak_rss_bytes()));
+    out.insert(
+        "peak_rss_bytes".into(),
+        json!(flow_common::peak_rss_bytes()),
+    );
     common::print_json_line(&Value::Object(out));
     Ok(())
 }
@@ -438,8 +535,14 @@ fn write_history(path: &std::path::Path, history: &[[f64; 3]]) -> Result<()> {
         return Ok(());
     }
     let (t0, t1) = (history[0][0], history[history.len() - 1][0]);
-    let lo = history.iter().flat_map(|h| [h[1], h[2]]).fold(f64::INFINITY, f64::min);
-    let hi = history.iter().flat_map(|h| [h[1], h[2]]).fold(f64::NEG_INFINITY, f64::max);
+    let lo = history
+        .iter()
+        .flat_map(|h| [h[1], h[2]])
+        .fold(f64::INFINITY, f64::min);
+    let hi = history
+        .iter()
+        .flat_map(|h| [h[1], h[2]])
+        .fold(f64::NEG_INFINITY, f64::max);
     let root = SVGBackend::new(path, (900, 360)).into_drawing_area();
     root.fill(&WHITE)?;
     let mut c = ChartBuilder::on(&root)
@@ -450,13 +553,22 @@ fn write_history(path: &std::path::Path, history: &[[f64; 3]]) -> Result<()> {
         .build_cartesian_2d(t0..t1, (lo - 0.1)..(hi + 0.1))?;
     c.configure_mesh().x_desc("t").draw()?;
     let every = (history.len() / 2000).max(1);
-    c.draw_series(LineSeries::new(history.iter().step_by(every).map(|h| (h[0], h[1])), &RED))?
-        .label("cD")
-        .legend(|(x, y)| PathElement::new([(x, y), (x + 16, y)], RED));
-    c.draw_series(LineSeries::new(history.iter().step_by(every).map(|h| (h[0], h[2])), &BLUE))?
-        .label("cL")
-        .legend(|(x, y)| PathElement::new([(x, y), (x + 16, y)], BLUE));
-    c.configure_series_labels().border_style(BLACK).background_style(WHITE).draw()?;
+    c.draw_series(LineSeries::new(
+        history.iter().step_by(every).map(|h| (h[0], h[1])),
+        &RED,
+    ))?
+    .label("cD")
+    .legend(|(x, y)| PathElement::new([(x, y), (x + 16, y)], RED));
+    c.draw_series(LineSeries::new(
+        history.iter().step_by(every).map(|h| (h[0], h[2])),
+        &BLUE,
+    ))?
+    .label("cL")
+    .legend(|(x, y)| PathElement::new([(x, y), (x + 16, y)], BLUE));
+    c.configure_series_labels()
+        .border_style(BLACK)
+        .background_style(WHITE)
+        .draw()?;
     root.present()?;
     Ok(())
 }

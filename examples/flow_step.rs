@@ -28,8 +28,8 @@ mod flow_common;
 use std::io::BufRead;
 use std::time::Instant;
 
+use diffphys::flow::{FlowState, FlowVars, ParamVars, PressureSolver, Scene};
 use diffphys::tape::{Real, Tape};
-use diffphys_flow::{FlowState, FlowVars, ParamVars, PressureSolver, Scene};
 use serde_json::json;
 
 type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
@@ -56,7 +56,11 @@ impl Solver {
             "cholesky" => Solver::Cholesky,
             "cg" => Solver::Cg,
             "mgpcg" => Solver::MgPcg,
-            other => return Err(format!("--solver: cholesky, cg, mgpcg or default, not {other:?}").into()),
+            other => {
+                return Err(
+                    format!("--solver: cholesky, cg, mgpcg or default, not {other:?}").into(),
+                )
+            }
         })
     }
 
@@ -65,15 +69,21 @@ impl Solver {
         match self {
             Solver::Default => None,
             Solver::Cholesky => Some(PressureSolver::Cholesky),
-            Solver::Cg => Some(PressureSolver::Cg { rel_tol: 1e-3, max_iters: 5000 }),
-            Solver::MgPcg => Some(PressureSolver::MultigridCg { rel_tol: 1e-3, max_iters: 500, sweeps: 2 }),
+            Solver::Cg => Some(PressureSolver::Cg {
+                rel_tol: 1e-3,
+                max_iters: 5000,
+            }),
+            Solver::MgPcg => Some(PressureSolver::MultigridCg {
+                rel_tol: 1e-3,
+                max_iters: 500,
+                sweeps: 2,
+            }),
         }
     }
 }
 
 /// A scene, its start state, and the rollout length.
 struct Bench<T: Real> {
-    kind: SceneKind,
     res: usize,
     scene: Scene,
     start: FlowState<T>,
@@ -90,7 +100,12 @@ impl<T: Real> Bench<T> {
             }
             SceneKind::Box => flow_common::box_scene(res, solver.pressure())?,
         };
-        Ok(Bench { kind, res, scene, start, steps })
+        Ok(Bench {
+            res,
+            scene,
+            start,
+            steps,
+        })
     }
 
     fn cells(&self) -> usize {
@@ -155,7 +170,13 @@ fn cpu_seconds() -> f64 {
 }
 
 /// `--serve`: the worker of benches/flow_peers/run.py.
-fn serve<T: Real>(kind: SceneKind, res: usize, steps: usize, solver: Solver, precision: &str) -> Result<()> {
+fn serve<T: Real>(
+    kind: SceneKind,
+    res: usize,
+    steps: usize,
+    solver: Solver,
+    precision: &str,
+) -> Result<()> {
     let bench = Bench::<T>::new(kind, res, steps, solver)?;
     let mut iterations = Vec::new();
     let mut tape_bytes = 0;
@@ -202,7 +223,12 @@ fn rayon_threads() -> Option<usize> {
 }
 
 /// One row of the table: best-of-`repeats` per-step times and the rest.
-fn measure<T: Real>(kind: SceneKind, res: usize, steps: usize, repeats: usize) -> Result<serde_json::Value> {
+fn measure<T: Real>(
+    kind: SceneKind,
+    res: usize,
+    steps: usize,
+    repeats: usize,
+) -> Result<serde_json::Value> {
     let bench = Bench::<T>::new(kind, res, steps, Solver::Default)?;
     let (mut fwd, mut fwdbwd) = (f64::INFINITY, f64::INFINITY);
     let (mut iterations, mut bytes, mut norm) = (Vec::new(), 0, 0.0);
@@ -254,7 +280,7 @@ fn run_table<T: Real>(args: &common::ExampleArgs, precision: &str) -> Result<()>
     write_chart(&args.out.join("flow_step.svg"), &rows)?;
     common::print_json_line(&json!({
         "precision": precision, "rayon_num_threads": rayon_threads(), "steps": steps,
-        "repeats": repeats, "rows": rows, "peak_rss_bytes": common::peak_rss_bytes(),
+        "repeats": repeats, "rows": rows, "peak_rss_bytes": flow_common::peak_rss_bytes(),
     }));
     Ok(())
 }
@@ -264,14 +290,26 @@ fn write_chart(path: &std::path::Path, rows: &[serde_json::Value]) -> Result<()>
     use plotters::prelude::*;
     let labels: Vec<String> = rows
         .iter()
-        .map(|r| format!("{} {}", r["scene"].as_str().unwrap_or(""), r["resolution"].as_str().unwrap_or("")))
+        .map(|r| {
+            format!(
+                "{} {}",
+                r["scene"].as_str().unwrap_or(""),
+                r["resolution"].as_str().unwrap_or("")
+            )
+        })
         .collect();
     let value = |r: &serde_json::Value, k: &str| r[k].as_f64().unwrap_or(0.0).max(1e-3);
-    let top = rows.iter().map(|r| value(r, "forward_backward_ms_per_step")).fold(1.0f64, f64::max);
+    let top = rows
+        .iter()
+        .map(|r| value(r, "forward_backward_ms_per_step"))
+        .fold(1.0f64, f64::max);
     let root = SVGBackend::new(path, (760, 420)).into_drawing_area();
     root.fill(&WHITE)?;
     let mut chart = ChartBuilder::on(&root)
-        .caption("flow step: ms per step (log), forward and forward + backward", ("sans-serif", 16))
+        .caption(
+            "flow step: ms per step (log), forward and forward + backward",
+            ("sans-serif", 16),
+        )
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(60)
@@ -285,9 +323,15 @@ fn write_chart(path: &std::path::Path, rows: &[serde_json::Value]) -> Result<()>
     for (i, r) in rows.iter().enumerate() {
         let x = i as f64;
         chart.draw_series([
-            Rectangle::new([(x + 0.1, 1e-3), (x + 0.45, value(r, "forward_ms_per_step"))], BLUE.filled()),
             Rectangle::new(
-                [(x + 0.55, 1e-3), (x + 0.9, value(r, "forward_backward_ms_per_step"))],
+                [(x + 0.1, 1e-3), (x + 0.45, value(r, "forward_ms_per_step"))],
+                BLUE.filled(),
+            ),
+            Rectangle::new(
+                [
+                    (x + 0.55, 1e-3),
+                    (x + 0.9, value(r, "forward_backward_ms_per_step")),
+                ],
                 RED.filled(),
             ),
         ])?;

@@ -79,7 +79,10 @@ fn ghia_boundary_values_and_extrema_are_the_published_ones() {
         // the primary vortex turns clockwise: u < 0 below the centre, v > 0 left of it
         assert!(u[1..8].iter().all(|&u| u < 0.0), "{re}: u < 0 low down");
         assert!(v[1..8].iter().all(|&v| v > 0.0), "{re}: v > 0 on the left");
-        assert!(v[9..16].iter().all(|&v| v < 0.0), "{re}: v < 0 on the right");
+        assert!(
+            v[9..16].iter().all(|&v| v < 0.0),
+            "{re}: v < 0 on the right"
+        );
         // u rises monotonically from its minimum to the lid
         let (lo, _) = extrema(&y, &u);
         let from = y.iter().position(|&c| c == lo.0).expect("the minimum's y");
@@ -90,9 +93,24 @@ fn ghia_boundary_values_and_extrema_are_the_published_ones() {
     }
     // The extrema the literature quotes from these tables.
     let cases = [
-        ("re100", (0.4531, -0.21090), (0.8047, -0.24533), (0.2344, 0.17527)),
-        ("re400", (0.2813, -0.32726), (0.8594, -0.44993), (0.2266, 0.30203)),
-        ("re1000", (0.1719, -0.38289), (0.9063, -0.51550), (0.1563, 0.37095)),
+        (
+            "re100",
+            (0.4531, -0.21090),
+            (0.8047, -0.24533),
+            (0.2344, 0.17527),
+        ),
+        (
+            "re400",
+            (0.2813, -0.32726),
+            (0.8594, -0.44993),
+            (0.2266, 0.30203),
+        ),
+        (
+            "re1000",
+            (0.1719, -0.38289),
+            (0.9063, -0.51550),
+            (0.1563, 0.37095),
+        ),
     ];
     for (re, u_min, v_min, v_max) in cases {
         let (lo, _) = extrema(&y, &numbers(&u_table[re]));

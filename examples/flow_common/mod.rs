@@ -6,11 +6,11 @@
 
 use std::time::Instant;
 
-use diffphys::tape::{Real, Tape};
-use diffphys_flow::{
+use diffphys::flow::{
     Advection, Boundary, FlowState, FlowVars, Obstacle, ParamVars, PressureSolver, Scene, Sides,
     Splitting, TaylorGreen,
 };
+use diffphys::tape::{Real, Tape};
 use ndarray::Array2;
 use serde_json::{json, Value};
 
@@ -62,7 +62,10 @@ pub fn wake_start<T: Real>(scene: &Scene) -> Result<FlowState<T>> {
 /// JAX-CFD's periodic Taylor–Green box [0, 2π]² at `n²` cells, ν = 1e-3,
 /// dt = 0.5 h (Courant 0.5 at |u| = 1), MacCormack advection with the limiter
 /// (second order, as JAX-CFD's van Leer scheme), and its start state.
-pub fn box_scene<T: Real>(n: usize, pressure: Option<PressureSolver>) -> Result<(Scene, FlowState<T>)> {
+pub fn box_scene<T: Real>(
+    n: usize,
+    pressure: Option<PressureSolver>,
+) -> Result<(Scene, FlowState<T>)> {
     let tg = TaylorGreen {
         amplitude: 1.0,
         viscosity: 1e-3,
@@ -171,7 +174,10 @@ pub fn write_heatmap(
                 }
             };
             rects.push(Rectangle::new(
-                [(i0 as f64 * hx, j0 as f64 * hy), (i1 as f64 * hx, j1 as f64 * hy)],
+                [
+                    (i0 as f64 * hx, j0 as f64 * hy),
+                    (i1 as f64 * hx, j1 as f64 * hy),
+                ],
                 colour.filled(),
             ));
         }
@@ -179,4 +185,13 @@ pub fn write_heatmap(
     chart.draw_series(rects)?;
     root.present()?;
     Ok(())
+}
+
+/// The peak resident set size of this process in bytes (`VmHWM` in
+/// `/proc/self/status`), or `None` where that file does not exist.
+pub fn peak_rss_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
 }

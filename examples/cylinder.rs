@@ -218,12 +218,11 @@ fn steady(cpd: usize, max_time: f64) -> Result<(Value, Scene, FlowState<f64>)> {
     Ok((row, scene, s))
 }
 
+/// A 2D-2 run: its JSON row, the scene, the last state, the `(t, cD, cL)` history.
+type PeriodicRun = (Value, Scene, FlowState<f64>, Vec<[f64; 3]>);
+
 /// 2D-2 at `cpd`: run to `t_end`, analyse the last `window`.
-fn periodic(
-    cpd: usize,
-    t_end: f64,
-    window: f64,
-) -> Result<(Value, Scene, FlowState<f64>, Vec<[f64; 3]>)> {
+fn periodic(cpd: usize, t_end: f64, window: f64) -> Result<PeriodicRun> {
     let (um, ubar) = (1.5, 1.0);
     let scene = scene(cpd, um)?;
     let params = scene.params();

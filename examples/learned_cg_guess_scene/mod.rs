@@ -5,8 +5,8 @@ use diffphys::learn::guess::GuessProblem;
 use diffphys::learn::LearnError;
 use diffphys::ops::cg::{conjugate_gradient, CgParams};
 use diffphys::ops::stencil::Laplacian2;
-use ndarray::{ArrayD, IxDyn};
 use ndarray::Array2;
+use ndarray::{ArrayD, IxDyn};
 use rand::rngs::StdRng;
 use rand::Rng;
 

@@ -23,8 +23,9 @@ use diffphys::compare::methods::exact::ExactCholesky;
 use diffphys::compare::methods::implicit::ImplicitSolve;
 use diffphys::compare::methods::naive::NaiveUnrolled;
 use diffphys::compare::methods::{GradientMethod, Stop};
+use diffphys::compare::model::{Method, ResultRow};
 use diffphys::compare::problem::{Problem, ProblemSpec};
-use diffphys::compare::report::{render_table, Method, ResultRow};
+use diffphys::compare::report::render_table;
 
 type BoxError = Box<dyn std::error::Error>;
 

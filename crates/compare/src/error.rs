@@ -75,8 +75,8 @@ pub enum CompareError {
     #[error(
         "memory limit: {method} on {n}×{n} cells needs about {} (estimated), over the limit of {} \
          ({source_of_limit}); not run",
-        crate::report::format_bytes(*estimate_bytes),
-        crate::report::format_bytes(*limit_bytes)
+        crate::format::format_bytes(*estimate_bytes),
+        crate::format::format_bytes(*limit_bytes)
     )]
     MemoryLimit {
         /// The method refused (`naive`, `implicit`, `exact`, `baseline_cg`, `setup`).
@@ -111,9 +111,14 @@ pub enum CompareError {
         unknowns: usize,
     },
     /// Nothing in a sweep could run (every run was refused or failed); the
-    /// results were still written.
+    /// message counts the runs by how they ended and gives the memory guard's
+    /// reason if it refused runs. The results were still written.
     #[error("no run succeeded: {0}")]
     NothingRan(String),
+    /// A sweep completed runs but measured nothing to judge: runs failed and
+    /// no floor was measured. The results were still written.
+    #[error("nothing measured: {0}")]
+    NothingMeasured(String),
 }
 
 impl CompareError {
@@ -134,7 +139,8 @@ impl CompareError {
             CompareError::Io { .. }
             | CompareError::Chart(_)
             | CompareError::Json(_)
-            | CompareError::NothingRan(_) => ErrorKind::Op,
+            | CompareError::NothingRan(_)
+            | CompareError::NothingMeasured(_) => ErrorKind::Op,
         }
     }
 

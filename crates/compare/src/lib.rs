@@ -30,9 +30,11 @@ pub mod chart;
 #[cfg(feature = "cli")]
 pub mod cli;
 mod error;
+pub mod format;
 pub mod harness;
 pub mod memory;
 pub mod methods;
+pub mod model;
 pub mod npy;
 pub mod problem;
 pub mod progress;

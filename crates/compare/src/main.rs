@@ -16,7 +16,14 @@
 //! `--statistic`; by default one untimed warm-up run, then the best of 3), stated
 //! in the output and in the closing line. Stdout ends with one JSON line of key
 //! figures (counts, per-method summaries, floors, the timing policy, output
-//! folder).
+//! folder), with `"ok": false` and the `error` when the run failed.
+//!
+//! Exit status: 0 when runs completed; 64 for invalid arguments; 1 for an
+//! error, and for a sweep that measured nothing: no run completed (every one
+//! refused or failed; the closing line says why, e.g. the memory guard's
+//! estimate and limit), or runs failed and no floor was measured (a floor
+//! without a measurement is "not measured", never held). The results are
+//! written in every case.
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -26,16 +33,19 @@ use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::{Args, Parser, Subcommand};
 use diffphys_compare::alloc::CountingAllocator;
 use diffphys_compare::cli::progress_bar;
+use diffphys_compare::format::format_bytes;
 use diffphys_compare::harness::{
-    cg_speedup, compute_floors, prepare_out_dir, run_sweep, run_sweep_npy, write_charts, Precision,
-    Statistic, SweepConfig, FLOOR_N,
+    cg_speedup, compute_floors, prepare_out_dir, run_sweep, run_sweep_npy, write_charts, Statistic,
+    SweepConfig, FLOOR_N,
 };
+use diffphys_compare::memory::MemoryBudget;
+use diffphys_compare::model::{Floor, Method, Precision, ResultRow, RunStatus, Verdict};
 use diffphys_compare::npy::NpyWriter;
 use diffphys_compare::problem::OperatorKind;
 use diffphys_compare::progress::{LineProgress, Progress};
 use diffphys_compare::report::{
-    floors_text, is_skipped, key_figures_value, method_summary, render_table, write_report_md,
-    write_results_json, Method, Report,
+    floors_text, key_figures_value, memory_refusals, method_summary, render_table, write_report_md,
+    write_results_json, Report, RunCounts,
 };
 use diffphys_compare::stability::{
     converged_rtol, render_stability_md, result_rows, run_stability, stability_key_figures,
@@ -266,13 +276,13 @@ fn describe(config: &SweepConfig, args: &SweepArgs) -> Vec<String> {
         format!("loss: {:?}", config.loss),
         format!(
             "naive tape limit: {}",
-            diffphys_compare::report::format_bytes(config.naive_tape_limit_bytes)
+            format_bytes(config.naive_tape_limit_bytes)
         ),
         {
-            let budget = diffphys_compare::memory::MemoryBudget::new(config.memory_limit_mib);
+            let budget = MemoryBudget::new(config.memory_limit_mib);
             format!(
                 "memory limit per run: {} ({})",
-                diffphys_compare::report::format_bytes(budget.limit_bytes),
+                format_bytes(budget.limit_bytes),
                 budget.source
             )
         },
@@ -296,7 +306,51 @@ fn sweep_progress(quick: bool) -> Box<dyn Progress> {
     }
 }
 
-fn run(args: &SweepArgs, started: Instant) -> Result<String> {
+/// Why a sweep measured nothing, if it did: no run completed (with the memory
+/// guard's reason if it refused runs), or runs failed and no floor was
+/// measured. `None` for a sweep with something to show.
+fn nothing_measured(rows: &[ResultRow], floors: &[Floor], results: &Path) -> Option<CompareError> {
+    let counts = RunCounts::of(rows);
+    let first_failure = || {
+        rows.iter()
+            .find(|r| r.status == RunStatus::Failed)
+            .and_then(|r| r.error.as_deref())
+            .map(|e| format!("; first failure: {e}"))
+            .unwrap_or_default()
+    };
+    let refusals = || {
+        memory_refusals(rows)
+            .map(|r| format!("; the memory guard refused runs: {r}"))
+            .unwrap_or_default()
+    };
+    if counts.ok == 0 {
+        return Some(CompareError::NothingRan(format!(
+            "{}{}{}; see {}",
+            counts.describe(),
+            refusals(),
+            first_failure(),
+            results.display()
+        )));
+    }
+    let measured = floors.iter().any(|f| f.verdict() != Verdict::NotMeasured);
+    (counts.failed > 0 && !measured).then(|| {
+        CompareError::NothingMeasured(format!(
+            "no floor was measured (floors are judged at {FLOOR_N}², f64, laplacian, rtol 1e-8, \
+             MG-PCG at 64²..2048²) and {} of {} runs failed{}{}; see {}",
+            counts.failed,
+            counts.runs,
+            first_failure(),
+            refusals(),
+            results.display()
+        ))
+    })
+}
+
+/// What a mode ends with: its closing JSON object and, for a run that completed
+/// but measured nothing, why (the exit status is then 1).
+type Ending = (serde_json::Value, Option<CompareError>);
+
+fn run(args: &SweepArgs, started: Instant) -> Result<Ending> {
     let config = args.config()?;
     let out = prepare_out_dir(&args.out)?;
     println!("timing: {}", config.timing.describe());
@@ -330,11 +384,18 @@ fn run(args: &SweepArgs, started: Instant) -> Result<String> {
     };
     let floors = compute_floors(&rows, Some(speedup));
     let (charts, mut notes) = write_charts(&out, &rows);
-    let skipped = rows.iter().filter(|r| is_skipped(r)).count();
-    if skipped > 0 {
+    let counts = RunCounts::of(&rows);
+    if counts.skipped > 0 {
         notes.push(format!(
-            "{skipped} naive runs were skipped because their tape would exceed the limit \
-             (raise --naive-tape-limit-mib to run them)"
+            "{} naive runs were skipped because their tape would exceed the limit \
+             (raise --naive-tape-limit-mib to run them)",
+            counts.skipped
+        ));
+    }
+    if let Some(reason) = memory_refusals(&rows) {
+        notes.push(format!(
+            "{} runs were refused by the memory guard (--memory-limit-mib): {reason}",
+            counts.memory_limit
         ));
     }
     write_results_json(&out.join("results.json"), &rows)?;
@@ -362,13 +423,6 @@ fn run(args: &SweepArgs, started: Instant) -> Result<String> {
     if let Some(index) = npy_index {
         println!("wrote {}", index.display());
     }
-    if rows.iter().all(|r| r.error.is_some()) {
-        return Err(CompareError::NothingRan(format!(
-            "all {} runs were refused or failed; see {}",
-            rows.len(),
-            out.join("results.json").display()
-        )));
-    }
     let mut tail = key_figures_value(&rows, &floors, &out, started.elapsed().as_secs_f64());
     tail["methods"] = method_summary(&rows);
     tail["timing"] = serde_json::json!({
@@ -379,10 +433,11 @@ fn run(args: &SweepArgs, started: Instant) -> Result<String> {
     });
     tail["threads"] = diffphys_tape::parallel::threads().into();
     tail["parallel_min_len"] = diffphys_tape::parallel::min_parallel_len().into();
-    Ok(tail.to_string())
+    let failure = nothing_measured(&rows, &floors, &out.join("results.json"));
+    Ok((tail, failure))
 }
 
-fn run_stability_mode(out: &Path, quick: bool, started: Instant) -> Result<String> {
+fn run_stability_mode(out: &Path, quick: bool, started: Instant) -> Result<Ending> {
     let config = if quick {
         StabilityConfig::quick()
     } else {
@@ -443,7 +498,8 @@ fn run_stability_mode(out: &Path, quick: bool, started: Instant) -> Result<Strin
         out.join("stability.json").display(),
         md_path.display()
     );
-    Ok(stability_key_figures(&results, &out, started.elapsed().as_secs_f64()).to_string())
+    let tail = stability_key_figures(&results, &out, started.elapsed().as_secs_f64());
+    Ok((tail, None))
 }
 
 fn main() -> ExitCode {
@@ -476,9 +532,19 @@ fn main() -> ExitCode {
         }
     };
     match result {
-        Ok(line) => {
-            println!("{line}");
-            ExitCode::SUCCESS
+        Ok((mut tail, failure)) => {
+            tail["mode"] = mode.into();
+            tail["ok"] = failure.is_none().into();
+            if let Some(e) = &failure {
+                eprintln!("error: {e}");
+                tail["error"] = e.to_string().into();
+            }
+            println!("{tail}");
+            if failure.is_some() {
+                ExitCode::from(1)
+            } else {
+                ExitCode::SUCCESS
+            }
         }
         Err(e) => {
             eprintln!("error: {e}");

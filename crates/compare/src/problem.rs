@@ -20,7 +20,10 @@ use serde::{Deserialize, Serialize};
 use crate::{CompareError, Result};
 
 /// Which operator `A` the scene solves with: the conditioning axis of the study.
+/// Serialised as its [`label`](OperatorKind::label) (`laplacian`, `aniso100`,
+/// `neumann`), parsed back by [`OperatorKind::parse`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(into = "String", try_from = "String")]
 #[non_exhaustive]
 pub enum OperatorKind {
     /// `−∇²` on `n × n` square cells of `[0, 1]²`, zero Dirichlet walls: condition
@@ -85,6 +88,26 @@ impl OperatorKind {
             "unknown operator '{s}': expected 'laplacian', 'neumann' or 'aniso<ratio ≥ 1>', \
              e.g. aniso100"
         )))
+    }
+}
+
+impl std::fmt::Display for OperatorKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.label())
+    }
+}
+
+impl From<OperatorKind> for String {
+    fn from(op: OperatorKind) -> String {
+        op.label()
+    }
+}
+
+impl TryFrom<String> for OperatorKind {
+    type Error = CompareError;
+
+    fn try_from(label: String) -> Result<Self> {
+        OperatorKind::parse(&label)
     }
 }
 

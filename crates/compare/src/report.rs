@@ -1,286 +1,13 @@
-//! Result rows and the files and tables made from them: `results.json`, the
-//! printed table, `report.md`, the performance floors and the closing JSON line.
+//! The files and tables made from result rows ([`crate::model`]):
+//! `results.json`, the printed table, `report.md`, the floors and the closing
+//! JSON line. It reads rows and floors only; it runs nothing.
 
 use std::fmt::Write as _;
 use std::path::Path;
 
-use serde::{Deserialize, Serialize};
-
-use crate::chart::format_value;
-use crate::harness::MethodKind;
-pub use crate::harness::Precision;
-use crate::problem::OperatorKind;
+use crate::format::{format_bytes, format_seconds, format_value};
+use crate::model::{Floor, Method, ResultRow, RunStatus, Verdict};
 use crate::{CompareError, Result};
-
-/// What a row measured: a gradient method, the straightforward CG baseline, or
-/// the scene's setup (a row for a scene that could not be built).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Method {
-    /// CG unrolled on the tape.
-    Naive,
-    /// The Poisson op with its implicit adjoint.
-    Implicit,
-    /// The implicit gradient with multigrid-preconditioned CG for the forward
-    /// and the adjoint solve.
-    ImplicitMgpcg,
-    /// The sparse Cholesky reference.
-    Exact,
-    /// The straightforward CG, forward only.
-    BaselineCg,
-    /// Building the scene, before any method ran.
-    Setup,
-}
-
-impl Method {
-    /// The methods a sweep can run (`--methods`), in the order a sweep runs them.
-    pub const SELECTABLE: [Method; 5] = [
-        Method::Exact,
-        Method::BaselineCg,
-        Method::Implicit,
-        Method::ImplicitMgpcg,
-        Method::Naive,
-    ];
-
-    /// The name in results: `naive`, `implicit`, `implicit_mgpcg`, `exact`,
-    /// `baseline_cg`, `setup`.
-    pub fn name(self) -> &'static str {
-        match self {
-            Method::Naive => "naive",
-            Method::Implicit => "implicit",
-            Method::ImplicitMgpcg => "implicit_mgpcg",
-            Method::Exact => "exact",
-            Method::BaselineCg => "baseline_cg",
-            Method::Setup => "setup",
-        }
-    }
-
-    /// Parses the name of one of [`Method::SELECTABLE`].
-    ///
-    /// # Errors
-    /// [`CompareError::InvalidArgument`] naming the valid methods.
-    pub fn parse(s: &str) -> Result<Self> {
-        Method::SELECTABLE
-            .into_iter()
-            .find(|m| m.name() == s)
-            .ok_or_else(|| {
-                CompareError::invalid(format!(
-                    "unknown method '{s}': expected one of {}",
-                    Method::SELECTABLE.map(Method::name).join(", ")
-                ))
-            })
-    }
-
-    /// The gradient method of this kind, if it is one (not the forward-only
-    /// baseline or the setup).
-    pub fn gradient_kind(self) -> Option<MethodKind> {
-        match self {
-            Method::Naive => Some(MethodKind::Naive),
-            Method::Implicit => Some(MethodKind::Implicit),
-            Method::ImplicitMgpcg => Some(MethodKind::ImplicitMgpcg),
-            Method::Exact => Some(MethodKind::Exact),
-            Method::BaselineCg | Method::Setup => None,
-        }
-    }
-}
-
-impl std::fmt::Display for Method {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-impl From<MethodKind> for Method {
-    fn from(kind: MethodKind) -> Self {
-        match kind {
-            MethodKind::Naive => Method::Naive,
-            MethodKind::Implicit => Method::Implicit,
-            MethodKind::ImplicitMgpcg => Method::ImplicitMgpcg,
-            MethodKind::Exact => Method::Exact,
-        }
-    }
-}
-
-/// How a run ended. Not serialised (`results.json` keeps its fields): on reading,
-/// it is recovered from the row's `error` ([`RunStatus::of_message`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
-pub enum RunStatus {
-    /// The run completed (its figures may still be non-finite).
-    #[default]
-    Ok,
-    /// The run failed; `error` says why.
-    Failed,
-    /// The run was not attempted ([`CompareError::Skipped`]).
-    Skipped,
-    /// The run was refused before it allocated ([`CompareError::MemoryLimit`]).
-    MemoryLimit,
-}
-
-impl RunStatus {
-    /// The status of a run that ended in `e`.
-    pub fn of_error(e: &CompareError) -> Self {
-        match e {
-            CompareError::Skipped(_) => RunStatus::Skipped,
-            CompareError::MemoryLimit { .. } => RunStatus::MemoryLimit,
-            _ => RunStatus::Failed,
-        }
-    }
-
-    /// The status of a row read back from JSON, from its error message.
-    pub fn of_message(error: Option<&str>) -> Self {
-        match error {
-            None => RunStatus::Ok,
-            Some(e) if e.starts_with("skipped:") => RunStatus::Skipped,
-            Some(e) if e.starts_with("memory limit:") => RunStatus::MemoryLimit,
-            Some(_) => RunStatus::Failed,
-        }
-    }
-}
-
-/// Serialises an [`OperatorKind`] as its [`label`](OperatorKind::label)
-/// (`laplacian`, `aniso100`, `neumann`) and parses it back.
-pub mod operator_label {
-    use serde::{Deserialize, Deserializer, Serializer};
-
-    use crate::problem::OperatorKind;
-
-    /// Writes the label.
-    pub fn serialize<S: Serializer>(op: &OperatorKind, s: S) -> Result<S::Ok, S::Error> {
-        s.serialize_str(&op.label())
-    }
-
-    /// Parses the label.
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<OperatorKind, D::Error> {
-        let label = String::deserialize(d)?;
-        OperatorKind::parse(&label).map_err(serde::de::Error::custom)
-    }
-}
-
-/// One measured run of one method on one scene. Serialised as a `results.json`
-/// entry; `null` where a figure does not apply (no backward for a baseline, no
-/// heap figure without the counting allocator, no error against exact when the
-/// run failed).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct ResultRow {
-    /// `naive`, `implicit`, `exact`, `baseline_cg`, `setup`.
-    pub method: Method,
-    /// `f32` or `f64`.
-    pub precision: Precision,
-    /// Cells per axis.
-    pub n: usize,
-    /// CG iterations of the forward solve (the fixed count, or what the tolerance
-    /// needed); `null` for a direct solve.
-    pub iterations: Option<usize>,
-    /// The relative tolerance asked for; `null` for a fixed iteration count.
-    pub rtol: Option<f64>,
-    /// Seconds for the forward solve and the loss.
-    pub forward_s: Option<f64>,
-    /// Seconds for the gradient after the forward.
-    pub backward_s: Option<f64>,
-    /// Peak bytes held by the tape (0 without a tape).
-    pub tape_bytes: usize,
-    /// Peak heap bytes during the run above what was allocated before it
-    /// (counting allocator); `null` if no counting allocator is installed.
-    pub peak_heap_bytes: Option<usize>,
-    /// `‖g − g_exact‖ / ‖g_exact‖` against the `f64` Cholesky gradient; `null`
-    /// if the run failed or produced non-finite values.
-    pub grad_rel_err: Option<f64>,
-    /// True if the loss and every gradient entry stayed finite and no
-    /// non-finite error was raised.
-    pub finite: bool,
-    /// The error, if the run failed.
-    pub error: Option<String>,
-    /// How the run ended (not serialised; see [`RunStatus`]).
-    #[serde(skip)]
-    pub status: RunStatus,
-    /// A variant of the method shown beside it in tables (`naive (x0)`); not
-    /// serialised.
-    #[serde(skip)]
-    pub variant: Option<String>,
-    /// The operator (`laplacian`, `aniso100`): the conditioning axis.
-    #[serde(with = "operator_label")]
-    pub operator: OperatorKind,
-    /// The iteration cap of a tolerance run, or the fixed count.
-    pub max_iters: Option<usize>,
-    /// CG iterations of the adjoint solve (implicit method).
-    pub adjoint_iterations: Option<usize>,
-    /// The relative residual `‖b − A p‖/‖b‖` the forward solution reached
-    /// (recomputed in `f64`), to read beside the requested [`ResultRow::rtol`]: a
-    /// tolerance below the rounding floor of the precision is not reached.
-    #[serde(alias = "forward_residual")]
-    pub reached_relative_residual: Option<f64>,
-    /// The loss value.
-    pub loss: Option<f64>,
-    /// Relative error of the gradient's directional derivative against a central
-    /// finite difference of the method's own loss (small grids only): small for a
-    /// gradient that is the derivative of what the method computed.
-    pub fd_rel_err: Option<f64>,
-    /// Untimed warm-up runs before the timed ones
-    /// ([`TimingPolicy`](crate::harness::TimingPolicy)).
-    #[serde(default)]
-    pub warmup_runs: usize,
-    /// Forward + backward seconds of every timed run, in run order; the row's
-    /// times are those of the run the policy's statistic picked. Empty for a
-    /// run that was not timed.
-    #[serde(default)]
-    pub run_times_s: Vec<f64>,
-}
-
-impl ResultRow {
-    /// A row with the identifying fields set and every figure empty.
-    pub fn new(method: Method, precision: Precision, n: usize, operator: OperatorKind) -> Self {
-        ResultRow {
-            method,
-            precision,
-            n,
-            iterations: None,
-            rtol: None,
-            forward_s: None,
-            backward_s: None,
-            tape_bytes: 0,
-            peak_heap_bytes: None,
-            grad_rel_err: None,
-            finite: true,
-            error: None,
-            status: RunStatus::Ok,
-            variant: None,
-            operator,
-            max_iters: None,
-            adjoint_iterations: None,
-            reached_relative_residual: None,
-            loss: None,
-            fd_rel_err: None,
-            warmup_runs: 0,
-            run_times_s: Vec::new(),
-        }
-    }
-
-    /// `forward_s + backward_s` (the forward alone if there is no backward).
-    pub fn total_s(&self) -> Option<f64> {
-        self.forward_s.map(|f| f + self.backward_s.unwrap_or(0.0))
-    }
-
-    /// Records that the run ended in `e`: its message and its status.
-    pub fn fail(&mut self, e: &CompareError) {
-        self.error = Some(e.to_string());
-        self.status = RunStatus::of_error(e);
-    }
-
-    /// True for a run that was attempted and failed (not skipped or refused).
-    pub fn failed(&self) -> bool {
-        self.status == RunStatus::Failed
-    }
-
-    /// `method precision`, the label of this row's curve in charts.
-    pub fn series_label(&self) -> String {
-        format!("{} {}", self.method, self.precision)
-    }
-}
-
-/// True for a row that was not attempted ([`CompareError::Skipped`]).
-pub fn is_skipped(row: &ResultRow) -> bool {
-    row.status == RunStatus::Skipped
-}
 
 /// Writes `rows` as a pretty-printed JSON list.
 ///
@@ -291,7 +18,9 @@ pub fn write_results_json(path: &Path, rows: &[ResultRow]) -> Result<()> {
     std::fs::write(path, text + "\n").map_err(|e| CompareError::io(path, e))
 }
 
-/// Reads a `results.json` written by [`write_results_json`].
+/// Reads a `results.json` written by [`write_results_json`]. Each row's
+/// [`RunStatus`] is read as written; a file from before rows carried it reads
+/// as `ok`, except that a row with an error is `failed` (never `ok`).
 ///
 /// # Errors
 /// [`CompareError::Io`] or [`CompareError::Json`].
@@ -299,41 +28,70 @@ pub fn read_results_json(path: &Path) -> Result<Vec<ResultRow>> {
     let text = std::fs::read_to_string(path).map_err(|e| CompareError::io(path, e))?;
     let mut rows: Vec<ResultRow> = serde_json::from_str(&text)?;
     for row in &mut rows {
-        row.status = RunStatus::of_message(row.error.as_deref());
+        if row.error.is_some() && row.status == RunStatus::Ok {
+            row.status = RunStatus::Failed;
+        }
     }
     Ok(rows)
 }
 
-/// A byte count as `512 B`, `3.2 KiB`, `41.0 MiB`, `1.20 GiB`.
-pub fn format_bytes(bytes: usize) -> String {
-    let b = bytes as f64;
-    const K: f64 = 1024.0;
-    if b < K {
-        format!("{bytes} B")
-    } else if b < K * K {
-        format!("{:.1} KiB", b / K)
-    } else if b < K * K * K {
-        format!("{:.1} MiB", b / (K * K))
-    } else {
-        format!("{:.2} GiB", b / (K * K * K))
+/// How the runs of a set ended, counted by [`RunStatus`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct RunCounts {
+    /// Rows.
+    pub runs: usize,
+    /// Runs that completed.
+    pub ok: usize,
+    /// Runs attempted that failed.
+    pub failed: usize,
+    /// Runs skipped (a naive tape over its limit).
+    pub skipped: usize,
+    /// Runs the memory guard refused.
+    pub memory_limit: usize,
+    /// Rows with a non-finite value (completed or not).
+    pub non_finite: usize,
+}
+
+impl RunCounts {
+    /// Counts `rows`.
+    pub fn of(rows: &[ResultRow]) -> Self {
+        let mut c = RunCounts {
+            runs: rows.len(),
+            ..RunCounts::default()
+        };
+        for r in rows {
+            match r.status {
+                RunStatus::Ok => c.ok += 1,
+                RunStatus::Failed => c.failed += 1,
+                RunStatus::Skipped => c.skipped += 1,
+                RunStatus::MemoryLimit => c.memory_limit += 1,
+            }
+            c.non_finite += usize::from(!r.finite);
+        }
+        c
+    }
+
+    /// `20 runs: 0 completed, 4 failed, 0 skipped, 16 refused by the memory guard`.
+    pub fn describe(&self) -> String {
+        format!(
+            "{} runs: {} completed, {} failed, {} skipped, {} refused by the memory guard",
+            self.runs, self.ok, self.failed, self.skipped, self.memory_limit
+        )
     }
 }
 
-/// Seconds as `420 ns`, `3.25 µs`, `850 µs`, `12.3 ms`, `4.56 s`.
-pub fn format_seconds(s: f64) -> String {
-    if !s.is_finite() {
-        s.to_string()
-    } else if s < 1e-6 {
-        format!("{:.0} ns", s * 1e9)
-    } else if s < 1e-4 {
-        format!("{:.2} µs", s * 1e6)
-    } else if s < 1e-3 {
-        format!("{:.0} µs", s * 1e6)
-    } else if s < 1.0 {
-        format!("{:.1} ms", s * 1e3)
-    } else {
-        format!("{s:.2} s")
-    }
+/// Why the memory guard refused runs, from the refused rows' errors: the first
+/// refusal's message, with how many more there were; `None` if it refused none.
+pub fn memory_refusals(rows: &[ResultRow]) -> Option<String> {
+    let mut refused = rows
+        .iter()
+        .filter(|r| r.status == RunStatus::MemoryLimit)
+        .filter_map(|r| r.error.as_deref());
+    let first = refused.next()?;
+    Some(match refused.count() {
+        0 => first.to_string(),
+        more => format!("{first} (and {more} more runs refused)"),
+    })
 }
 
 fn opt<T>(v: Option<T>, f: impl FnOnce(T) -> String) -> String {
@@ -469,44 +227,6 @@ pub fn markdown_table(rows: &[ResultRow]) -> String {
     out
 }
 
-/// One performance floor of the project, measured as a ratio in this run.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Floor {
-    /// A short key (`heap_ratio`, …), used in the closing JSON line.
-    pub key: String,
-    /// What is compared, in words.
-    pub description: String,
-    /// The measured figure; `None` if the run did not include what it needs.
-    pub measured: Option<f64>,
-    /// The bound it must meet.
-    pub limit: f64,
-    /// True if `measured ≥ limit`, false if `measured ≤ limit` is required.
-    pub at_least: bool,
-    /// Why it was not measured, or a remark on the measurement.
-    pub note: String,
-}
-
-impl Floor {
-    /// Whether the floor holds; `None` if it was not measured.
-    pub fn holds(&self) -> Option<bool> {
-        self.measured.map(|m| {
-            if self.at_least {
-                m >= self.limit
-            } else {
-                m <= self.limit
-            }
-        })
-    }
-
-    fn verdict(&self) -> &'static str {
-        match self.holds() {
-            Some(true) => "holds",
-            Some(false) => "FAILS",
-            None => "not measured",
-        }
-    }
-}
-
 /// The floors as a Markdown table.
 pub fn floors_markdown(floors: &[Floor]) -> String {
     let mut out =
@@ -519,7 +239,7 @@ pub fn floors_markdown(floors: &[Floor]) -> String {
             opt(f.measured, format_value),
             if f.at_least { "≥" } else { "≤" },
             format_value(f.limit),
-            f.verdict(),
+            f.verdict().label(),
             f.note.replace('|', "\\|")
         );
     }
@@ -533,7 +253,7 @@ pub fn floors_text(floors: &[Floor]) -> String {
         let _ = writeln!(
             out,
             "{:<12} {:<70} {:>10} {} {:<6} {}",
-            f.verdict(),
+            f.verdict().label(),
             f.description,
             opt(f.measured, format_value),
             if f.at_least { "≥" } else { "≤" },
@@ -585,24 +305,16 @@ pub fn render_report(report: &Report<'_>) -> String {
     }
     // A report of studies (the stability mode) has no sweep rows: no Results table.
     if !report.rows.is_empty() {
-        let skipped = report.rows.iter().filter(|r| is_skipped(r)).count();
-        let failed = report
-            .rows
-            .iter()
-            .filter(|r| r.error.is_some() && !is_skipped(r))
-            .count();
-        let non_finite = report.rows.iter().filter(|r| !r.finite).count();
+        let c = RunCounts::of(report.rows);
         let _ = writeln!(
             out,
-            "## Results\n\n{} runs, {} failed, {} skipped, {} with non-finite values. Times are wall-clock \
+            "## Results\n\n{} runs, {} failed, {} skipped, {} with non-finite values, {} refused by \
+             the memory guard. Times are wall-clock \
              seconds; peak heap is measured by a counting allocator above the heap in use \
              before each run; gradient error is relative to the f64 sparse-Cholesky gradient. \
              `iters` counts forward CG iterations (`forward+adjoint` for the implicit method; in \
              parentheses, the count or cap a failed run was given).\n",
-            report.rows.len(),
-            failed,
-            skipped,
-            non_finite
+            c.runs, c.failed, c.skipped, c.non_finite, c.memory_limit
         );
         out.push_str(&markdown_table(report.rows));
     }
@@ -624,7 +336,8 @@ pub fn write_report_md(path: &Path, report: &Report<'_>) -> Result<()> {
 }
 
 /// The one-line JSON summary every run ends stdout with: counts, each floor's
-/// measured value and verdict, the output folder and the elapsed time.
+/// measured value and verdict, the output folder and the elapsed time. See
+/// [`key_figures_value`].
 pub fn key_figures_line(
     rows: &[ResultRow],
     floors: &[Floor],
@@ -634,7 +347,18 @@ pub fn key_figures_line(
     key_figures_value(rows, floors, out_dir, elapsed_s).to_string()
 }
 
-/// The object of [`key_figures_line`], for modes that add their own figures.
+/// The object of [`key_figures_line`], for modes that add their own figures:
+///
+/// - `runs`, `failed` (attempted and failed), `skipped`, `refused` (by the
+///   memory guard), `non_finite`: counts of rows by [`RunStatus`];
+/// - `refused_reason`: why the memory guard refused runs ([`memory_refusals`]),
+///   `null` if it refused none;
+/// - `floors`: per floor key, `measured`, `limit`, `holds` (`null` if not
+///   measured) and `verdict` (`holds`, `fails`, `not_measured`);
+/// - `floors_hold`: `false` if a floor fails, `true` if every floor was
+///   measured and holds, `null` otherwise: a floor without a measurement is
+///   not measured, never held; `floors_not_measured` lists them;
+/// - `out`, `elapsed_s`.
 pub fn key_figures_value(
     rows: &[ResultRow],
     floors: &[Floor],
@@ -649,19 +373,42 @@ pub fn key_figures_value(
                 "measured": f.measured,
                 "limit": f.limit,
                 "holds": f.holds(),
+                "verdict": f.verdict(),
             }),
         );
     }
+    let c = RunCounts::of(rows);
+    let not_measured: Vec<&str> = floors
+        .iter()
+        .filter(|f| f.verdict() == Verdict::NotMeasured)
+        .map(|f| f.key.as_str())
+        .collect();
     serde_json::json!({
-        "runs": rows.len(),
-        "failed": rows.iter().filter(|r| r.error.is_some() && !is_skipped(r)).count(),
-        "skipped": rows.iter().filter(|r| is_skipped(r)).count(),
-        "non_finite": rows.iter().filter(|r| !r.finite).count(),
+        "runs": c.runs,
+        "failed": c.failed,
+        "skipped": c.skipped,
+        "refused": c.memory_limit,
+        "refused_reason": memory_refusals(rows),
+        "non_finite": c.non_finite,
         "floors": floor_map,
-        "floors_hold": floors.iter().all(|f| f.holds() != Some(false)),
+        "floors_hold": floors_hold(floors),
+        "floors_not_measured": not_measured,
         "out": out_dir.display().to_string(),
         "elapsed_s": (elapsed_s * 1000.0).round() / 1000.0,
     })
+}
+
+/// `Some(false)` if a floor fails, `Some(true)` if every floor was measured and
+/// holds, `None` if none fails but one was not measured (or there are none).
+pub fn floors_hold(floors: &[Floor]) -> Option<bool> {
+    let verdicts: Vec<Verdict> = floors.iter().map(Floor::verdict).collect();
+    if verdicts.contains(&Verdict::Fails) {
+        Some(false)
+    } else if verdicts.is_empty() || verdicts.contains(&Verdict::NotMeasured) {
+        None
+    } else {
+        Some(true)
+    }
 }
 
 /// Per method that has rows: how many runs it had, completed, failed and were
@@ -675,7 +422,7 @@ pub fn method_summary(rows: &[ResultRow]) -> serde_json::Value {
         if mine.is_empty() {
             continue;
         }
-        let ok: Vec<&&ResultRow> = mine.iter().filter(|r| r.error.is_none()).collect();
+        let ok: Vec<&&ResultRow> = mine.iter().filter(|r| r.ok()).collect();
         let max_f = |v: &mut dyn Iterator<Item = f64>| {
             v.fold(None, |a: Option<f64>, x| Some(a.map_or(x, |a| a.max(x))))
         };
@@ -685,7 +432,7 @@ pub fn method_summary(rows: &[ResultRow]) -> serde_json::Value {
                 "runs": mine.len(),
                 "ok": ok.len(),
                 "failed": mine.iter().filter(|r| r.failed()).count(),
-                "not_run": mine.iter().filter(|r| matches!(r.status, RunStatus::Skipped | RunStatus::MemoryLimit)).count(),
+                "not_run": mine.iter().filter(|r| r.status.not_run()).count(),
                 "max_iterations": ok.iter().filter_map(|r| r.iterations).max(),
                 "worst_grad_rel_err": max_f(&mut ok.iter().filter_map(|r| r.grad_rel_err)),
                 "max_gradient_s": max_f(&mut ok.iter().filter_map(|r| r.total_s())),
@@ -700,16 +447,6 @@ mod tests {
     use super::*;
 
     #[test]
-    fn bytes_and_seconds_format_readably() {
-        assert_eq!(format_bytes(512), "512 B");
-        assert_eq!(format_bytes(3 * 1024 * 1024), "3.0 MiB");
-        assert_eq!(format_seconds(0.0123), "12.3 ms");
-        assert_eq!(format_seconds(2.5), "2.50 s");
-        assert_eq!(format_seconds(4.2e-7), "420 ns");
-        assert_eq!(format_seconds(3.25e-6), "3.25 µs");
-    }
-
-    #[test]
     fn floors_compare_in_the_right_direction() {
         let f = |m: f64, at_least: bool| Floor {
             key: "k".into(),
@@ -722,6 +459,65 @@ mod tests {
         assert_eq!(f(2.0, true).holds(), Some(true));
         assert_eq!(f(2.0, false).holds(), Some(false));
         assert_eq!(f(1.0, false).holds(), Some(true));
+    }
+
+    #[test]
+    fn a_floor_without_a_measurement_is_never_held() {
+        let f = |measured: Option<f64>| Floor {
+            key: "k".into(),
+            description: "d".into(),
+            measured,
+            limit: 1.0,
+            at_least: false,
+            note: String::new(),
+        };
+        assert_eq!(f(None).verdict(), Verdict::NotMeasured);
+        assert_eq!(floors_hold(&[]), None);
+        assert_eq!(floors_hold(&[f(None), f(None)]), None);
+        assert_eq!(floors_hold(&[f(Some(0.5)), f(None)]), None);
+        assert_eq!(
+            floors_hold(&[f(Some(0.5)), f(Some(2.0)), f(None)]),
+            Some(false)
+        );
+        assert_eq!(floors_hold(&[f(Some(0.5)), f(Some(1.0))]), Some(true));
+        let v = key_figures_value(&[], &[f(None)], Path::new("o"), 0.0);
+        assert_eq!(v["floors_hold"], serde_json::Value::Null);
+        assert_eq!(v["floors"]["k"]["verdict"], "not_measured");
+        assert_eq!(v["floors_not_measured"], serde_json::json!(["k"]));
+    }
+
+    #[test]
+    fn runs_are_counted_by_status_and_refusals_give_their_reason() {
+        use crate::model::Precision;
+        use crate::problem::OperatorKind;
+        let row = |status: RunStatus, error: Option<&str>| {
+            let mut r = ResultRow::new(Method::Naive, Precision::F64, 8, OperatorKind::Laplacian);
+            r.status = status;
+            r.error = error.map(String::from);
+            r
+        };
+        let rows = [
+            row(RunStatus::Ok, None),
+            row(RunStatus::Failed, Some("boom")),
+            row(RunStatus::Skipped, Some("skipped: tape")),
+            row(RunStatus::MemoryLimit, Some("memory limit: first")),
+            row(RunStatus::MemoryLimit, Some("memory limit: second")),
+        ];
+        let c = RunCounts::of(&rows);
+        assert_eq!(
+            (c.runs, c.ok, c.failed, c.skipped, c.memory_limit),
+            (5, 1, 1, 1, 2)
+        );
+        assert_eq!(
+            memory_refusals(&rows).unwrap(),
+            "memory limit: first (and 1 more runs refused)"
+        );
+        assert_eq!(memory_refusals(&rows[..3]), None);
+        let v = key_figures_value(&rows, &[], Path::new("o"), 0.0);
+        assert_eq!(
+            (v["failed"].clone(), v["refused"].clone()),
+            (1.into(), 2.into())
+        );
     }
 
     #[test]

@@ -2,16 +2,16 @@
 //! cannot hold (or grids too small for a run) become rows with a typed error
 //! instead of aborting the process.
 
-use diffphys_compare::harness::{run_sweep, run_sweep_npy, stop_label, Precision, SweepConfig};
+use diffphys_compare::harness::{run_sweep, run_sweep_npy, stop_label, SweepConfig};
 use diffphys_compare::methods::exact::ExactCholesky;
 use diffphys_compare::methods::implicit::ImplicitSolve;
 use diffphys_compare::methods::mgpcg::ImplicitMgpcg;
 use diffphys_compare::methods::naive::NaiveUnrolled;
 use diffphys_compare::methods::{GradientMethod, Stop};
+use diffphys_compare::model::{Method, Precision, RunStatus};
 use diffphys_compare::npy::{NpyEntry, NpyWriter};
 use diffphys_compare::problem::{OperatorKind, Problem, ProblemSpec};
 use diffphys_compare::progress::NoProgress;
-use diffphys_compare::report::{Method, RunStatus};
 use ndarray::{Array2, ArrayD};
 use ndarray_npy::read_npy;
 

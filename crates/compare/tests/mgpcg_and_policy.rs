@@ -3,16 +3,14 @@
 
 use std::cell::Cell;
 
-use diffphys_compare::harness::{
-    relative_error, run_sweep, Precision, Statistic, SweepConfig, TimingPolicy,
-};
+use diffphys_compare::harness::{relative_error, run_sweep, Statistic, SweepConfig, TimingPolicy};
 use diffphys_compare::methods::exact::ExactCholesky;
 use diffphys_compare::methods::implicit::ImplicitSolve;
 use diffphys_compare::methods::mgpcg::ImplicitMgpcg;
 use diffphys_compare::methods::{GradientMethod, Stop};
+use diffphys_compare::model::{Method, Precision, RunStatus};
 use diffphys_compare::problem::{OperatorKind, Problem, ProblemSpec};
 use diffphys_compare::progress::NoProgress;
-use diffphys_compare::report::Method;
 use diffphys_compare::CompareError;
 
 fn tol(rtol: f64) -> Stop {
@@ -317,7 +315,7 @@ fn naive_alone_is_sized_by_a_plain_solve_stopped_at_the_tape_limit() {
     let rows = run_sweep(&config, None, &NoProgress).unwrap();
     assert_eq!(rows.len(), 1);
     let r = &rows[0];
-    assert_eq!(r.status, diffphys_compare::report::RunStatus::Skipped);
+    assert_eq!(r.status, RunStatus::Skipped);
     // Plain CG needs far more than 11 iterations at 32²; the count stopped there.
     let e = r.error.as_deref().unwrap();
     assert!(e.contains("at least 11 unrolled iterations"), "{e}");

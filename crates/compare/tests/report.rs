@@ -3,13 +3,13 @@
 
 use diffphys_compare::alloc::CountingAllocator;
 use diffphys_compare::harness::{
-    compute_floors, run_sweep, write_charts, Precision, SweepConfig, TimingPolicy,
+    compute_floors, run_sweep, write_charts, SweepConfig, TimingPolicy,
 };
+use diffphys_compare::model::{Method, Precision, ResultRow, RunStatus};
 use diffphys_compare::problem::{LossKind, OperatorKind};
 use diffphys_compare::progress::NoProgress;
 use diffphys_compare::report::{
-    read_results_json, render_report, render_table, write_report_md, write_results_json, Method,
-    Report, ResultRow, RunStatus,
+    read_results_json, render_report, render_table, write_report_md, write_results_json, Report,
 };
 
 #[global_allocator]
@@ -212,4 +212,53 @@ fn invalid_configurations_are_typed_errors() {
     c.iters.clear();
     c.rtols.clear();
     assert!(c.validate().is_err());
+}
+
+#[test]
+fn method_precision_operator_and_status_serialise_by_their_names() {
+    use serde_json::json;
+    for m in Method::SELECTABLE.into_iter().chain([Method::Setup]) {
+        assert_eq!(serde_json::to_value(m).unwrap(), json!(m.name()));
+    }
+    assert_eq!(serde_json::to_value(Precision::F32).unwrap(), json!("f32"));
+    for (status, name) in [
+        (RunStatus::Ok, "ok"),
+        (RunStatus::Failed, "failed"),
+        (RunStatus::Skipped, "skipped"),
+        (RunStatus::MemoryLimit, "memory_limit"),
+    ] {
+        assert_eq!(serde_json::to_value(status).unwrap(), json!(name));
+        assert_eq!(status.name(), name);
+    }
+    for op in [
+        OperatorKind::Laplacian,
+        OperatorKind::Neumann,
+        OperatorKind::Anisotropic { ratio: 100.0 },
+    ] {
+        let v = serde_json::to_value(op).unwrap();
+        assert_eq!(v, json!(op.label()));
+        assert_eq!(serde_json::from_value::<OperatorKind>(v).unwrap(), op);
+    }
+    assert!(serde_json::from_value::<OperatorKind>(json!("aniso0.5")).is_err());
+
+    // A row carries its status as written where the run ended; a row of a file
+    // from before the field existed reads as failed if it has an error.
+    let mut row = ResultRow::new(Method::Naive, Precision::F64, 8, OperatorKind::Laplacian);
+    row.error = Some("memory limit: naive on 8×8 cells".into());
+    row.status = RunStatus::MemoryLimit;
+    let mut value = serde_json::to_value(&row).unwrap();
+    assert_eq!(value["status"], "memory_limit");
+    assert_eq!(
+        serde_json::from_value::<ResultRow>(value.clone()).unwrap(),
+        row
+    );
+    let dir = temp_dir("status");
+    let path = dir.join("results.json");
+    value.as_object_mut().unwrap().remove("status");
+    std::fs::write(&path, json!([value]).to_string()).unwrap();
+    assert_eq!(
+        read_results_json(&path).unwrap()[0].status,
+        RunStatus::Failed
+    );
+    std::fs::remove_dir_all(dir).unwrap();
 }

@@ -27,6 +27,7 @@ use std::path::Path;
 
 use plotters::prelude::*;
 
+use crate::format::format_value;
 use crate::{CompareError, Result};
 
 mod axes;
@@ -123,42 +124,12 @@ fn write_file(path: &Path, text: &str) -> Result<()> {
     std::fs::write(path, text).map_err(|e| CompareError::io(path, e))
 }
 
-/// Formats an axis value with about three significant digits: `0.25`, `1200`,
-/// `1e-8`, `3.2e5`.
-pub fn format_value(x: f64) -> String {
-    if x == 0.0 {
-        return "0".to_string();
-    }
-    if !x.is_finite() {
-        return x.to_string();
-    }
-    let a = x.abs();
-    if (1e-3..1e5).contains(&a) {
-        let s = format!("{x:.3}");
-        let s = s.trim_end_matches('0').trim_end_matches('.');
-        return s.to_string();
-    }
-    let s = format!("{x:.2e}");
-    let (mantissa, exponent) = s.split_once('e').expect("{:e} formatting has an exponent");
-    let mantissa = mantissa.trim_end_matches('0').trim_end_matches('.');
-    format!("{mantissa}e{exponent}")
-}
-
 #[cfg(test)]
 mod tests {
     use super::axes::{padded_range, AxisScale};
     use super::heatmap::{ColorScale, NON_FINITE_COLOR};
     use super::line::place;
     use super::*;
-
-    #[test]
-    fn values_format_compactly() {
-        assert_eq!(format_value(0.0), "0");
-        assert_eq!(format_value(0.25), "0.25");
-        assert_eq!(format_value(1200.0), "1200");
-        assert_eq!(format_value(1e-8), "1e-8");
-        assert_eq!(format_value(-3.25e5), "-3.25e5");
-    }
 
     #[test]
     fn diverging_scale_is_white_at_zero_and_symmetric() {

@@ -3,8 +3,8 @@
 use std::path::Path;
 
 use crate::chart::{line_chart_svg, LineChart, Series};
+use crate::model::{Method, ResultRow};
 use crate::problem::OperatorKind;
-use crate::report::{Method, ResultRow};
 
 const MIB: f64 = 1024.0 * 1024.0;
 

@@ -1,7 +1,8 @@
 //! The performance floors, judged as ratios of rows measured in the same run.
 
+use crate::format::format_value;
+use crate::model::{Floor, Method, Precision, ResultRow};
 use crate::problem::OperatorKind;
-use crate::report::{Floor, Method, Precision, ResultRow};
 
 /// The grid size and operator the performance floors are stated at.
 pub const FLOOR_N: usize = 256;
@@ -79,7 +80,7 @@ fn mgpcg_floors(rows: &[ResultRow]) -> Vec<Floor> {
     all_sizes.dedup();
     let others: Vec<String> = all_sizes
         .iter()
-        .filter_map(|&n| speedup(n).map(|s| format!("{n}²: {}", crate::chart::format_value(s))))
+        .filter_map(|&n| speedup(n).map(|s| format!("{n}²: {}", format_value(s))))
         .collect();
     vec![
         Floor {

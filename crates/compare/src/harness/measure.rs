@@ -11,11 +11,11 @@ use ndarray::Array2;
 use crate::alloc::{CountingAllocator, HeapWindow};
 use crate::methods::baseline::{baseline_cg, StraightforwardLaplacian};
 use crate::methods::{GradientMethod, RunOutcome, Stop};
+use crate::model::{Method, Precision, ResultRow};
 use crate::problem::Problem;
-use crate::report::{Method, ResultRow};
 
 use super::policy::{Timed, TimingPolicy};
-use super::{relative_error, Precision};
+use super::relative_error;
 
 /// Runs `method` once on `problem` and measures it into a row
 /// ([`measure_with`] under [`TimingPolicy::single`]): for studies of accuracy,
@@ -45,7 +45,7 @@ pub fn measure_with<T: Real>(
     exact: Option<&Array2<f64>>,
 ) -> (ResultRow, Option<RunOutcome<T>>) {
     let mut row = ResultRow::new(
-        method.kind(),
+        method.method(),
         Precision::of::<T>(),
         problem.spec.n,
         problem.spec.operator,

@@ -1,17 +1,14 @@
-//! Measuring methods: one run into one [`ResultRow`](crate::report::ResultRow), sweeps over sizes, stopping
-//! rules, precisions and operators, the harness's charts and its floors.
+//! Measuring methods: one run into one [`ResultRow`](crate::model::ResultRow),
+//! sweeps over sizes, stopping rules, precisions and operators, the harness's
+//! charts and its floors. It runs the [`methods`](crate::methods) and
+//! produces the rows of [`model`](crate::model); rendering them is the
+//! [`report`](crate::report)'s.
 
 use std::path::{Path, PathBuf};
 
 use diffphys_tape::Real;
 use ndarray::Array2;
-use serde::{Deserialize, Serialize};
 
-use crate::methods::exact::ExactCholesky;
-use crate::methods::implicit::ImplicitSolve;
-use crate::methods::mgpcg::ImplicitMgpcg;
-use crate::methods::naive::NaiveUnrolled;
-use crate::methods::GradientMethod;
 use crate::{CompareError, Result};
 
 mod charts;
@@ -33,86 +30,6 @@ pub use policy::{Statistic, Timed, TimingPolicy};
 pub(crate) use sweep::{exact_reference, ExactCache};
 pub use sweep::{naive_bytes_per_iteration, run_sweep, run_sweep_npy, stop_label, SweepConfig};
 pub use timing::{cg_speedup, time_cg_iterations, time_fused_cg, IterationTiming};
-
-/// A scalar type of the study.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Precision {
-    /// `f32`.
-    F32,
-    /// `f64`.
-    F64,
-}
-
-impl Precision {
-    /// `"f32"` or `"f64"`.
-    pub fn name(self) -> &'static str {
-        match self {
-            Precision::F32 => "f32",
-            Precision::F64 => "f64",
-        }
-    }
-
-    /// The precision of `T`.
-    pub fn of<T: Real>() -> Self {
-        Precision::parse(T::NAME).expect("Real is implemented for f32 and f64 only")
-    }
-
-    /// Parses `f32` or `f64`.
-    ///
-    /// # Errors
-    /// [`CompareError::InvalidArgument`] for anything else.
-    pub fn parse(s: &str) -> Result<Self> {
-        match s {
-            "f32" => Ok(Precision::F32),
-            "f64" => Ok(Precision::F64),
-            other => Err(CompareError::invalid(format!(
-                "unknown precision '{other}': expected f32 or f64"
-            ))),
-        }
-    }
-}
-
-impl std::fmt::Display for Precision {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-/// The gradient methods the harness compares.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-pub enum MethodKind {
-    /// CG unrolled on the tape ([`NaiveUnrolled`]).
-    Naive,
-    /// The Poisson op with its implicit adjoint.
-    Implicit,
-    /// The implicit gradient with MG-PCG solves ([`ImplicitMgpcg`]).
-    ImplicitMgpcg,
-    /// The sparse Cholesky reference.
-    Exact,
-}
-
-impl MethodKind {
-    /// The method's name in results.
-    pub fn name(self) -> &'static str {
-        match self {
-            MethodKind::Naive => "naive",
-            MethodKind::Implicit => "implicit",
-            MethodKind::ImplicitMgpcg => "implicit_mgpcg",
-            MethodKind::Exact => "exact",
-        }
-    }
-}
-
-/// The method of `kind` in precision `T`.
-pub fn method<T: Real>(kind: MethodKind) -> Box<dyn GradientMethod<T>> {
-    match kind {
-        MethodKind::Naive => Box::new(NaiveUnrolled::default()),
-        MethodKind::Implicit => Box::new(ImplicitSolve),
-        MethodKind::ImplicitMgpcg => Box::new(ImplicitMgpcg::default()),
-        MethodKind::Exact => Box::new(ExactCholesky),
-    }
-}
 
 /// `‖g − g*‖ / ‖g*‖` in `f64` (`‖g − g*‖` if `g* = 0`); `None` if `g` holds a
 /// non-finite value or the shapes differ.

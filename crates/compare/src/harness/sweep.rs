@@ -8,18 +8,19 @@ use ndarray::Array2;
 use serde::{Deserialize, Serialize};
 
 use crate::alloc::CountingAllocator;
+use crate::format::format_bytes;
 use crate::memory::{MemoryBudget, Storage};
+use crate::methods::exact::ExactCholesky;
 use crate::methods::naive::NaiveUnrolled;
-use crate::methods::{GradientMethod, Stop};
+use crate::methods::{gradient_method, GradientMethod, Stop};
+use crate::model::{Method, Precision, ResultRow};
 use crate::npy::NpyWriter;
 use crate::problem::{LossKind, OperatorKind, Problem, ProblemSpec};
 use crate::progress::Progress;
-use crate::report::{Method, ResultRow};
 use crate::{CompareError, Result};
 
 use super::measure::{finite_difference_error, measure_baseline_with, measure_with};
 use super::policy::TimingPolicy;
-use super::{method, MethodKind, Precision};
 
 /// What a sweep runs.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -193,7 +194,7 @@ pub(crate) fn exact_reference(cache: &mut ExactCache, spec: ProblemSpec) -> Opti
         .entry((spec.n, spec.operator.label()))
         .or_insert_with(|| {
             let problem = Problem::<f64>::new(spec).ok()?;
-            method::<f64>(MethodKind::Exact)
+            ExactCholesky
                 .run(&problem, Stop::Iterations(0))
                 .ok()
                 .map(|o| o.gradient)
@@ -233,15 +234,15 @@ pub fn stop_label(stop: Stop) -> String {
     }
 }
 
-/// A row of `kind` that was not run, with the reason.
+/// A row of `method` that was not run, with the reason.
 fn refused_row(
-    kind: Method,
+    method: Method,
     precision: Precision,
     spec: &ProblemSpec,
     stop: Option<Stop>,
     e: &CompareError,
 ) -> ResultRow {
-    let mut row = ResultRow::new(kind, precision, spec.n, spec.operator);
+    let mut row = ResultRow::new(method, precision, spec.n, spec.operator);
     row.rtol = stop.and_then(|s| s.rtol());
     row.max_iters = stop.map(|s| s.max_iters());
     row.fail(e);
@@ -300,11 +301,11 @@ fn sweep_scene<T: Real>(
         .check(Method::Setup.name(), spec.n, value_bytes, Storage::Fields)
         .is_err()
     {
-        let refuse = |kind: Method, storage: Storage, stop: Option<Stop>| {
+        let refuse = |method: Method, storage: Storage, stop: Option<Stop>| {
             let e = budget
-                .check(kind.name(), spec.n, value_bytes, storage)
+                .check(method.name(), spec.n, value_bytes, storage)
                 .expect_err("a run needs at least its scene's fields");
-            refused_row(kind, Precision::of::<T>(), &spec, stop, &e)
+            refused_row(method, Precision::of::<T>(), &spec, stop, &e)
         };
         if config.runs(Method::Exact) {
             rows.push(refuse(Method::Exact, Storage::Cholesky, None));
@@ -313,9 +314,9 @@ fn sweep_scene<T: Real>(
             rows.push(refuse(Method::BaselineCg, Storage::Fields, None));
         }
         for &stop in &stops {
-            for kind in [Method::Implicit, Method::ImplicitMgpcg] {
-                if config.runs(kind) {
-                    rows.push(refuse(kind, Storage::Fields, Some(stop)));
+            for method in [Method::Implicit, Method::ImplicitMgpcg] {
+                if config.runs(method) {
+                    rows.push(refuse(method, Storage::Fields, Some(stop)));
                 }
             }
             if config.runs(Method::Naive) {
@@ -341,8 +342,8 @@ fn sweep_scene<T: Real>(
             return;
         }
     };
-    let failed_row = |kind: MethodKind, stop: Option<Stop>, e: CompareError| {
-        refused_row(kind.into(), Precision::of::<T>(), &spec, stop, &e)
+    let failed_row = |method: Method, stop: Option<Stop>, e: CompareError| {
+        refused_row(method, Precision::of::<T>(), &spec, stop, &e)
     };
     let n = spec.n;
     if let Some(sink) = npy.as_deref_mut().filter(|_| NpySink::wants::<T>(&spec)) {
@@ -375,15 +376,15 @@ fn sweep_scene<T: Real>(
         (row, out.map(|o| o.gradient))
     };
     let mut record = |rows: &mut Vec<ResultRow>,
-                      kind: MethodKind,
+                      method: Method,
                       stop: Stop,
                       (row, gradient): (ResultRow, Option<Array2<T>>)| {
         if let (Some(sink), Some(g)) = (
             npy.as_deref_mut().filter(|_| NpySink::wants::<T>(&spec)),
             gradient,
         ) {
-            let name = format!("n{n}_grad_{}_{}", kind.name(), stop_label(stop));
-            let meaning = format!("dL/db by the {} method, {stop:?}", kind.name());
+            let name = format!("n{n}_grad_{method}_{}", stop_label(stop));
+            let meaning = format!("dL/db by the {method} method, {stop:?}");
             sink.write(&name, &g, &meaning);
         }
         rows.push(row);
@@ -392,8 +393,8 @@ fn sweep_scene<T: Real>(
         bar.set_message(run_message(&label, "exact (sparse Cholesky)", policy));
         rows.push(
             match budget.check("exact", n, value_bytes, Storage::Cholesky) {
-                Err(e) => failed_row(MethodKind::Exact, None, e),
-                Ok(()) => measure_fd(method::<T>(MethodKind::Exact).as_ref(), None).0,
+                Err(e) => failed_row(Method::Exact, None, e),
+                Ok(()) => measure_fd(&ExactCholesky, None).0,
             },
         );
         bar.inc(1);
@@ -431,24 +432,25 @@ fn sweep_scene<T: Real>(
     for stop in stops {
         // The implicit run first: its iteration count sizes the naive tape.
         let mut implicit_iters = None;
-        for kind in [MethodKind::Implicit, MethodKind::ImplicitMgpcg] {
-            if !config.runs(kind.into()) {
+        for method in [Method::Implicit, Method::ImplicitMgpcg] {
+            let Some(gradient) = gradient_method::<T>(method).filter(|_| config.runs(method))
+            else {
                 continue;
-            }
+            };
             bar.set_message(run_message(
                 &label,
-                &format!("{} {}", kind.name(), stop_label(stop)),
+                &format!("{method} {}", stop_label(stop)),
                 policy,
             ));
-            match budget.check(kind.name(), n, value_bytes, Storage::Fields) {
+            match budget.check(method.name(), n, value_bytes, Storage::Fields) {
                 Ok(()) => {
-                    let measured = measure_fd(method::<T>(kind).as_ref(), Some(stop));
-                    if kind == MethodKind::Implicit {
+                    let measured = measure_fd(gradient.as_ref(), Some(stop));
+                    if method == Method::Implicit {
                         implicit_iters = measured.0.iterations;
                     }
-                    record(rows, kind, stop, measured);
+                    record(rows, method, stop, measured);
                 }
-                Err(e) => rows.push(failed_row(kind, Some(stop), e)),
+                Err(e) => rows.push(failed_row(method, Some(stop), e)),
             }
             bar.inc(1);
         }
@@ -492,7 +494,7 @@ fn sweep_scene<T: Real>(
         };
         if let Some(k) = too_many {
             rows.push(failed_row(
-                MethodKind::Naive,
+                Method::Naive,
                 Some(stop),
                 CompareError::GridTooSmall {
                     method: "naive".into(),
@@ -503,14 +505,14 @@ fn sweep_scene<T: Real>(
             ));
         } else if estimate > config.naive_tape_limit_bytes {
             rows.push(failed_row(
-                MethodKind::Naive,
+                Method::Naive,
                 Some(stop),
                 CompareError::Skipped(format!(
                     "{}{expected_iters} unrolled iterations would need a tape of {}{} (limit {})",
                     if at_least { "at least " } else { "~" },
                     if at_least { "more than " } else { "about " },
-                    crate::report::format_bytes(estimate),
-                    crate::report::format_bytes(config.naive_tape_limit_bytes)
+                    format_bytes(estimate),
+                    format_bytes(config.naive_tape_limit_bytes)
                 )),
             ));
         } else if let Err(e) = budget.check(
@@ -521,10 +523,10 @@ fn sweep_scene<T: Real>(
                 iterations: expected_iters,
             },
         ) {
-            rows.push(failed_row(MethodKind::Naive, Some(stop), e));
+            rows.push(failed_row(Method::Naive, Some(stop), e));
         } else {
             let measured = measure_fd(&NaiveUnrolled::default(), Some(stop));
-            record(rows, MethodKind::Naive, stop, measured);
+            record(rows, Method::Naive, stop, measured);
         }
         bar.inc(1);
     }

@@ -7,15 +7,16 @@ use diffphys_ops::OpsError;
 use diffphys_tape::Real;
 use serde::{Deserialize, Serialize};
 
+use crate::format::format_seconds;
 use crate::memory::{MemoryBudget, Storage};
 use crate::methods::baseline::{baseline_cg, StraightforwardLaplacian};
 use crate::methods::Stop;
+use crate::model::Precision;
 use crate::problem::{Problem, ProblemSpec};
 use crate::{CompareError, Result};
 
 use super::floors::FLOOR_N;
 use super::sweep::SweepConfig;
-use super::Precision;
 
 /// Time per CG iteration of the straightforward baseline and of the solver of
 /// the implicit path, on the same problem and iteration count in the same run.
@@ -24,7 +25,7 @@ pub struct IterationTiming {
     /// Cells per axis.
     pub n: usize,
     /// `f32` or `f64`.
-    pub precision: String,
+    pub precision: Precision,
     /// Iterations each solver ran per timing.
     pub iterations: usize,
     /// Best seconds per iteration of [`baseline_cg`].
@@ -86,7 +87,7 @@ pub fn time_cg_iterations<T: Real>(
     }
     Ok(IterationTiming {
         n: problem.spec.n,
-        precision: T::NAME.to_string(),
+        precision: Precision::of::<T>(),
         iterations,
         baseline_s_per_iter: best_base / iterations as f64,
         fused_s_per_iter: best_fused / iterations as f64,
@@ -142,8 +143,8 @@ pub fn cg_speedup(config: &SweepConfig) -> (Option<IterationTiming>, String) {
                 t.n,
                 t.precision,
                 t.iterations,
-                crate::report::format_seconds(t.baseline_s_per_iter),
-                crate::report::format_seconds(t.fused_s_per_iter)
+                format_seconds(t.baseline_s_per_iter),
+                format_seconds(t.fused_s_per_iter)
             );
             (Some(t), note)
         }

@@ -80,11 +80,27 @@ impl StraightforwardLaplacian {
 
     /// `out = A x` on row-major slices of length [`Self::len`].
     ///
-    /// # Panics
-    /// If a slice has the wrong length (a caller bug; [`baseline_cg`] checks).
-    pub fn apply<T: Real>(&self, x: &[T], out: &mut [T]) {
-        assert_eq!(x.len(), self.len(), "baseline stencil: input length");
-        assert_eq!(out.len(), self.len(), "baseline stencil: output length");
+    /// # Errors
+    /// [`CompareError::InvalidArgument`] if a slice has another length.
+    pub fn apply<T: Real>(&self, x: &[T], out: &mut [T]) -> Result<()> {
+        self.check_lengths(x.len(), out.len(), "x", "out")?;
+        self.stencil(x, out);
+        Ok(())
+    }
+
+    fn check_lengths(&self, a: usize, b: usize, a_name: &str, b_name: &str) -> Result<()> {
+        let n = self.len();
+        if a != n || b != n {
+            return Err(CompareError::invalid(format!(
+                "baseline CG: operator on {}×{} has {n} cells, {a_name} has {a}, {b_name} has {b}",
+                self.nx, self.ny
+            )));
+        }
+        Ok(())
+    }
+
+    /// [`Self::apply`] on slices whose lengths the caller checked.
+    fn stencil<T: Real>(&self, x: &[T], out: &mut [T]) {
         let (nx, ny) = (self.nx, self.ny);
         let kx = T::from_f64(self.kx);
         let ky = T::from_f64(self.ky);
@@ -162,21 +178,15 @@ pub fn baseline_cg<T: Real>(
     x: &mut [T],
     stop: Stop,
 ) -> Result<BaselineCgInfo> {
+    a.check_lengths(b.len(), x.len(), "b", "x")?;
     let n = a.len();
-    if b.len() != n || x.len() != n {
-        return Err(CompareError::invalid(format!(
-            "baseline CG: operator has {n} cells, b has {}, x has {}",
-            b.len(),
-            x.len()
-        )));
-    }
     let breakdown = |what: String| CompareError::NonFinite {
         method: "baseline_cg".to_string(),
         what,
     };
     let mut r = vec![T::zero(); n];
     let mut ap = vec![T::zero(); n];
-    a.apply(x, &mut ap);
+    a.stencil(x, &mut ap);
     for ((r, &b), &ap) in r.iter_mut().zip(b).zip(&ap) {
         *r = b - ap;
     }
@@ -194,7 +204,7 @@ pub fn baseline_cg<T: Real>(
         if rr == T::zero() {
             break;
         }
-        a.apply(&p, &mut ap);
+        a.stencil(&p, &mut ap);
         let pap = dot(&p, &ap);
         if !(pap.is_finite() && pap > T::zero()) {
             return Err(breakdown(format!(
@@ -245,7 +255,9 @@ mod tests {
                 let x = test_array::<f64>(&[5, 4], 3);
                 let want = Laplacian2::negative(grid).apply(x.view()).unwrap();
                 let mut got = vec![0.0; 20];
-                StraightforwardLaplacian::negative(&grid).apply(x.as_slice().unwrap(), &mut got);
+                StraightforwardLaplacian::negative(&grid)
+                    .apply(x.as_slice().unwrap(), &mut got)
+                    .unwrap();
                 for (g, w) in got.iter().zip(want.iter()) {
                     assert!((g - w).abs() <= 1e-12 * w.abs().max(1.0), "{bx:?}/{by:?}");
                 }
@@ -260,7 +272,7 @@ mod tests {
         let a = StraightforwardLaplacian::negative(&grid);
         let x_star = test_array::<f64>(&[12, 12], 7);
         let mut b = vec![0.0; 144];
-        a.apply(x_star.as_slice().unwrap(), &mut b);
+        a.apply(x_star.as_slice().unwrap(), &mut b).unwrap();
         let mut x = vec![0.0; 144];
         let stop = Stop::Tolerance {
             rtol: 1e-12,
@@ -283,5 +295,20 @@ mod tests {
         let info = baseline_cg(&a, &b, &mut x, Stop::Iterations(5)).unwrap();
         assert_eq!(info.iterations, 5);
         assert!(baseline_cg(&a, &b[..10], &mut x, Stop::Iterations(5)).is_err());
+    }
+
+    #[test]
+    fn slices_of_the_wrong_length_or_empty_are_typed_errors() {
+        let grid = Grid2::square(4, 4, 0.25, Boundary::ZeroDirichlet).unwrap();
+        let a = StraightforwardLaplacian::negative(&grid);
+        let mut out = vec![0.0f64; 16];
+        for x in [&[][..], &[1.0; 15][..]] {
+            let e = a.apply(x, &mut out).unwrap_err();
+            assert!(matches!(e, CompareError::InvalidArgument(_)), "{e}");
+            assert!(e.to_string().contains("16 cells"), "{e}");
+        }
+        assert!(a.apply(&[1.0; 16], &mut []).is_err());
+        let mut x: Vec<f64> = Vec::new();
+        assert!(baseline_cg(&a, &[], &mut x, Stop::Iterations(3)).is_err());
     }
 }

@@ -15,6 +15,7 @@ use diffphys_tape::Real;
 use ndarray::{Array2, Ix2};
 
 use super::{relative_residual, GradientMethod, RunOutcome, Stop};
+use crate::model::Method;
 use crate::problem::Problem;
 use crate::{CompareError, Result};
 
@@ -28,8 +29,8 @@ fn to_2d(a: ndarray::ArrayD<f64>) -> Result<Array2<f64>> {
 }
 
 impl<T: Real> GradientMethod<T> for ExactCholesky {
-    fn kind(&self) -> crate::report::Method {
-        crate::report::Method::Exact
+    fn method(&self) -> Method {
+        Method::Exact
     }
 
     fn run(&self, problem: &Problem<T>, _stop: Stop) -> Result<RunOutcome<T>> {

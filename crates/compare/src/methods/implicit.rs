@@ -21,6 +21,7 @@ use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, Tape, TapeError}
 use ndarray::{Array2, Ix2};
 
 use super::{relative_residual, GradientMethod, RunOutcome, Stop};
+use crate::model::Method;
 use crate::problem::Problem;
 use crate::{CompareError, Result};
 
@@ -68,8 +69,8 @@ pub fn check_solves<T: Real>(forward: Stop, adjoint: Stop, log: &SolveLog<T>) ->
 pub struct ImplicitSolve;
 
 impl<T: Real> GradientMethod<T> for ImplicitSolve {
-    fn kind(&self) -> crate::report::Method {
-        crate::report::Method::Implicit
+    fn method(&self) -> Method {
+        Method::Implicit
     }
 
     fn run(&self, problem: &Problem<T>, stop: Stop) -> Result<RunOutcome<T>> {
@@ -87,8 +88,8 @@ pub struct ImplicitSeparateAdjoint {
 }
 
 impl<T: Real> GradientMethod<T> for ImplicitSeparateAdjoint {
-    fn kind(&self) -> crate::report::Method {
-        crate::report::Method::Implicit
+    fn method(&self) -> Method {
+        Method::Implicit
     }
 
     fn run(&self, problem: &Problem<T>, stop: Stop) -> Result<RunOutcome<T>> {

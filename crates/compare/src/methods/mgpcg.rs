@@ -26,6 +26,7 @@ use diffphys_tape::Real;
 
 use super::implicit::run_implicit_preconditioned;
 use super::{GradientMethod, RunOutcome, Stop};
+use crate::model::Method;
 use crate::problem::Problem;
 use crate::Result;
 
@@ -44,8 +45,8 @@ impl Default for ImplicitMgpcg {
 }
 
 impl<T: Real> GradientMethod<T> for ImplicitMgpcg {
-    fn kind(&self) -> crate::report::Method {
-        crate::report::Method::ImplicitMgpcg
+    fn method(&self) -> Method {
+        Method::ImplicitMgpcg
     }
 
     fn run(&self, problem: &Problem<T>, stop: Stop) -> Result<RunOutcome<T>> {

@@ -14,6 +14,7 @@ use diffphys_tape::Real;
 use ndarray::Array2;
 use serde::{Deserialize, Serialize};
 
+use crate::model::Method;
 use crate::problem::Problem;
 use crate::Result;
 
@@ -74,11 +75,11 @@ pub struct RunOutcome<T: Real> {
 /// A way of computing `∂L/∂b` for a [`Problem`] in precision `T`.
 pub trait GradientMethod<T: Real> {
     /// The method, as results name it.
-    fn kind(&self) -> crate::report::Method;
+    fn method(&self) -> Method;
 
     /// The method's name in results: `naive`, `implicit`, `exact`.
     fn name(&self) -> &'static str {
-        self.kind().name()
+        self.method().name()
     }
 
     /// Computes the loss and its gradient, stopping iterative solves by `stop`
@@ -88,6 +89,19 @@ pub trait GradientMethod<T: Real> {
     /// Whatever the method fails with: a solver that does not converge, a
     /// non-finite value (naming the op and, for naive CG, the iteration), …
     fn run(&self, problem: &Problem<T>, stop: Stop) -> Result<RunOutcome<T>>;
+}
+
+/// The gradient method `method` names, with its default settings, in
+/// precision `T`; `None` for [`Method::BaselineCg`] (forward only) and
+/// [`Method::Setup`].
+pub fn gradient_method<T: Real>(method: Method) -> Option<Box<dyn GradientMethod<T>>> {
+    Some(match method {
+        Method::Naive => Box::new(naive::NaiveUnrolled::default()),
+        Method::Implicit => Box::new(implicit::ImplicitSolve),
+        Method::ImplicitMgpcg => Box::new(mgpcg::ImplicitMgpcg::default()),
+        Method::Exact => Box::new(exact::ExactCholesky),
+        Method::BaselineCg | Method::Setup => return None,
+    })
 }
 
 /// `‖b − A x‖ / ‖b‖` in `f64` (`‖b − A x‖` if `b = 0`).

@@ -29,6 +29,7 @@ use diffphys_tape::{Real, Tape, TapeError, Var};
 use ndarray::{Array2, Ix2};
 
 use super::{relative_residual, GradientMethod, RunOutcome, Stop};
+use crate::model::Method;
 use crate::problem::Problem;
 use crate::{CompareError, Result};
 
@@ -155,8 +156,8 @@ fn locate_non_finite<T: Real>(
 }
 
 impl<T: Real> GradientMethod<T> for NaiveUnrolled {
-    fn kind(&self) -> crate::report::Method {
-        crate::report::Method::Naive
+    fn method(&self) -> Method {
+        Method::Naive
     }
 
     fn run(&self, problem: &Problem<T>, stop: Stop) -> Result<RunOutcome<T>> {

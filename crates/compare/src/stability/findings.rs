@@ -1,7 +1,7 @@
 //! The findings of a stability run, in words, from its rows.
 
+use crate::model::{Method, Precision, ResultRow};
 use crate::problem::OperatorKind;
-use crate::report::{Method, Precision, ResultRow};
 
 use super::{StabilityResults, StabilityRow, Study, UnrollRow};
 

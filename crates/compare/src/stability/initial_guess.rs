@@ -5,9 +5,9 @@ use ndarray::Array2;
 use crate::methods::implicit::implicit_initial_guess_gradient;
 use crate::methods::naive::NaiveUnrolled;
 use crate::methods::Stop;
+use crate::model::Method;
 use crate::problem::{Problem, ProblemSpec};
 use crate::progress::Progress;
-use crate::report::Method;
 use crate::{CompareError, Result};
 
 use super::{norm, InitialGuessRow, TOLERANCE_CAP};

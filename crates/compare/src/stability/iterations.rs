@@ -7,9 +7,9 @@ use ndarray::Array2;
 use crate::harness::measure;
 use crate::methods::implicit::ImplicitSolve;
 use crate::methods::Stop;
+use crate::model::{Floor, ResultRow};
 use crate::problem::{Problem, ProblemSpec};
 use crate::progress::Progress;
-use crate::report::{Floor, ResultRow};
 use crate::Result;
 
 use super::{methods, stability_row, StabilityConfig, StabilityRow, Study, F32_FLOOR_LIMIT};

@@ -31,9 +31,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::harness::{exact_reference, ExactCache};
 use crate::methods::{implicit::ImplicitSolve, naive::NaiveUnrolled, GradientMethod};
+use crate::model::{Floor, Method, Precision, ResultRow};
 use crate::problem::{OperatorKind, Problem, ProblemSpec};
 use crate::progress::Progress;
-use crate::report::{Floor, Method, Precision, ResultRow};
 use crate::{CompareError, Result};
 
 mod conditioning;
@@ -241,7 +241,6 @@ pub struct ConvergenceCount {
     /// Cells per axis.
     pub n: usize,
     /// The operator.
-    #[serde(with = "crate::report::operator_label")]
     pub operator: OperatorKind,
     /// `f32` or `f64`.
     pub precision: Precision,

@@ -5,8 +5,8 @@ use std::path::Path;
 
 use crate::chart::{LineChart, Series};
 use crate::harness::{series_by_method, write_chart};
+use crate::model::{Method, Precision, ResultRow};
 use crate::problem::OperatorKind;
-use crate::report::{Method, Precision, ResultRow};
 use crate::{CompareError, Result};
 
 use super::findings::first_failure;

@@ -6,8 +6,8 @@ use diffphys_ops::{Boundary, Grid1, OpsError};
 use diffphys_tape::{Real, Tape, TapeError, Var};
 use ndarray::Array1;
 
+use crate::model::Precision;
 use crate::progress::Progress;
-use crate::report::Precision;
 use crate::{CompareError, Result};
 
 use super::{norm, StabilityConfig, UnrollRow};

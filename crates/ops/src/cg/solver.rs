@@ -330,6 +330,13 @@ impl<'a, T: Real, A: LinearOperator<T> + ?Sized> Solver<'a, T, A> {
                 return Ok(Stop::Converged);
             }
             if rz_new <= 0.0 {
+                // A residual already below what `T` resolves relative to `b`
+                // has converged; its `M⁻¹ r` underflowed (f32 MG-PCG past
+                // convergence), which is not a breakdown of the iteration.
+                if rr.sqrt() < T::EPS.as_f64() {
+                    axpy(alpha_t, &self.p, x);
+                    return Ok(Stop::Converged);
+                }
                 return Err(CgError::Breakdown {
                     iteration: it,
                     reason: format!(

@@ -2,7 +2,8 @@
 //!
 //! Differentiable physics in Rust: a reverse-mode autodiff tape over `ndarray`
 //! tensors ([`tape`]), PDE operators that join it with hand-written adjoints
-//! ([`ops`]), neural-network layers that train through them ([`nn`]), and the
+//! ([`ops`]), a differentiable incompressible flow step built on them ([`flow`]),
+//! neural-network layers that train through them ([`nn`]), and the
 //! measurement of naive versus implicit gradients through conjugate gradient
 //! ([`compare`]). This crate only re-exports them, with the most
 //! used items at the top level.
@@ -42,6 +43,8 @@
 #![warn(missing_docs)]
 
 pub use diffphys_compare as compare;
+pub use diffphys_flow as flow;
+pub use diffphys_learn as learn;
 pub use diffphys_nn as nn;
 pub use diffphys_ops as ops;
 pub use diffphys_tape as tape;

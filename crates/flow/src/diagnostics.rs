@@ -1,0 +1,410 @@
+//! What a scene reports: divergence, vorticity, and the force of the flow on
+//! the obstacle (drag and lift) as differentiable scalars.
+//!
+//! - **Divergence** `D u` per cell over all faces (`(u_x[i+1,j] − u_x[i,j])/dx +
+//!   (u_y[i,j+1] − u_y[i,j])/dy`). Linear; adjoint `Dᵀ g = −G g`.
+//! - **Vorticity** `ω = ∂u_y/∂x − ∂u_x/∂y` at the grid nodes `(i dx, j dy)`
+//!   inside the domain (all nodes along a periodic axis): shape
+//!   `[nx − 1, ny − 1]` in a closed box. Linear; the adjoint scatters back.
+//! - **Force on the obstacle** `F = (F_x, F_y)` (drag and lift for a flow
+//!   along x), by the surface integral over the staircase boundary of the
+//!   pressure and the wall shear, density 1:
+//!
+//!   ```text
+//!   F = Σ_faces fluid|solid  P_fluid · n · A_f          (n: into the solid)
+//!     + Σ_faces fluid|solid  ν · ū_t / (h_n/2) · A_f     (ū_t: tangential velocity of the fluid cell)
+//!   ```
+//!
+//!   `P` is the pressure of the state ([`crate::FlowState::pressure`]); `ū_t`
+//!   the mean of the fluid cell's two tangential faces, the wall at half a
+//!   cell. Linear in `(u, P)` for a given `ν`; adjoint the same weights, and
+//!   `∂F/∂ν` the shear term over `ν`. A staircase body converges at first
+//!   order in `h`.
+
+use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
+use ndarray::{Array1, Array2, ArrayView2, IxDyn};
+
+use crate::advection::{narrow, wide};
+use crate::boundaries::{scalar_of, view2};
+use crate::pressure::{divergence_wide, gradient_wide};
+use crate::{Result, Scene};
+
+/// `D u` on the cells.
+///
+/// # Errors
+/// [`crate::FlowError::Shape`] for wrong shapes.
+pub fn divergence<T: Real>(
+    scene: &Scene,
+    ux: ArrayView2<'_, T>,
+    uy: ArrayView2<'_, T>,
+) -> Result<Array2<T>> {
+    scene.check_velocity("divergence", ux, uy)?;
+    let d = divergence_wide(scene, &wide(ux), &wide(uy), false);
+    Ok(narrow(scene.grid().cell_shape(), &d))
+}
+
+/// The vector–Jacobian product of [`divergence`]: `Dᵀ g = −G g`.
+///
+/// # Errors
+/// [`crate::FlowError::Shape`] for wrong shapes.
+pub fn divergence_vjp<T: Real>(
+    scene: &Scene,
+    grad: ArrayView2<'_, T>,
+) -> Result<(Array2<T>, Array2<T>)> {
+    scene.check_cells("divergence", "gradient", grad)?;
+    let (gx, gy) = gradient_wide(scene, &wide(grad), false);
+    let g = scene.grid();
+    let neg = |v: Vec<f64>| v.into_iter().map(|x| -x).collect::<Vec<_>>();
+    Ok((narrow(g.shape_x(), &neg(gx)), narrow(g.shape_y(), &neg(gy))))
+}
+
+/// `max |D u|` over the fluid cells.
+///
+/// # Errors
+/// [`crate::FlowError::Shape`] for wrong shapes.
+pub fn max_divergence<T: Real>(
+    scene: &Scene,
+    ux: ArrayView2<'_, T>,
+    uy: ArrayView2<'_, T>,
+) -> Result<f64> {
+    let d = divergence(scene, ux, uy)?;
+    Ok(d.iter()
+        .zip(scene.solid().iter())
+        .filter(|(_, &s)| !s)
+        .fold(0.0, |m, (v, _)| m.max(v.as_f64().abs())))
+}
+
+/// `(node, component, face, coefficient)`: one term of a linear diagnostic.
+type Term = (usize, usize, usize, f64);
+
+/// The terms of the vorticity and its shape.
+fn vorticity_terms(scene: &Scene) -> ([usize; 2], Vec<Term>) {
+    let g = scene.grid();
+    let (nx, ny) = (g.nx, g.ny);
+    let is: Vec<usize> = if g.periodic_x() {
+        (0..nx).collect()
+    } else {
+        (1..nx).collect()
+    };
+    let js: Vec<usize> = if g.periodic_y() {
+        (0..ny).collect()
+    } else {
+        (1..ny).collect()
+    };
+    let [_, nfy] = g.shape_y();
+    let mut t = Vec::new();
+    for (a, &i) in is.iter().enumerate() {
+        for (b, &j) in js.iter().enumerate() {
+            let node = a * js.len() + b;
+            // ∂u_y/∂x: the y-faces of columns i − 1 and i on row-face j
+            let (il, ir) = ((i + nx - 1) % nx, i % nx);
+            t.push((node, 1, il * nfy + j, -1.0 / g.dx));
+            t.push((node, 1, ir * nfy + j, 1.0 / g.dx));
+            // −∂u_x/∂y: the x-faces i on rows j − 1 and j
+            let (jb, jt) = ((j + ny - 1) % ny, j % ny);
+            t.push((node, 0, i * ny + jb, 1.0 / g.dy));
+            t.push((node, 0, i * ny + jt, -1.0 / g.dy));
+        }
+    }
+    ([is.len(), js.len()], t)
+}
+
+/// The vorticity at the inner grid nodes (see the [module docs](self)).
+///
+/// # Errors
+/// [`crate::FlowError::Shape`] for wrong shapes.
+pub fn vorticity<T: Real>(
+    scene: &Scene,
+    ux: ArrayView2<'_, T>,
+    uy: ArrayView2<'_, T>,
+) -> Result<Array2<T>> {
+    scene.check_velocity("vorticity", ux, uy)?;
+    let (shape, terms) = vorticity_terms(scene);
+    let u = [wide(ux), wide(uy)];
+    let mut w = vec![0.0; shape[0] * shape[1]];
+    for (n, c, f, k) in terms {
+        w[n] += k * u[c][f];
+    }
+    Ok(narrow(shape, &w))
+}
+
+/// The vector–Jacobian product of [`vorticity`]: `(∂L/∂u_x, ∂L/∂u_y)`.
+///
+/// # Errors
+/// [`crate::FlowError::Shape`] for a gradient of the wrong shape.
+pub fn vorticity_vjp<T: Real>(
+    scene: &Scene,
+    grad: ArrayView2<'_, T>,
+) -> Result<(Array2<T>, Array2<T>)> {
+    let (shape, terms) = vorticity_terms(scene);
+    scene.check_component("vorticity", "gradient", shape, grad)?;
+    let g = wide(grad);
+    let grid = scene.grid();
+    let mut out = [
+        vec![0.0; grid.shape_x().iter().product()],
+        vec![0.0; grid.shape_y().iter().product()],
+    ];
+    for (n, c, f, k) in terms {
+        out[c][f] += k * g[n];
+    }
+    Ok((
+        narrow(grid.shape_x(), &out[0]),
+        narrow(grid.shape_y(), &out[1]),
+    ))
+}
+
+/// The weights of the obstacle force: `F_d = Σ P_c wp + ν Σ u_f wu`.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub(crate) struct ForceWeights {
+    /// `(cell, direction, weight)`.
+    pressure: Vec<(usize, usize, f64)>,
+    /// `(component, face, direction, weight)`.
+    shear: Vec<(usize, usize, usize, f64)>,
+}
+
+impl ForceWeights {
+    pub(crate) fn new(grid: &crate::FlowGrid, solid: &Array2<bool>) -> Self {
+        let (nx, ny) = (grid.nx, grid.ny);
+        let mut w = ForceWeights::default();
+        let [nfx, _] = grid.shape_x();
+        let [_, nfy] = grid.shape_y();
+        // x-faces: pressure along x, shear along y from u_y.
+        for f in 0..nfx {
+            let (Some(lo), Some(hi)) = grid.x_face_cells(f) else {
+                continue;
+            };
+            for j in 0..ny {
+                let (sl, sh) = (solid[[lo, j]], solid[[hi, j]]);
+                if sl == sh {
+                    continue;
+                }
+                let (fluid, sign) = if sh { (lo, 1.0) } else { (hi, -1.0) };
+                w.pressure.push((fluid * ny + j, 0, sign * grid.dy));
+                let (jb, jt) = (
+                    j,
+                    if grid.periodic_y() {
+                        (j + 1) % ny
+                    } else {
+                        j + 1
+                    },
+                );
+                let c = grid.dy / grid.dx;
+                w.shear.push((1, fluid * nfy + jb, 1, c));
+                w.shear.push((1, fluid * nfy + jt, 1, c));
+            }
+        }
+        // y-faces: pressure along y, shear along x from u_x.
+        for f in 0..nfy {
+            let (Some(lo), Some(hi)) = grid.y_face_cells(f) else {
+                continue;
+            };
+            for i in 0..nx {
+                let (sl, sh) = (solid[[i, lo]], solid[[i, hi]]);
+                if sl == sh {
+                    continue;
+                }
+                let (fluid, sign) = if sh { (lo, 1.0) } else { (hi, -1.0) };
+                w.pressure.push((i * ny + fluid, 1, sign * grid.dx));
+                let (il, ir) = (
+                    i,
+                    if grid.periodic_x() {
+                        (i + 1) % nx
+                    } else {
+                        i + 1
+                    },
+                );
+                let c = grid.dx / grid.dy;
+                w.shear.push((0, il * ny + fluid, 0, c));
+                w.shear.push((0, ir * ny + fluid, 0, c));
+            }
+        }
+        w
+    }
+}
+
+/// The gradients of [`obstacle_force`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct ForceGrads<T> {
+    /// `∂L/∂u_x`.
+    pub ux: Array2<T>,
+    /// `∂L/∂u_y`.
+    pub uy: Array2<T>,
+    /// `∂L/∂P`.
+    pub pressure: Array2<T>,
+    /// `∂L/∂ν`.
+    pub viscosity: T,
+}
+
+const FORCE: &str = "obstacle force";
+
+/// The force `[F_x, F_y]` of the flow on the obstacle (see the
+/// [module docs](self)); zero without an obstacle.
+///
+/// # Errors
+/// [`crate::FlowError::Shape`] for wrong shapes.
+pub fn obstacle_force<T: Real>(
+    scene: &Scene,
+    ux: ArrayView2<'_, T>,
+    uy: ArrayView2<'_, T>,
+    pressure: ArrayView2<'_, T>,
+    nu: T,
+) -> Result<Array1<T>> {
+    scene.check_velocity(FORCE, ux, uy)?;
+    scene.check_cells(FORCE, "pressure", pressure)?;
+    let w = scene.force_weights();
+    let (u, p) = ([wide(ux), wide(uy)], wide(pressure));
+    let mut f = [0.0; 2];
+    for &(c, d, k) in &w.pressure {
+        f[d] += k * p[c];
+    }
+    for &(c, face, d, k) in &w.shear {
+        f[d] += nu.as_f64() * k * u[c][face];
+    }
+    Ok(f.iter().map(|&v| T::from_f64(v)).collect())
+}
+
+/// The vector–Jacobian product of [`obstacle_force`] with the gradient `grad`
+/// (`[2]`) of its output.
+///
+/// # Errors
+/// [`crate::FlowError::Shape`] for wrong shapes.
+pub fn obstacle_force_vjp<T: Real>(
+    scene: &Scene,
+    ux: ArrayView2<'_, T>,
+    uy: ArrayView2<'_, T>,
+    nu: T,
+    grad: [T; 2],
+) -> Result<ForceGrads<T>> {
+    scene.check_velocity(FORCE, ux, uy)?;
+    let grid = scene.grid();
+    let w = scene.force_weights();
+    let g = [grad[0].as_f64(), grad[1].as_f64()];
+    let u = [wide(ux), wide(uy)];
+    let mut gu = [vec![0.0; u[0].len()], vec![0.0; u[1].len()]];
+    let mut gp = vec![0.0; grid.nx * grid.ny];
+    let mut gnu = 0.0;
+    for &(c, d, k) in &w.pressure {
+        gp[c] += k * g[d];
+    }
+    for &(c, face, d, k) in &w.shear {
+        gu[c][face] += nu.as_f64() * k * g[d];
+        gnu += k * u[c][face] * g[d];
+    }
+    Ok(ForceGrads {
+        ux: narrow(grid.shape_x(), &gu[0]),
+        uy: narrow(grid.shape_y(), &gu[1]),
+        pressure: narrow(grid.cell_shape(), &gp),
+        viscosity: T::from_f64(gnu),
+    })
+}
+
+/// [`divergence`] as a tape op: inputs `[u_x, u_y]`, output `[D u]`.
+#[derive(Debug, Clone)]
+pub struct Divergence {
+    /// The scene.
+    pub scene: Scene,
+}
+
+impl<T: Real> Op<T> for Divergence {
+    fn name(&self) -> &str {
+        "divergence"
+    }
+    fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
+        TapeError::check_arity("divergence", 2, inputs.len())?;
+        Ok(vec![divergence(
+            &self.scene,
+            view2(&inputs[0])?,
+            view2(&inputs[1])?,
+        )?
+        .into_dyn()])
+    }
+    fn backward(
+        &self,
+        args: &BackwardArgs<'_, T>,
+    ) -> diffphys_tape::Result<Vec<Option<ArrayD<T>>>> {
+        let (a, b) = divergence_vjp(&self.scene, view2(args.grad_out())?)?;
+        Ok(vec![
+            args.needs(0).then(|| a.into_dyn()),
+            args.needs(1).then(|| b.into_dyn()),
+        ])
+    }
+}
+
+/// [`vorticity`] as a tape op: inputs `[u_x, u_y]`, output `[ω]`.
+#[derive(Debug, Clone)]
+pub struct Vorticity {
+    /// The scene.
+    pub scene: Scene,
+}
+
+impl<T: Real> Op<T> for Vorticity {
+    fn name(&self) -> &str {
+        "vorticity"
+    }
+    fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
+        TapeError::check_arity("vorticity", 2, inputs.len())?;
+        Ok(vec![vorticity(
+            &self.scene,
+            view2(&inputs[0])?,
+            view2(&inputs[1])?,
+        )?
+        .into_dyn()])
+    }
+    fn backward(
+        &self,
+        args: &BackwardArgs<'_, T>,
+    ) -> diffphys_tape::Result<Vec<Option<ArrayD<T>>>> {
+        let (a, b) = vorticity_vjp(&self.scene, view2(args.grad_out())?)?;
+        Ok(vec![
+            args.needs(0).then(|| a.into_dyn()),
+            args.needs(1).then(|| b.into_dyn()),
+        ])
+    }
+}
+
+/// [`obstacle_force`] as a tape op: inputs `[u_x, u_y, P, ν]`, output
+/// `[F]` of shape `[2]` (drag, lift).
+#[derive(Debug, Clone)]
+pub struct ObstacleForce {
+    /// The scene.
+    pub scene: Scene,
+}
+
+impl<T: Real> Op<T> for ObstacleForce {
+    fn name(&self) -> &str {
+        FORCE
+    }
+    fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
+        TapeError::check_arity(FORCE, 4, inputs.len())?;
+        let f = obstacle_force(
+            &self.scene,
+            view2(&inputs[0])?,
+            view2(&inputs[1])?,
+            view2(&inputs[2])?,
+            scalar_of(&inputs[3], "viscosity")?,
+        )?;
+        Ok(vec![f.into_dyn()])
+    }
+    fn backward(
+        &self,
+        args: &BackwardArgs<'_, T>,
+    ) -> diffphys_tape::Result<Vec<Option<ArrayD<T>>>> {
+        let g = args.grad_out();
+        let grad = [g[[0]], g[[1]]];
+        let r = obstacle_force_vjp(
+            &self.scene,
+            view2(args.input(0))?,
+            view2(args.input(1))?,
+            scalar_of(args.input(3), "viscosity")?,
+            grad,
+        )?;
+        let nu_shape = args.input(3).shape().to_vec();
+        Ok(vec![
+            args.needs(0).then(|| r.ux.into_dyn()),
+            args.needs(1).then(|| r.uy.into_dyn()),
+            args.needs(2).then(|| r.pressure.into_dyn()),
+            args.needs(3)
+                .then(|| ArrayD::from_elem(IxDyn(&nu_shape), r.viscosity)),
+        ])
+    }
+}

@@ -1,0 +1,524 @@
+//! Viscosity: the vector Laplacian of the staggered velocity with the side
+//! conditions, stepped explicitly or implicitly.
+//!
+//! Per component, on its free faces, the five-point Laplacian reads its
+//! neighbours; beyond a side it reads the tangential ghost (`−u`, `u` or
+//! `2U − u`, see [`crate::boundaries`]) or, along the normal, repeats the face
+//! (zero gradient at an outflow). Fixed faces (walls, inflow, obstacle) are
+//! read as they are. So the Laplacian is affine: `L u = L₀ u + c(U)`, with `L₀`
+//! assembled once per scene and `c` linear in the wall speeds.
+//!
+//! ```text
+//! explicit:  u' = u + ν dt L u                       (free faces)
+//! implicit:  (I − ν dt L_FF) u'_F = u_F + ν dt (L_FX u_X + c(U))
+//! ```
+//!
+//! `L_FF` (free faces to free faces) is symmetric negative semidefinite, so the
+//! implicit operator `M = I − ν dt L_FF` is symmetric positive definite and the
+//! solve is conjugate gradient (Jacobi-preconditioned; `M` is close to `I`).
+//!
+//! **Adjoints.** Explicit: `∂L/∂u = g + ν dt L₀ᵀ g_F`, `∂L/∂ν = dt ⟨g_F, L u⟩`,
+//! `∂L/∂U = ν dt ∂c/∂Uᵀ g_F`. Implicit, through the same solve path as the
+//! pressure: `s = M⁻¹ g_F` (one more solve, `M` symmetric), then
+//! `∂L/∂u_F = s`, `∂L/∂u_X = g_X + ν dt L_FXᵀ s`, `∂L/∂U = ν dt ∂c/∂Uᵀ s` and
+//! `∂L/∂ν = dt ⟨s, (L u')_F⟩` (from `∂M/∂ν u' = −dt L_FF u'`).
+//!
+//! Explicit diffusion is stable for `ν dt (1/dx² + 1/dy²) ≤ ½`
+//! ([`explicit_diffusion_number`]); the step checks it.
+
+use diffphys_ops::cg::{conjugate_gradient, CgParams, Preconditioner};
+use diffphys_ops::LinearOperator;
+use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
+use ndarray::{Array1, Array2, ArrayView1, ArrayView2, ArrayViewMutD, IxDyn};
+
+use crate::advection::{narrow, walls_of, wide};
+use crate::boundaries::{scalar_of, view1, view2, FaceKind, Faces};
+use crate::grid::{FlowGrid, Lattice};
+use crate::sparse::Csr;
+use crate::{FlowError, Result, Scene};
+
+/// How viscosity is stepped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ViscosityMode {
+    /// Forward Euler; stable for `ν dt (1/dx² + 1/dy²) ≤ ½`.
+    Explicit,
+    /// Backward Euler, a Helmholtz solve per component.
+    Implicit,
+}
+
+/// The Laplacian of one velocity component, split by the kind of column.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct ComponentLaplacian {
+    /// Rows and columns over the free faces (`L_FF`).
+    ff: Csr,
+    /// Rows over free faces, columns over all faces, only fixed columns (`L_FX`).
+    fx: Csr,
+    /// `(free row, side, coefficient)`: the wall terms `c(U)`.
+    walls: Vec<(usize, usize, f64)>,
+    /// The face of each free unknown.
+    free: Vec<usize>,
+    /// Faces of the component.
+    len: usize,
+}
+
+/// The Laplacians of both components.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct VectorLaplacian {
+    pub(crate) x: ComponentLaplacian,
+    pub(crate) y: ComponentLaplacian,
+}
+
+impl VectorLaplacian {
+    pub(crate) fn new(grid: &FlowGrid, faces: &Faces) -> Self {
+        VectorLaplacian {
+            x: ComponentLaplacian::new(grid, Lattice::FaceX, &faces.x),
+            y: ComponentLaplacian::new(grid, Lattice::FaceY, &faces.y),
+        }
+    }
+
+    pub(crate) fn of(&self, lattice: Lattice) -> &ComponentLaplacian {
+        match lattice {
+            Lattice::FaceY => &self.y,
+            _ => &self.x,
+        }
+    }
+}
+
+impl ComponentLaplacian {
+    fn new(grid: &FlowGrid, lattice: Lattice, kinds: &[FaceKind]) -> Self {
+        let [na, nb] = grid.shape(lattice);
+        let free: Vec<usize> = (0..kinds.len())
+            .filter(|&k| kinds[k] == FaceKind::Free)
+            .collect();
+        let mut index = vec![usize::MAX; kinds.len()];
+        for (r, &k) in free.iter().enumerate() {
+            index[k] = r;
+        }
+        // Along x: the normal axis of u_x, the tangential one of u_y.
+        let (normal_x, periodic_x, periodic_y) = (
+            lattice == Lattice::FaceX,
+            grid.periodic_x(),
+            grid.periodic_y(),
+        );
+        let (cx, cy) = (1.0 / (grid.dx * grid.dx), 1.0 / (grid.dy * grid.dy));
+        let mut ff = Vec::new();
+        let mut fx = Vec::new();
+        let mut walls = Vec::new();
+        for (r, &k) in free.iter().enumerate() {
+            let (a, b) = (k / nb, k % nb);
+            // (axis length, index, periodic, coefficient, is normal axis, sides low/high)
+            let axes = [
+                (
+                    na,
+                    a,
+                    periodic_x,
+                    cx,
+                    normal_x,
+                    crate::Side::Left,
+                    crate::Side::Right,
+                    true,
+                ),
+                (
+                    nb,
+                    b,
+                    periodic_y,
+                    cy,
+                    !normal_x,
+                    crate::Side::Bottom,
+                    crate::Side::Top,
+                    false,
+                ),
+            ];
+            for (n, i, periodic, c, normal, lo, hi, along_a) in axes {
+                for (step, side) in [(-1i64, lo), (1i64, hi)] {
+                    let j = i as i64 + step;
+                    let neighbour = if periodic {
+                        Some(j.rem_euclid(n as i64) as usize)
+                    } else if j >= 0 && j < n as i64 {
+                        Some(j as usize)
+                    } else {
+                        None
+                    };
+                    match neighbour {
+                        Some(j) => {
+                            let nk = if along_a { j * nb + b } else { a * nb + j };
+                            if nk == k {
+                                continue;
+                            }
+                            ff.push((r, r, -c));
+                            if index[nk] != usize::MAX {
+                                ff.push((r, index[nk], c));
+                            } else {
+                                fx.push((r, nk, c));
+                            }
+                        }
+                        None if normal => {} // zero gradient through an open side
+                        None => {
+                            let (factor, wall) = grid.sides.get(side).ghost();
+                            ff.push((r, r, c * (factor - 1.0)));
+                            if wall != 0.0 {
+                                walls.push((r, side.index(), c * wall));
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        ComponentLaplacian {
+            ff: Csr::from_triplets(free.len(), free.len(), ff),
+            fx: Csr::from_triplets(free.len(), kinds.len(), fx),
+            walls,
+            free,
+            len: kinds.len(),
+        }
+    }
+
+    fn gather(&self, u: &[f64]) -> Vec<f64> {
+        self.free.iter().map(|&k| u[k]).collect()
+    }
+
+    /// `(L u)_F` on the free faces.
+    fn apply(&self, u: &[f64], walls: &[f64; 4]) -> Vec<f64> {
+        let mut out = vec![0.0; self.free.len()];
+        self.ff.mul_add(1.0, &self.gather(u), &mut out);
+        self.fx.mul_add(1.0, u, &mut out);
+        for &(r, s, c) in &self.walls {
+            out[r] += c * walls[s];
+        }
+        out
+    }
+
+    /// `(L_FX u + c(U))_F`: what the fixed faces and walls add.
+    fn boundary_terms(&self, u: &[f64], walls: &[f64; 4]) -> Vec<f64> {
+        let mut out = vec![0.0; self.free.len()];
+        self.fx.mul_add(1.0, u, &mut out);
+        for &(r, s, c) in &self.walls {
+            out[r] += c * walls[s];
+        }
+        out
+    }
+
+    /// Adds `alpha · ∂(L u)_F/∂(u, U)ᵀ g_F` to the gradients.
+    fn apply_vjp(
+        &self,
+        alpha: f64,
+        g_free: &[f64],
+        grad_u: &mut [f64],
+        grad_walls: &mut [f64; 4],
+        with_ff: bool,
+    ) {
+        if with_ff {
+            let mut t = vec![0.0; self.free.len()];
+            self.ff.mul_t_add(alpha, g_free, &mut t);
+            for (r, &k) in self.free.iter().enumerate() {
+                grad_u[k] += t[r];
+            }
+        }
+        self.fx.mul_t_add(alpha, g_free, grad_u);
+        for &(r, s, c) in &self.walls {
+            grad_walls[s] += alpha * c * g_free[r];
+        }
+    }
+}
+
+/// The implicit operator `M = I − ν dt L_FF` of one component.
+struct Helmholtz<'a> {
+    lap: &'a ComponentLaplacian,
+    nu_dt: f64,
+    shape: [usize; 1],
+}
+
+impl LinearOperator<f64> for Helmholtz<'_> {
+    fn name(&self) -> &str {
+        "viscosity (I − ν dt L)"
+    }
+    fn input_shape(&self) -> &[usize] {
+        &self.shape
+    }
+    fn output_shape(&self) -> &[usize] {
+        &self.shape
+    }
+    fn apply_into(&self, x: ArrayViewD<'_, f64>, mut out: ArrayViewMutD<'_, f64>) {
+        let x = x.as_standard_layout();
+        let xs = x.as_slice().expect("standard");
+        let o = out.as_slice_mut().expect("contiguous output");
+        o.copy_from_slice(xs);
+        self.lap.ff.mul_add(-self.nu_dt, xs, o);
+    }
+    fn apply_transpose_into(&self, y: ArrayViewD<'_, f64>, out: ArrayViewMutD<'_, f64>) {
+        self.apply_into(y, out);
+    }
+    fn is_symmetric(&self) -> bool {
+        true
+    }
+    fn diagonal(&self) -> Option<ArrayD<f64>> {
+        let d: Vec<f64> = self
+            .lap
+            .ff
+            .diagonal()
+            .iter()
+            .map(|v| 1.0 - self.nu_dt * v)
+            .collect();
+        Some(ArrayD::from_shape_vec(IxDyn(&self.shape), d).expect("one per unknown"))
+    }
+}
+
+/// Solves `M x = r` from `guess`.
+fn helmholtz_solve(
+    lap: &ComponentLaplacian,
+    nu_dt: f64,
+    r: Vec<f64>,
+    guess: Vec<f64>,
+    params: &CgParams,
+) -> Result<Vec<f64>> {
+    let n = r.len();
+    if n == 0 {
+        return Ok(r);
+    }
+    let op = Helmholtz {
+        lap,
+        nu_dt,
+        shape: [n],
+    };
+    let b = ArrayD::from_shape_vec(IxDyn(&[n]), r).expect("1D");
+    let mut x = ArrayD::from_shape_vec(IxDyn(&[n]), guess).expect("1D");
+    conjugate_gradient(&op, b.view(), x.view_mut(), params).map_err(|source| FlowError::Solve {
+        step: "viscosity solve".into(),
+        quantity: "velocity".into(),
+        source,
+    })?;
+    Ok(x.into_raw_vec_and_offset().0)
+}
+
+/// `ν dt (1/dx² + 1/dy²)`: explicit diffusion is stable up to ½.
+pub fn explicit_diffusion_number(grid: &FlowGrid, nu: f64, dt: f64) -> f64 {
+    nu * dt * (1.0 / (grid.dx * grid.dx) + 1.0 / (grid.dy * grid.dy))
+}
+
+/// The gradients of [`diffuse`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct DiffusionGrads<T> {
+    /// `∂L/∂u_x`.
+    pub ux: Array2<T>,
+    /// `∂L/∂u_y`.
+    pub uy: Array2<T>,
+    /// `∂L/∂ν`.
+    pub viscosity: T,
+    /// `∂L/∂U` of the four wall speeds.
+    pub wall_speed: Array1<T>,
+}
+
+const NAME: &str = "diffusion";
+
+fn check_nu(nu: f64) -> Result<()> {
+    if nu.is_finite() && nu > 0.0 {
+        Ok(())
+    } else {
+        Err(FlowError::parameter(
+            NAME,
+            "viscosity",
+            format!("need a finite viscosity > 0, got {nu}"),
+        ))
+    }
+}
+
+/// One viscosity step over `dt` with viscosity `nu` (see the [module docs](self)).
+///
+/// # Errors
+/// [`FlowError::Shape`] for wrong shapes, [`FlowError::InvalidParameter`] for
+/// `ν ≤ 0`, [`FlowError::Solve`] if the implicit solve fails.
+#[allow(clippy::too_many_arguments)]
+pub fn diffuse<T: Real>(
+    scene: &Scene,
+    mode: ViscosityMode,
+    dt: f64,
+    ux: ArrayView2<'_, T>,
+    uy: ArrayView2<'_, T>,
+    nu: T,
+    wall_speed: ArrayView1<'_, T>,
+) -> Result<(Array2<T>, Array2<T>)> {
+    scene.check_velocity(NAME, ux, uy)?;
+    scene.check_walls(NAME, wall_speed)?;
+    let nu = nu.as_f64();
+    check_nu(nu)?;
+    let walls = walls_of(wall_speed);
+    let lap = scene.laplacian();
+    let grid = scene.grid();
+    let mut out = Vec::with_capacity(2);
+    for (lat, u) in [(Lattice::FaceX, ux), (Lattice::FaceY, uy)] {
+        let l = lap.of(lat);
+        let mut u = wide(u);
+        let new_free = match mode {
+            ViscosityMode::Explicit => {
+                let lu = l.apply(&u, &walls);
+                l.free
+                    .iter()
+                    .zip(&lu)
+                    .map(|(&k, d)| u[k] + nu * dt * d)
+                    .collect::<Vec<_>>()
+            }
+            ViscosityMode::Implicit => {
+                let uf = l.gather(&u);
+                let mut r = l.boundary_terms(&u, &walls);
+                r.iter_mut()
+                    .zip(&uf)
+                    .for_each(|(r, u)| *r = u + nu * dt * *r);
+                helmholtz_solve(l, nu * dt, r, uf, &scene.settings().viscosity_solver)?
+            }
+        };
+        for (&k, v) in l.free.iter().zip(new_free) {
+            u[k] = v;
+        }
+        out.push(narrow::<T>(grid.shape(lat), &u));
+    }
+    let uy = out.pop().expect("two");
+    let ux = out.pop().expect("two");
+    Ok((ux, uy))
+}
+
+/// The vector–Jacobian product of [`diffuse`]; `out_x`, `out_y` are its
+/// outputs (the implicit adjoint needs them), `grad_x`, `grad_y` their
+/// gradients.
+///
+/// # Errors
+/// As [`diffuse`].
+#[allow(clippy::too_many_arguments)]
+pub fn diffuse_vjp<T: Real>(
+    scene: &Scene,
+    mode: ViscosityMode,
+    dt: f64,
+    ux: ArrayView2<'_, T>,
+    uy: ArrayView2<'_, T>,
+    nu: T,
+    wall_speed: ArrayView1<'_, T>,
+    out: (ArrayView2<'_, T>, ArrayView2<'_, T>),
+    grad: (ArrayView2<'_, T>, ArrayView2<'_, T>),
+) -> Result<DiffusionGrads<T>> {
+    scene.check_velocity(NAME, ux, uy)?;
+    scene.check_velocity(NAME, out.0, out.1)?;
+    scene.check_velocity(NAME, grad.0, grad.1)?;
+    scene.check_walls(NAME, wall_speed)?;
+    let nu = nu.as_f64();
+    check_nu(nu)?;
+    let walls = walls_of(wall_speed);
+    let lap = scene.laplacian();
+    let grid = scene.grid();
+    let mut g_walls = [0.0; 4];
+    let mut g_nu = 0.0;
+    let mut grads = Vec::with_capacity(2);
+    for (lat, u, o, g) in [
+        (Lattice::FaceX, ux, out.0, grad.0),
+        (Lattice::FaceY, uy, out.1, grad.1),
+    ] {
+        let l = lap.of(lat);
+        let u = wide(u);
+        let g = wide(g);
+        let g_free = l.gather(&g);
+        // Fixed faces pass through; free faces are replaced.
+        let mut gu = g.clone();
+        for &k in &l.free {
+            gu[k] = 0.0;
+        }
+        match mode {
+            ViscosityMode::Explicit => {
+                for &k in &l.free {
+                    gu[k] += g[k];
+                }
+                l.apply_vjp(nu * dt, &g_free, &mut gu, &mut g_walls, true);
+                let lu = l.apply(&u, &walls);
+                g_nu += dt * g_free.iter().zip(&lu).map(|(a, b)| a * b).sum::<f64>();
+            }
+            ViscosityMode::Implicit => {
+                let s = helmholtz_solve(
+                    l,
+                    nu * dt,
+                    g_free.clone(),
+                    g_free,
+                    &scene.settings().viscosity_solver,
+                )?;
+                for (&k, &sv) in l.free.iter().zip(&s) {
+                    gu[k] += sv;
+                }
+                l.apply_vjp(nu * dt, &s, &mut gu, &mut g_walls, false);
+                let lo = l.apply(&wide(o), &walls);
+                g_nu += dt * s.iter().zip(&lo).map(|(a, b)| a * b).sum::<f64>();
+            }
+        }
+        debug_assert_eq!(gu.len(), l.len);
+        grads.push(narrow::<T>(grid.shape(lat), &gu));
+    }
+    let uy = grads.pop().expect("two");
+    let ux = grads.pop().expect("two");
+    Ok(DiffusionGrads {
+        ux,
+        uy,
+        viscosity: T::from_f64(g_nu),
+        wall_speed: g_walls.iter().map(|&v| T::from_f64(v)).collect(),
+    })
+}
+
+/// [`diffuse`] as a tape op: inputs `[u_x, u_y, ν (0-d), wall_speed]`, outputs
+/// `[u_x', u_y']`.
+#[derive(Debug, Clone)]
+pub struct Diffuse {
+    /// The scene.
+    pub scene: Scene,
+    /// Explicit or implicit.
+    pub mode: ViscosityMode,
+    /// The time step.
+    pub dt: f64,
+}
+
+impl<T: Real> Op<T> for Diffuse {
+    fn name(&self) -> &str {
+        NAME
+    }
+
+    fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
+        TapeError::check_arity(NAME, 4, inputs.len())?;
+        let (a, b) = diffuse(
+            &self.scene,
+            self.mode,
+            self.dt,
+            view2(&inputs[0])?,
+            view2(&inputs[1])?,
+            scalar_of(&inputs[2], "viscosity")?,
+            view1(&inputs[3])?,
+        )?;
+        Ok(vec![a.into_dyn(), b.into_dyn()])
+    }
+
+    fn backward(
+        &self,
+        args: &BackwardArgs<'_, T>,
+    ) -> diffphys_tape::Result<Vec<Option<ArrayD<T>>>> {
+        let gx = args.grad_output_or_zeros(0);
+        let gy = args.grad_output_or_zeros(1);
+        let g = diffuse_vjp(
+            &self.scene,
+            self.mode,
+            self.dt,
+            view2(args.input(0))?,
+            view2(args.input(1))?,
+            scalar_of(args.input(2), "viscosity")?,
+            view1(args.input(3))?,
+            (view2(args.output(0))?, view2(args.output(1))?),
+            (view2(&gx.view())?, view2(&gy.view())?),
+        )?;
+        let nu_shape = args.input(2).shape().to_vec();
+        Ok(vec![
+            args.needs(0).then(|| g.ux.into_dyn()),
+            args.needs(1).then(|| g.uy.into_dyn()),
+            args.needs(2)
+                .then(|| ArrayD::from_elem(IxDyn(&nu_shape), g.viscosity)),
+            args.needs(3).then(|| g.wall_speed.into_dyn()),
+        ])
+    }
+}
+
+/// Used by tests: the default solver parameters of the implicit step.
+pub(crate) fn default_viscosity_solver() -> CgParams {
+    CgParams::default()
+        .with_rel_tol(1e-10)
+        .with_preconditioner(Preconditioner::Jacobi)
+}

@@ -1,0 +1,98 @@
+//! The one error type of the learning crate.
+
+use diffphys_nn::NnError;
+use diffphys_ops::cg::CgError;
+use diffphys_ops::OpsError;
+use diffphys_tape::TapeError;
+use thiserror::Error;
+
+use crate::data::Split;
+
+/// Everything that can go wrong while building, training, selecting or
+/// evaluating a model. Bad input (a zero budget, an empty split, a corrector of
+/// the wrong shape) is one of these, never a panic and never an untrained model.
+#[derive(Debug, Error)]
+#[non_exhaustive]
+pub enum LearnError {
+    /// Recording or sweeping the tape failed.
+    #[error(transparent)]
+    Tape(#[from] TapeError),
+    /// A network failed (a non-finite loss, a bad configuration, …).
+    #[error(transparent)]
+    Nn(#[from] NnError),
+    /// An operator failed.
+    #[error(transparent)]
+    Ops(#[from] OpsError),
+    /// Conjugate gradient failed.
+    #[error(transparent)]
+    Cg(#[from] CgError),
+    /// A training budget of zero iterations: the model would leave untrained.
+    #[error("{trainer}: a budget of 0 training iterations would leave the model untrained")]
+    ZeroIterations {
+        /// The trainer.
+        trainer: &'static str,
+    },
+    /// An unroll of zero steps (solver in the loop, or CG iterations as virtual time).
+    #[error("{what}: an unroll of 0 steps has no loss to train on")]
+    ZeroUnroll {
+        /// What was unrolled.
+        what: &'static str,
+    },
+    /// A split without samples.
+    #[error("the {split} split is empty ({context})")]
+    EmptySplit {
+        /// The split.
+        split: Split,
+        /// Where it was needed.
+        context: String,
+    },
+    /// The corrector's output does not have the state's shape.
+    #[error("the corrector's output has shape {correction:?} but the state has shape {state:?}")]
+    CorrectorShape {
+        /// The state's shape.
+        state: Vec<usize>,
+        /// The correction's shape.
+        correction: Vec<usize>,
+    },
+    /// A budget that cannot be shared equally (an unroll longer than the network
+    /// evaluations per iteration, or not dividing them).
+    #[error("budget: {message}")]
+    Budget {
+        /// What is wrong.
+        message: String,
+    },
+    /// The same trained model was evaluated on the held-out split a second time.
+    #[error("model {model} ({label}) was already evaluated on the held-out split; it is read once per trained model")]
+    HeldOutReused {
+        /// The model's id.
+        model: u64,
+        /// Its label.
+        label: String,
+    },
+    /// Model selection was given no candidates, or only non-finite scores.
+    #[error("model selection: {message}")]
+    Selection {
+        /// What is wrong.
+        message: String,
+    },
+    /// Any other invalid argument.
+    #[error("invalid {what}: {message}")]
+    Invalid {
+        /// The argument.
+        what: &'static str,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+impl LearnError {
+    pub(crate) fn invalid(what: &'static str, message: impl Into<String>) -> Self {
+        LearnError::Invalid {
+            what,
+            message: message.into(),
+        }
+    }
+}
+
+/// The crate's result type.
+pub type Result<T> = std::result::Result<T, LearnError>;

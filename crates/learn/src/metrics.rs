@@ -1,0 +1,103 @@
+//! Rollout metrics: the relative L2 error per step of an `n`-step rollout and its
+//! mean over the steps.
+
+use diffphys_nn::Params;
+use diffphys_tape::ArrayD;
+use ndarray::Axis;
+
+use crate::hybrid::{Corrector, Hybrid, Simulator};
+use crate::{LearnError, Result};
+
+/// A reference trajectory of one sample: its states at steps `0, 1, …`, each of
+/// the sample's shape (without the batch axis).
+pub type Trajectory = Vec<ArrayD<f64>>;
+
+/// Stacks same-shaped samples into a batch along a new axis 0.
+///
+/// # Errors
+/// [`LearnError::Invalid`] without samples or for samples of different shapes.
+pub fn batch_of(samples: &[&ArrayD<f64>]) -> Result<ArrayD<f64>> {
+    let views: Vec<_> = samples.iter().map(|s| s.view()).collect();
+    if views.is_empty() {
+        return Err(LearnError::invalid("batch", "no samples"));
+    }
+    ndarray::stack(Axis(0), &views).map_err(|e| LearnError::invalid("batch", e.to_string()))
+}
+
+/// States at step `t` of every trajectory, as a batch.
+///
+/// # Errors
+/// As [`batch_of`], and [`LearnError::Invalid`] if a trajectory is shorter.
+pub fn states_at(trajectories: &[Trajectory], t: usize) -> Result<ArrayD<f64>> {
+    let rows = trajectories
+        .iter()
+        .map(|tr| {
+            tr.get(t).ok_or_else(|| {
+                LearnError::invalid(
+                    "trajectory",
+                    format!("step {t} asked of a trajectory of {} states", tr.len()),
+                )
+            })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    batch_of(&rows)
+}
+
+/// The mean over the batch (axis 0) of `‖a_b − r_b‖ / ‖r_b‖`.
+pub fn relative_l2(a: &ArrayD<f64>, r: &ArrayD<f64>) -> f64 {
+    let per_sample: Vec<f64> = a
+        .outer_iter()
+        .zip(r.outer_iter())
+        .map(|(x, y)| {
+            let diff: f64 = x.iter().zip(y.iter()).map(|(p, q)| (p - q).powi(2)).sum();
+            let norm: f64 = y.iter().map(|q| q * q).sum();
+            (diff / norm).sqrt()
+        })
+        .collect();
+    per_sample.iter().sum::<f64>() / per_sample.len().max(1) as f64
+}
+
+/// The errors of one rollout against the reference.
+#[derive(Debug, Clone)]
+pub struct Rollout {
+    /// The relative L2 error after steps `1..=n`, mean over the trajectories.
+    pub per_step: Vec<f64>,
+    /// The states after the last step, as a batch.
+    pub last: ArrayD<f64>,
+}
+
+impl Rollout {
+    /// The mean of the per-step errors: the rollout's score.
+    pub fn mean(&self) -> f64 {
+        self.per_step.iter().sum::<f64>() / self.per_step.len().max(1) as f64
+    }
+}
+
+/// Rolls the hybrid out for `steps` steps from the first state of every
+/// trajectory (`params = None`: the solver alone) and measures the relative L2
+/// error against the trajectories at every step.
+///
+/// # Errors
+/// [`LearnError::EmptySplit`]-like [`LearnError::Invalid`] without trajectories
+/// or with trajectories shorter than `steps + 1`; [`LearnError::ZeroUnroll`] for
+/// 0 steps; whatever the steps return.
+pub fn rollout<S: Simulator + 'static, C: Corrector + 'static>(
+    hybrid: &Hybrid<S, C>,
+    params: Option<&Params<f64>>,
+    trajectories: &[Trajectory],
+    steps: usize,
+) -> Result<Rollout> {
+    if steps == 0 {
+        return Err(LearnError::ZeroUnroll { what: "rollout" });
+    }
+    if trajectories.is_empty() {
+        return Err(LearnError::invalid("rollout", "no trajectories"));
+    }
+    let mut u = states_at(trajectories, 0)?;
+    let mut per_step = Vec::with_capacity(steps);
+    for t in 1..=steps {
+        u = hybrid.step_plain(params, &u)?;
+        per_step.push(relative_l2(&u, &states_at(trajectories, t)?));
+    }
+    Ok(Rollout { per_step, last: u })
+}

@@ -1,0 +1,216 @@
+//! The corrector trainer: one loop for every [`Strategy`], equal budgets, early
+//! stopping on the validation split.
+
+use std::rc::Rc;
+
+use diffphys_nn::{check_loss, Bound, Params};
+use diffphys_tape::{Adam, ArrayD, Tape, Var};
+use rand::rngs::StdRng;
+use rand::Rng;
+
+use crate::data::{Split, TrainSeed, Trained};
+use crate::hybrid::{Corrector, Hybrid, Simulator};
+use crate::metrics::{batch_of, rollout, Trajectory};
+use crate::strategy::{Budget, LrSchedule, Strategy};
+use crate::{LearnError, Result};
+
+/// One training batch: the (possibly perturbed) start states and the reference
+/// states after each of the unroll's steps.
+#[derive(Debug, Clone)]
+pub struct Batch {
+    /// `[windows, …]`: the start states.
+    pub start: ArrayD<f64>,
+    /// `targets[j]`: the reference after step `j + 1`, `[windows, …]`.
+    pub targets: Rc<Vec<ArrayD<f64>>>,
+}
+
+/// What one training produced.
+#[derive(Debug, Clone)]
+pub struct TrainedCorrector {
+    /// The strategy.
+    pub strategy: Strategy,
+    /// The parameters at the best validation score (early stopping).
+    pub params: Params<f64>,
+    /// The training loss at every iteration.
+    pub losses: Vec<f64>,
+    /// `(iteration, validation score)` at every validation.
+    pub validation_curve: Vec<(usize, f64)>,
+    /// The iteration whose parameters were kept.
+    pub best_iteration: usize,
+    /// Their validation score: the mean relative L2 error of a rollout.
+    pub validation: f64,
+}
+
+/// Trains correctors: Adam on the strategy's loss for the budget's iterations,
+/// validation rollouts every `validate_every` iterations, the parameters of the
+/// best validation score kept.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Trainer {
+    /// The budget every strategy gets.
+    pub budget: Budget,
+    /// Adam's initial step size.
+    pub learning_rate: f64,
+    /// How it changes over training.
+    pub schedule: LrSchedule,
+    /// Validate every this many iterations (and after the last); 0 validates
+    /// after the last only (no early stopping).
+    pub validate_every: usize,
+    /// Steps of the validation rollouts.
+    pub validation_steps: usize,
+}
+
+impl Trainer {
+    /// Draws one batch for `strategy` from `train` (windows uniform over
+    /// trajectories and start steps; noise added for [`Strategy::Noise`]).
+    ///
+    /// # Errors
+    /// As [`Budget::windows`]; [`LearnError::EmptySplit`] without training
+    /// trajectories; [`LearnError::Invalid`] for trajectories shorter than the
+    /// unroll.
+    pub fn draw_batch(
+        &self,
+        strategy: &Strategy,
+        train: &[Trajectory],
+        rng: &mut StdRng,
+    ) -> Result<Batch> {
+        let windows = self.budget.windows(strategy)?;
+        if train.is_empty() {
+            return Err(LearnError::EmptySplit {
+                split: Split::Train,
+                context: format!("training {strategy}"),
+            });
+        }
+        let k = strategy.unroll();
+        let shortest = train.iter().map(Vec::len).min().unwrap_or(0);
+        if shortest < k + 1 {
+            return Err(LearnError::invalid(
+                "training data",
+                format!("a trajectory of {shortest} states is too short for an unroll of {k}"),
+            ));
+        }
+        let picks: Vec<(usize, usize)> = (0..windows)
+            .map(|_| {
+                let i = rng.random_range(0..train.len());
+                (i, rng.random_range(0..train[i].len() - k))
+            })
+            .collect();
+        let at = |j: usize| {
+            let rows: Vec<_> = picks.iter().map(|&(i, t)| &train[i][t + j]).collect();
+            batch_of(&rows)
+        };
+        let mut start = at(0)?;
+        let sigma = strategy.sigma();
+        if sigma > 0.0 {
+            start.mapv_inplace(|x| x + sigma * standard_normal(rng));
+        }
+        let targets = (1..=k).map(at).collect::<Result<Vec<_>>>()?;
+        Ok(Batch {
+            start,
+            targets: Rc::new(targets),
+        })
+    }
+
+    /// Records the loss of `batch` under `strategy` on `tape`: the mean squared
+    /// error averaged over the unroll's steps.
+    ///
+    /// # Errors
+    /// Whatever the unroll returns.
+    pub fn batch_loss<'t, S: Simulator + 'static, C: Corrector + 'static>(
+        hybrid: &Hybrid<S, C>,
+        tape: &'t Tape<f64>,
+        params: &Bound<'t, f64>,
+        strategy: &Strategy,
+        batch: &Batch,
+    ) -> diffphys_tape::Result<Var<'t, f64>> {
+        let s0 = tape.constant(batch.start.clone());
+        hybrid.unrolled_loss(
+            tape,
+            params,
+            s0,
+            Rc::clone(&batch.targets),
+            strategy.schedule(),
+        )
+    }
+
+    /// Trains `params` (the corrector's initial parameters) with `strategy` on
+    /// `train`, validating on `validation`; `seed` drives the windows and the
+    /// noise; `tick` runs after every iteration (a progress bar).
+    ///
+    /// # Errors
+    /// [`LearnError::ZeroIterations`], [`LearnError::ZeroUnroll`],
+    /// [`LearnError::Budget`] (see [`Budget::windows`]); [`LearnError::EmptySplit`]
+    /// for an empty training or validation split; [`LearnError::CorrectorShape`]
+    /// if the corrector's output does not have the state's shape; a non-finite
+    /// loss ([`diffphys_nn::NnError::NonFiniteLoss`]).
+    #[allow(clippy::too_many_arguments)]
+    pub fn train<S: Simulator + 'static, C: Corrector + 'static>(
+        &self,
+        hybrid: &Hybrid<S, C>,
+        mut params: Params<f64>,
+        strategy: Strategy,
+        train: &[Trajectory],
+        validation: &[Trajectory],
+        seed: TrainSeed,
+        tick: &dyn Fn(),
+    ) -> Result<Trained<TrainedCorrector>> {
+        let iterations = self.budget.iterations;
+        self.budget.windows(&strategy)?;
+        if validation.is_empty() {
+            return Err(LearnError::EmptySplit {
+                split: Split::Validation,
+                context: format!("early stopping of {strategy}"),
+            });
+        }
+        if self.validation_steps == 0 {
+            return Err(LearnError::ZeroUnroll {
+                what: "validation rollout",
+            });
+        }
+        let mut rng = seed.sampling_rng();
+        let probe = self.draw_batch(&strategy, train, &mut rng.clone())?;
+        hybrid.check_shapes(&params, &probe.start)?;
+
+        let mut adam = Adam::new(self.learning_rate);
+        let mut losses = Vec::with_capacity(iterations);
+        let mut curve = Vec::new();
+        let mut best: Option<(usize, f64, Params<f64>)> = None;
+        for it in 0..iterations {
+            let batch = self.draw_batch(&strategy, train, &mut rng)?;
+            let tape = Tape::new();
+            let p = params.bind(&tape);
+            let loss = Self::batch_loss(hybrid, &tape, &p, &strategy, &batch)?;
+            losses.push(check_loss(it, loss.item()?)?);
+            let grads = tape.backward(loss, p.vars())?;
+            adam.lr = self.schedule.at(self.learning_rate, it, iterations);
+            params.step(&mut adam, &grads, &p)?;
+            tick();
+            let done = it + 1;
+            let due = self.validate_every > 0 && done % self.validate_every == 0;
+            if due || done == iterations {
+                let score =
+                    rollout(hybrid, Some(&params), validation, self.validation_steps)?.mean();
+                curve.push((done, score));
+                if best.as_ref().is_none_or(|b| score < b.1) {
+                    best = Some((done, score, params.clone()));
+                }
+            }
+        }
+        let (best_iteration, validation_score, params) =
+            best.ok_or(LearnError::ZeroIterations { trainer: "trainer" })?;
+        Ok(Trained::new(TrainedCorrector {
+            strategy,
+            params,
+            losses,
+            validation_curve: curve,
+            best_iteration,
+            validation: validation_score,
+        }))
+    }
+}
+
+/// A standard normal sample (Box–Muller).
+pub fn standard_normal(rng: &mut impl Rng) -> f64 {
+    let u1: f64 = 1.0 - rng.random::<f64>();
+    let u2: f64 = rng.random();
+    (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
+}

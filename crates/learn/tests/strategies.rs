@@ -1,0 +1,391 @@
+//! Every strategy on a tiny scene: the unrolled loss's gradient against finite
+//! differences, checkpointed against stored unrolls, training that helps and
+//! repeats per seed, and the typed errors of bad input.
+
+use diffphys_learn::*;
+use diffphys_nn::{Activation, Bound, Layer, Padding, Params, UNet, UNetConfig};
+use diffphys_tape::{check_gradient, ArrayD, GradCheckOptions, Tape, Var};
+use rand::Rng;
+
+const CELLS: usize = 8;
+
+/// A nonlinear, smooth step: `u ↦ 0.9 u − 0.05 u³`.
+struct Cubic;
+
+impl Simulator for Cubic {
+    fn step<'t>(&self, u: Var<'t, f64>) -> diffphys_tape::Result<Var<'t, f64>> {
+        u.mul_scalar(0.9)?.sub(u.powi(3)?.mul_scalar(0.05)?)
+    }
+}
+
+/// The reference: `u ↦ 0.95 u − 0.04 u³` (the solver is slightly off).
+fn reference_step(u: &ArrayD<f64>) -> ArrayD<f64> {
+    u.mapv(|x| 0.95 * x - 0.04 * x.powi(3))
+}
+
+struct Net(UNet);
+
+impl Corrector for Net {
+    fn correction<'t>(
+        &self,
+        p: &Bound<'t, f64>,
+        u: Var<'t, f64>,
+    ) -> diffphys_tape::Result<Var<'t, f64>> {
+        self.0.forward(p, u)
+    }
+}
+
+fn config(c_out: usize) -> UNetConfig {
+    UNetConfig {
+        dims: 1,
+        c_in: 1,
+        c_out,
+        widths: vec![2, 3],
+        kernel: 3,
+        padding: Padding::Periodic,
+        activation: Activation::Tanh,
+    }
+}
+
+/// A network whose head does not start at zero (so every gradient is non-trivial).
+fn net(seed: u64, c_out: usize) -> (Net, Params<f64>) {
+    let mut params = Params::<f64>::new();
+    let unet = UNet::new(
+        &mut params,
+        "c",
+        config(c_out),
+        &mut TrainSeed(seed).init_rng(),
+    )
+    .unwrap();
+    let mut rng = TrainSeed(seed + 100).init_rng();
+    let mut perturbed = Params::new();
+    for (name, v) in params.names().iter().zip(params.values()) {
+        let v = v.mapv(|x| x + 0.1 * rng.random_range(-1.0f64..1.0));
+        perturbed.add(name.clone(), v).unwrap();
+    }
+    (Net(unet), perturbed)
+}
+
+fn splits(seed: u64, sizes: [usize; 3], steps: usize) -> Splits<Vec<Trajectory>> {
+    Splits::generate(DataSeed(seed), sizes, |_, n, rng| {
+        Ok((0..n)
+            .map(|_| {
+                let mut u = ArrayD::from_shape_fn(vec![1, CELLS], |_| rng.random_range(-1.0..1.0));
+                let mut tr = vec![u.clone()];
+                for _ in 0..steps {
+                    u = reference_step(&u);
+                    tr.push(u.clone());
+                }
+                tr
+            })
+            .collect())
+    })
+    .unwrap()
+}
+
+fn trainer(iterations: usize, evaluations: usize) -> Trainer {
+    Trainer {
+        budget: Budget {
+            iterations,
+            evaluations_per_iteration: evaluations,
+        },
+        learning_rate: 1e-2,
+        schedule: LrSchedule::Exponential {
+            final_fraction: 0.1,
+        },
+        validate_every: 10,
+        validation_steps: 8,
+    }
+}
+
+fn strategies() -> Vec<Strategy> {
+    vec![
+        Strategy::NonInteracting,
+        Strategy::Noise { sigma: 0.05 },
+        Strategy::SolverInTheLoop {
+            unroll: 3,
+            schedule: Schedule::Full,
+        },
+        Strategy::SolverInTheLoop {
+            unroll: 4,
+            schedule: Schedule::Every(2),
+        },
+        Strategy::SolverInTheLoop {
+            unroll: 4,
+            schedule: Schedule::Nested { branches: 2 },
+        },
+    ]
+}
+
+#[test]
+fn every_strategy_gradient_matches_finite_differences() {
+    let data = splits(1, [3, 1, 1], 8);
+    let (corrector, params) = net(2, 1);
+    let hybrid = Hybrid::new(Cubic, corrector);
+    let t = trainer(1, 12);
+    for strategy in strategies() {
+        let batch = t
+            .draw_batch(&strategy, &data.train, &mut TrainSeed(3).sampling_rng())
+            .unwrap();
+        assert_eq!(batch.start.shape()[0], 12 / strategy.unroll());
+        let report = check_gradient(
+            |tape, vars| {
+                let p = Bound::from_vars(vars.to_vec());
+                Trainer::batch_loss(&hybrid, tape, &p, &strategy, &batch)
+            },
+            params.values(),
+            GradCheckOptions::for_type::<f64>(),
+        )
+        .unwrap();
+        assert!(report.passed, "{strategy}: {report:?}");
+        assert!(
+            report.entries > 50,
+            "{strategy}: {} entries",
+            report.entries
+        );
+    }
+}
+
+/// The gradient of the loss of `batch` with respect to every parameter, flattened.
+fn gradient(
+    hybrid: &Hybrid<Cubic, Net>,
+    params: &Params<f64>,
+    strategy: Strategy,
+    batch: &Batch,
+) -> Vec<f64> {
+    let tape = Tape::new();
+    let p = params.bind(&tape);
+    let loss = Trainer::batch_loss(hybrid, &tape, &p, &strategy, batch).unwrap();
+    let grads = tape.backward(loss, p.vars()).unwrap();
+    p.vars()
+        .iter()
+        .flat_map(|v| grads.get(*v).unwrap().iter().copied().collect::<Vec<_>>())
+        .collect()
+}
+
+#[test]
+fn checkpointed_and_stored_unrolls_give_the_same_gradient() {
+    let data = splits(4, [3, 1, 1], 12);
+    let (corrector, params) = net(5, 1);
+    let hybrid = Hybrid::new(Cubic, corrector);
+    let t = trainer(1, 20);
+    let sol = |schedule| Strategy::SolverInTheLoop {
+        unroll: 10,
+        schedule,
+    };
+    let batch = t
+        .draw_batch(
+            &sol(Schedule::Full),
+            &data.train,
+            &mut TrainSeed(6).sampling_rng(),
+        )
+        .unwrap();
+    let full = gradient(&hybrid, &params, sol(Schedule::Full), &batch);
+    let scale = full.iter().fold(0.0f64, |m, g| m.max(g.abs()));
+    assert!(scale > 1e-6);
+    for schedule in [
+        Schedule::Every(1),
+        Schedule::Every(3),
+        Schedule::Every(10),
+        Schedule::Nested { branches: 2 },
+        Schedule::Nested { branches: 3 },
+    ] {
+        let g = gradient(&hybrid, &params, sol(schedule), &batch);
+        let diff = g
+            .iter()
+            .zip(&full)
+            .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+        // The same arithmetic in another order of accumulation: round-off only.
+        assert!(
+            diff <= 1e-13 * scale,
+            "{schedule:?}: max diff {diff:e} of {scale:e}"
+        );
+    }
+}
+
+#[test]
+fn training_helps_every_strategy_and_repeats_per_seed() {
+    let data = splits(7, [6, 3, 3], 16);
+    let (corrector, _) = net(0, 1);
+    let hybrid = Hybrid::new(Cubic, corrector);
+    let t = trainer(100, 8);
+    let coarse = rollout(&hybrid, None, &data.validation, 8).unwrap().mean();
+    for strategy in [
+        Strategy::NonInteracting,
+        Strategy::Noise { sigma: 0.01 },
+        Strategy::SolverInTheLoop {
+            unroll: 4,
+            schedule: Schedule::Every(2),
+        },
+    ] {
+        let run = |seed| {
+            let (_, params) = net(seed, 1);
+            t.train(
+                &hybrid,
+                params,
+                strategy,
+                &data.train,
+                &data.validation,
+                TrainSeed(seed),
+                &|| {},
+            )
+            .unwrap()
+        };
+        let a = run(11);
+        let b = run(11);
+        assert_eq!(
+            a.model.params.values(),
+            b.model.params.values(),
+            "{strategy}"
+        );
+        assert_eq!(a.model.losses.len(), 100);
+        assert_eq!(a.model.validation_curve.len(), 10);
+        println!(
+            "{strategy}: validation {} vs coarse {coarse}",
+            a.model.validation
+        );
+        assert!(
+            a.model.validation < 0.75 * coarse,
+            "{strategy}: validation {} vs coarse {coarse}",
+            a.model.validation
+        );
+        assert_ne!(a.id(), b.id());
+    }
+}
+
+#[test]
+fn bad_input_is_a_typed_error() {
+    let data = splits(8, [2, 1, 1], 8);
+    let (corrector, params) = net(0, 1);
+    let hybrid = Hybrid::new(Cubic, corrector);
+    let sol = |unroll| Strategy::SolverInTheLoop {
+        unroll,
+        schedule: Schedule::Full,
+    };
+    let train = |t: Trainer, s: Strategy, tr: &[Trajectory], va: &[Trajectory]| {
+        t.train(&hybrid, params.clone(), s, tr, va, TrainSeed(1), &|| {})
+    };
+    assert!(matches!(
+        train(
+            trainer(0, 8),
+            Strategy::NonInteracting,
+            &data.train,
+            &data.validation
+        ),
+        Err(LearnError::ZeroIterations { .. })
+    ));
+    assert!(matches!(
+        train(trainer(5, 8), sol(0), &data.train, &data.validation),
+        Err(LearnError::ZeroUnroll { .. })
+    ));
+    assert!(matches!(
+        train(trainer(5, 8), sol(3), &data.train, &data.validation),
+        Err(LearnError::Budget { .. })
+    ));
+    assert!(matches!(
+        train(
+            trainer(5, 8),
+            Strategy::NonInteracting,
+            &[],
+            &data.validation
+        ),
+        Err(LearnError::EmptySplit {
+            split: Split::Train,
+            ..
+        })
+    ));
+    assert!(matches!(
+        train(trainer(5, 8), Strategy::NonInteracting, &data.train, &[]),
+        Err(LearnError::EmptySplit {
+            split: Split::Validation,
+            ..
+        })
+    ));
+    assert!(matches!(
+        train(
+            trainer(5, 8),
+            Strategy::Noise { sigma: f64::NAN },
+            &data.train,
+            &data.validation
+        ),
+        Err(LearnError::Invalid { .. })
+    ));
+    // A corrector with two output channels for a one-channel state.
+    let (wide, wide_params) = net(0, 2);
+    let wrong = Hybrid::new(Cubic, wide);
+    let result = trainer(5, 8).train(
+        &wrong,
+        wide_params,
+        Strategy::NonInteracting,
+        &data.train,
+        &data.validation,
+        TrainSeed(1),
+        &|| {},
+    );
+    match result {
+        Err(LearnError::CorrectorShape { state, correction }) => {
+            assert_eq!(state, vec![8, 1, CELLS]);
+            assert_eq!(correction, vec![8, 2, CELLS]);
+        }
+        other => panic!("expected a corrector shape error, got {other:?}"),
+    }
+    // Every error names its cause.
+    let e = train(
+        trainer(0, 8),
+        Strategy::NonInteracting,
+        &data.train,
+        &data.validation,
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("0 training iterations"), "{e}");
+}
+
+#[test]
+fn the_held_out_split_is_read_once_per_model_after_selection() {
+    let data = splits(9, [4, 2, 2], 8);
+    let (corrector, _) = net(0, 1);
+    let hybrid = Hybrid::new(Cubic, corrector);
+    let t = trainer(10, 4);
+    let mut candidates = Vec::new();
+    for unroll in [1, 2, 4] {
+        let (_, params) = net(1, 1);
+        let strategy = Strategy::SolverInTheLoop {
+            unroll,
+            schedule: Schedule::Full,
+        };
+        let trained = t
+            .train(
+                &hybrid,
+                params,
+                strategy,
+                &data.train,
+                &data.validation,
+                TrainSeed(1),
+                &|| {},
+            )
+            .unwrap();
+        let v = trained.model.validation;
+        candidates.push(Candidate::new(strategy.name(), trained, v));
+    }
+    let copy = candidates[0].clone();
+    let selection = select_best(candidates).unwrap();
+    let best = selection
+        .models
+        .iter()
+        .map(|m| m.validation())
+        .fold(f64::INFINITY, f64::min);
+    assert_eq!(selection.models[selection.chosen].validation(), best);
+    for model in selection.models {
+        data.held_out()
+            .evaluate(model, |m, d| {
+                Ok(rollout(&hybrid, Some(&m.params), d, 8)?.mean())
+            })
+            .unwrap();
+    }
+    // The same trained model, cloned and selected again, is refused.
+    let again = select_best(vec![copy]).unwrap().models.remove(0);
+    assert!(matches!(
+        data.held_out().evaluate(again, |_, _| Ok(())),
+        Err(LearnError::HeldOutReused { .. })
+    ));
+}

@@ -433,7 +433,14 @@ fn each_cycle_cuts_the_residual_by_a_size_independent_factor() {
     }
     // A size that is not a power of two (80 × 48 coarsens to 10 × 6), with
     // cells of aspect ratio 2.2: measured 0.33.
-    assert!(grid_rate(&stretched(80, 48, Boundary::ZeroDirichlet, Boundary::Closed)) < 0.4);
+    assert!(
+        grid_rate(&stretched(
+            80,
+            48,
+            Boundary::ZeroDirichlet,
+            Boundary::Closed
+        )) < 0.4
+    );
 }
 
 /// Iterations of the project's CG, preconditioned by the cycle, to relative
@@ -508,7 +515,10 @@ fn the_preconditioner_is_the_f64_cycle_in_either_precision() {
         let got: Vec<u32> = z32.iter().map(|v| v.to_bits()).collect();
         assert_eq!(got, rounded, "{name}");
         let view = LinearOperator::<f64>::apply(&mg, r64.view()).unwrap();
-        let same = view.iter().zip(&z64).all(|(a, b)| a.to_bits() == b.to_bits());
+        let same = view
+            .iter()
+            .zip(&z64)
+            .all(|(a, b)| a.to_bits() == b.to_bits());
         assert!(same, "{name}");
     }
 }

@@ -198,7 +198,7 @@ impl PartialEq for Preconditioning {
 }
 
 /// A preconditioner of one precision as the solver applies it.
-pub(super) enum Applied<'a, T> {
+pub(super) enum Applied<'a, T: Clone> {
     /// `z = r`: nothing to apply.
     Identity,
     /// `z = d ⊙ r`, fused into the residual update.

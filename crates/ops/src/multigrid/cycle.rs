@@ -161,7 +161,8 @@ impl Multigrid {
     /// size. The cycle computes in f64: `f64` vectors are used in place,
     /// `f32` ones through f64 copies.
     pub(super) fn apply_cycle<T: Real>(&self, r: &[T], z: &mut [T]) {
-        let apply = T::pick::<ApplyFn>(Multigrid::apply_converted::<f32>, Multigrid::apply_in_place);
+        let apply =
+            T::pick::<ApplyFn>(Multigrid::apply_converted::<f32>, Multigrid::apply_in_place);
         apply(self, r, z);
     }
 

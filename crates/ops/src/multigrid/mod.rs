@@ -221,7 +221,6 @@ impl Multigrid {
     pub fn is_singular(&self) -> bool {
         self.singular
     }
-
 }
 
 /// One V-cycle per CG iteration, `M⁻¹ = B`.

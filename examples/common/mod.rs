@@ -98,3 +98,83 @@ pub fn print_json_line(value: &serde_json::Value) {
         serde_json::to_string(value).expect("a JSON value serialises")
     );
 }
+
+/// The learning scenes' seeds: `--data-seed N` (or `--data-seeds a,b,c`) and
+/// `--train-seeds a,b,c`, removed from `args`; the defaults are `full` (or
+/// `small` with `--small`).
+#[derive(Debug, Clone)]
+pub struct Seeds {
+    /// Each a fresh draw of the train, validation and held-out splits.
+    pub data: Vec<u64>,
+    /// Each a network initialisation and sampling stream.
+    pub train: Vec<u64>,
+}
+
+impl Seeds {
+    /// Parses and removes the seed options from `args`.
+    pub fn take(args: &mut Vec<String>, small: bool) -> Result<Self, String> {
+        let list = |v: &str, what: &str| -> Result<Vec<u64>, String> {
+            let seeds: Vec<u64> = v
+                .split(',')
+                .map(|s| {
+                    s.trim()
+                        .parse()
+                        .map_err(|_| format!("{what}: not a seed list: {v}"))
+                })
+                .collect::<Result<_, _>>()?;
+            if seeds.is_empty() {
+                return Err(format!("{what}: no seeds"));
+            }
+            Ok(seeds)
+        };
+        let mut seeds = if small {
+            Seeds {
+                data: vec![1],
+                train: vec![1],
+            }
+        } else {
+            Seeds {
+                data: vec![1, 2, 3],
+                train: vec![1, 2, 3],
+            }
+        };
+        let mut i = 0;
+        while i < args.len() {
+            let what = args[i].clone();
+            if ["--data-seed", "--data-seeds", "--train-seeds"].contains(&what.as_str()) {
+                let value = args
+                    .get(i + 1)
+                    .ok_or(format!("{what} needs a value"))?
+                    .clone();
+                match what.as_str() {
+                    "--train-seeds" => seeds.train = list(&value, &what)?,
+                    _ => seeds.data = list(&value, &what)?,
+                }
+                args.drain(i..i + 2);
+            } else {
+                i += 1;
+            }
+        }
+        Ok(seeds)
+    }
+}
+
+/// The command line with the learning scenes' seed options taken out.
+pub fn parse_with_seeds(default_out: &str) -> Result<(ExampleArgs, Seeds), String> {
+    let mut raw: Vec<String> = std::env::args().skip(1).collect();
+    let small = raw.iter().any(|a| a == "--small");
+    let seeds = Seeds::take(&mut raw, small)?;
+    Ok((
+        ExampleArgs::parse_from(default_out, raw.into_iter())?,
+        seeds,
+    ))
+}
+
+/// The process's peak resident set size in bytes (`VmHWM` of
+/// `/proc/self/status`; `None` where there is no such file).
+pub fn peak_rss_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}

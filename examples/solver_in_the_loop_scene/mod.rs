@@ -26,6 +26,7 @@
 
 use std::sync::Arc;
 
+use diffphys::learn::{Simulator, Trajectory};
 use diffphys::ops::advection::{upwind_1d, upwind_1d_vjp, AdvectionParams, Wants};
 use diffphys::tape::Result as TapeResult;
 use diffphys::{ArrayD, ArrayViewD, BackwardArgs, Boundary, Grid1, Op, TapeError, Var};
@@ -130,6 +131,13 @@ impl Solver {
             },
             &[],
         )
+    }
+}
+
+/// The coarse solver as the library's simulator: one upwind step of a batch.
+impl Simulator for Solver {
+    fn step<'t>(&self, u: Var<'t, f64>) -> TapeResult<Var<'t, f64>> {
+        self.step_tape(u)
     }
 }
 
@@ -244,28 +252,32 @@ pub fn reference_set(
         .collect()
 }
 
-/// Rows of coarse states stacked as a `[batch, 1, COARSE]` array.
-pub fn batch_of(states: &[ArrayView1<'_, f64>]) -> ArrayD<f64> {
-    let mut out = ArrayD::zeros(vec![states.len(), 1, COARSE]);
-    for (b, u) in states.iter().enumerate() {
-        out.slice_mut(s![b, 0, ..]).assign(u);
-    }
-    out
+/// `count` reference trajectories of `steps` steps from initial states drawn by
+/// `rng`, each state a `[1, COARSE]` array (one channel).
+pub fn trajectories(
+    count: usize,
+    steps: usize,
+    rng: &mut impl Rng,
+) -> Result<Vec<Trajectory>, BoxError> {
+    Ok(reference_set(count, steps, rng)?
+        .into_iter()
+        .map(|tr| {
+            tr.rows()
+                .into_iter()
+                .map(|r| r.to_owned().insert_axis(Axis(0)).into_dyn())
+                .collect()
+        })
+        .collect())
 }
 
-/// The mean over the batch of `‖a_b − r_b‖ / ‖r_b‖` for `[batch, 1, n]` arrays.
-pub fn relative_error(a: &ArrayD<f64>, r: &ArrayD<f64>) -> f64 {
-    let batch = a.shape()[0];
-    (0..batch)
-        .map(|b| {
-            let (x, y) = (a.slice(s![b, 0, ..]), r.slice(s![b, 0, ..]));
-            let diff = x
-                .iter()
-                .zip(y.iter())
-                .map(|(p, q)| (p - q).powi(2))
-                .sum::<f64>();
-            (diff / y.iter().map(|q| q * q).sum::<f64>()).sqrt()
-        })
-        .sum::<f64>()
-        / batch as f64
+/// The root mean square of `coarse step − reference` over the first step from
+/// every initial state of `set`: the error one coarse step makes.
+pub fn one_step_rms(solver: &Solver, set: &[Trajectory]) -> Result<f64, BoxError> {
+    let mut sum = 0.0;
+    for tr in set {
+        let u = solver.step(tr[0].slice(s![0, ..]))?;
+        sum += (&u - &tr[1].slice(s![0, ..])).mapv(|e| e * e).sum();
+    }
+    Ok((sum / (set.len() * COARSE) as f64).sqrt())
 }
+pub mod study;

@@ -186,4 +186,33 @@ impl<S: Simulator + 'static, C: Corrector + 'static> Hybrid<S, C> {
         let end = checkpointed_steps(tape, schedule, k, &[s0, acc], params.vars(), step)?;
         end[1].mul_scalar(1.0 / k as f64)
     }
+
+    /// The gradient of [`Hybrid::unrolled_loss`] from the batch `s0` under
+    /// `schedule`: `∂L/∂θ` for every parameter in order, then `∂L/∂s₀`,
+    /// flattened (a zero block where a variable got no gradient).
+    ///
+    /// # Errors
+    /// As [`Hybrid::unrolled_loss`] and the backward sweep.
+    pub fn unrolled_gradient(
+        &self,
+        params: &Params<f64>,
+        s0: &ArrayD<f64>,
+        targets: Rc<Vec<ArrayD<f64>>>,
+        schedule: Schedule,
+    ) -> Result<Vec<f64>> {
+        let tape = Tape::new();
+        let p = params.bind(&tape);
+        let s = tape.var(s0.clone());
+        let loss = self.unrolled_loss(&tape, &p, s, targets, schedule)?;
+        let mut wrt = p.vars().to_vec();
+        wrt.push(s);
+        let grads = tape.backward(loss, &wrt)?;
+        Ok(wrt
+            .iter()
+            .flat_map(|v| match grads.get(*v) {
+                Some(g) => g.iter().copied().collect::<Vec<_>>(),
+                None => vec![0.0; v.shape().iter().product()],
+            })
+            .collect())
+    }
 }

@@ -1,0 +1,197 @@
+//! What the flow examples and `benches/flow.rs` share: the scenes the peers
+//! are measured on, the per-step cost of a scene on and off the tape, and a
+//! heat-map chart of a field.
+
+#![allow(dead_code)] // each example uses a different part
+
+use std::time::Instant;
+
+use diffphys::flow::{
+    Advection, Boundary, FlowState, FlowVars, Obstacle, ParamVars, PressureSolver, Scene, Sides,
+    Splitting, TaylorGreen,
+};
+use diffphys::tape::{Real, Tape};
+use ndarray::Array2;
+use serde_json::{json, Value};
+
+type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
+
+/// The PBDL book's wake flow as PhiFlow runs it (benches/flow_peers), in our
+/// terms: a 100 × 200 domain of `res × 2 res` cells, uniform inflow 1 at the
+/// bottom, outflow at the top, no-slip walls left and right, a cylinder of
+/// radius 10 at (50, 50), explicit viscosity 1.25e-3 (the book's Re = 500 at
+/// its resolution factor 32), semi-Lagrangian advection, plain splitting,
+/// dt = 1; `pressure` overrides the scene's default solver.
+pub fn wake_scene(res: usize, pressure: Option<PressureSolver>) -> Result<Scene> {
+    let mut b = Scene::builder(res, 2 * res, [100.0, 200.0])
+        .sides(Sides {
+            left: Boundary::NoSlip,
+            right: Boundary::NoSlip,
+            bottom: Boundary::Inflow,
+            top: Boundary::Outflow,
+        })
+        .obstacle(Obstacle::cylinder([50.0, 50.0], 10.0))
+        .uniform_inflow(1.0)
+        // PhiFlow's diffusivity dt · 32² / (Re / (10 / 128²)) at Re = 500, dt = 1
+        .viscosity(32.0 * 32.0 * 10.0 / (128.0 * 128.0) / 500.0)
+        .dt(1.0)
+        .advection(Advection::SemiLagrangian)
+        .splitting(Splitting::Plain)
+        // semi-Lagrangian is stable at any Courant number; PhiFlow takes dt = 1
+        // at every resolution (Courant ≈ 2 at 128 x 256)
+        .max_courant(8.0);
+    if let Some(p) = pressure {
+        b = b.pressure_solver(p);
+    }
+    Ok(b.build()?)
+}
+
+/// The wake's start state, as on PhiFlow's side: velocity 1 along the flow
+/// everywhere, advanced 40 steps so the wake is developing.
+pub fn wake_start<T: Real>(scene: &Scene) -> Result<FlowState<T>> {
+    let g = scene.grid();
+    let uy = Array2::from_elem(g.shape_y(), T::one());
+    let mut s = FlowState::from_velocity(scene, Array2::zeros(g.shape_x()), uy);
+    let p = scene.params();
+    for _ in 0..40 {
+        s = scene.forward(&s, &p)?.0;
+    }
+    Ok(s)
+}
+
+/// JAX-CFD's periodic Taylor–Green box [0, 2π]² at `n²` cells, ν = 1e-3,
+/// dt = 0.5 h (Courant 0.5 at |u| = 1), MacCormack advection with the limiter
+/// (second order, as JAX-CFD's van Leer scheme), and its start state.
+pub fn box_scene<T: Real>(
+    n: usize,
+    pressure: Option<PressureSolver>,
+) -> Result<(Scene, FlowState<T>)> {
+    let tg = TaylorGreen {
+        amplitude: 1.0,
+        viscosity: 1e-3,
+    };
+    let h = 2.0 * std::f64::consts::PI / n as f64;
+    let mut b = tg.scene(n, 0.5 * h, Advection::MacCormack { limiter: true });
+    if let Some(p) = pressure {
+        b = b.pressure_solver(p);
+    }
+    let scene = b.build()?;
+    let start = tg.state(&scene, 0.0);
+    Ok((scene, start))
+}
+
+/// Times `steps` steps of `scene` from `start` (f64, this process's threads):
+/// without a tape, then on a tape with the gradient of `½|u_end|²` with
+/// respect to the start velocity. Per-step milliseconds of each part, the
+/// backward/forward ratio (backward sweep over the taped forward), the tape's
+/// peak bytes per step.
+pub fn step_costs(scene: &Scene, start: &FlowState<f64>, steps: usize) -> Result<Value> {
+    let params = scene.params();
+    let t = Instant::now();
+    let mut s = start.clone();
+    for _ in 0..steps {
+        s = scene.forward(&s, &params)?.0;
+    }
+    let plain = t.elapsed().as_secs_f64();
+
+    let t = Instant::now();
+    let tape = Tape::<f64>::new();
+    let v0 = FlowVars::variables(&tape, start);
+    let p = ParamVars::constants(&tape, &params);
+    let mut v = v0.clone();
+    for _ in 0..steps {
+        v = scene.step(&tape, &v, &p)?.0;
+    }
+    let loss = v.ux.dot(v.ux)?.add(v.uy.dot(v.uy)?)?.mul_scalar(0.5)?;
+    let taped = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    tape.backward(loss, &[v0.ux, v0.uy])?;
+    let backward = t.elapsed().as_secs_f64();
+    let ms = |s: f64| s / steps as f64 * 1e3;
+    Ok(json!({
+        "steps": steps,
+        "forward_ms_per_step": ms(plain),
+        "taped_forward_ms_per_step": ms(taped),
+        "backward_ms_per_step": ms(backward),
+        "forward_backward_ms_per_step": ms(taped + backward),
+        "backward_over_forward": backward / taped,
+        "forward_backward_over_plain_forward": (taped + backward) / plain,
+        "tape_peak_bytes_per_step": tape.stats().peak_bytes / steps,
+    }))
+}
+
+/// A heat map of `field` (`[nx, ny]`, axis 0 along x) over `[0, size[0]] ×
+/// [0, size[1]]`, averaged into at most `max_cols` columns so the SVG stays
+/// small, on a blue–white–red scale symmetric about zero clipped at `clip`;
+/// `solid` cells (same shape, or `None`) in grey.
+pub fn write_heatmap(
+    path: &std::path::Path,
+    title: &str,
+    field: &Array2<f64>,
+    solid: Option<&Array2<bool>>,
+    size: [f64; 2],
+    clip: f64,
+    max_cols: usize,
+) -> Result<()> {
+    use plotters::prelude::*;
+    let (nx, ny) = field.dim();
+    let block = nx.div_ceil(max_cols).max(1);
+    let (bx, by) = (nx.div_ceil(block), ny.div_ceil(block));
+    let width = 1000u32;
+    let height = ((width as f64 - 40.0) * size[1] / size[0]) as u32 + 70;
+    let root = SVGBackend::new(path, (width, height)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 15))
+        .margin(8)
+        .build_cartesian_2d(0.0..size[0], 0.0..size[1])?;
+    let (hx, hy) = (size[0] / nx as f64, size[1] / ny as f64);
+    let mut rects = Vec::with_capacity(bx * by);
+    for a in 0..bx {
+        for b in 0..by {
+            let (i0, i1) = (a * block, ((a + 1) * block).min(nx));
+            let (j0, j1) = (b * block, ((b + 1) * block).min(ny));
+            let (mut sum, mut count, mut solid_count) = (0.0, 0usize, 0usize);
+            for i in i0..i1 {
+                for j in j0..j1 {
+                    if solid.is_some_and(|m| m[[i, j]]) {
+                        solid_count += 1;
+                    } else {
+                        sum += field[[i, j]];
+                        count += 1;
+                    }
+                }
+            }
+            let colour = if solid_count * 2 > (i1 - i0) * (j1 - j0) {
+                RGBColor(150, 150, 150)
+            } else {
+                let t = (sum / count.max(1) as f64 / clip).clamp(-1.0, 1.0);
+                let fade = |t: f64| (255.0 * (1.0 - t.abs())) as u8;
+                if t >= 0.0 {
+                    RGBColor(255, fade(t), fade(t))
+                } else {
+                    RGBColor(fade(t), fade(t), 255)
+                }
+            };
+            rects.push(Rectangle::new(
+                [
+                    (i0 as f64 * hx, j0 as f64 * hy),
+                    (i1 as f64 * hx, j1 as f64 * hy),
+                ],
+                colour.filled(),
+            ));
+        }
+    }
+    chart.draw_series(rects)?;
+    root.present()?;
+    Ok(())
+}
+
+/// The peak resident set size of this process in bytes (`VmHWM` in
+/// `/proc/self/status`), or `None` where that file does not exist.
+pub fn peak_rss_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}

@@ -23,7 +23,7 @@ use diffphys::compare::harness::relative_error;
 use diffphys::compare::methods::exact::ExactCholesky;
 use diffphys::compare::methods::{GradientMethod, Stop};
 use diffphys::compare::problem::{Problem, ProblemSpec};
-use diffphys::ops::cg::{CgParams, Preconditioner};
+use diffphys::ops::cg::CgParams;
 use diffphys::ops::multigrid::Multigrid;
 use diffphys::ops::poisson::PoissonSolve;
 use diffphys::Tape;
@@ -69,7 +69,7 @@ fn mg_params(problem: &Problem<f64>) -> CgParams {
     let mg = Multigrid::new(&problem.grid, sweeps()).expect("the grid coarsens");
     CgParams::default()
         .with_rel_tol(RTOL)
-        .with_preconditioner(Preconditioner::Multigrid(Arc::new(mg)))
+        .with_preconditioner(Arc::new(mg))
 }
 
 fn best_of_3(mut f: impl FnMut()) -> f64 {

@@ -55,7 +55,7 @@ use std::sync::Arc;
 use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
 use ndarray::IxDyn;
 
-use crate::cg::{conjugate_gradient, CgError, CgInfo, CgParams, Preconditioner};
+use crate::cg::{conjugate_gradient, CgError, CgInfo, CgParams, Preconditioning};
 use crate::multigrid::Multigrid;
 use crate::{LinearOperator, OpsError, Result};
 
@@ -366,7 +366,7 @@ impl<T: Real, A: LinearOperator<T>> PoissonSolve<T, A> {
         if expected != found {
             return Err(OpsError::shape("poisson_solve multigrid", expected, found));
         }
-        let pre = Preconditioner::Multigrid(mg);
+        let pre = Preconditioning::from(mg);
         self.forward.preconditioner = pre.clone();
         self.adjoint.preconditioner = pre;
         Ok(self)

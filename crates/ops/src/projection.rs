@@ -55,7 +55,7 @@ use std::sync::Arc;
 use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
 use ndarray::{IxDyn, Zip};
 
-use crate::cg::{conjugate_gradient, CgInfo, CgParams, Preconditioner};
+use crate::cg::{conjugate_gradient, CgInfo, CgParams, Preconditioning};
 use crate::mac::{MacGrid, PressureOperator};
 use crate::multigrid::Multigrid;
 use crate::poisson::{SolveLog, WarmStart};
@@ -127,7 +127,7 @@ impl PressureProjection {
     /// # Errors
     /// As [`Multigrid::for_mac`] (`sweeps` of 0).
     pub fn with_multigrid(mut self, sweeps: usize) -> Result<Self> {
-        let mg = Preconditioner::Multigrid(Arc::new(Multigrid::for_mac(&self.mac, sweeps)?));
+        let mg = Preconditioning::from(Arc::new(Multigrid::for_mac(&self.mac, sweeps)?));
         self.forward.preconditioner = mg.clone();
         self.adjoint.preconditioner = mg;
         Ok(self)

@@ -7,7 +7,7 @@ mod common;
 use std::sync::Arc;
 
 use common::*;
-use diffphys_ops::cg::{CgError, CgParams, NullSpace, Preconditioner};
+use diffphys_ops::cg::{CgError, CgParams, NullSpace};
 use diffphys_ops::multigrid::Multigrid;
 use diffphys_ops::poisson::{poisson_solve, poisson_solve_vjp, PoissonSolve, SolveLog, WarmStart};
 use diffphys_ops::reference::SparseCholesky;
@@ -109,7 +109,7 @@ fn multigrid_preconditioned_gradient_matches_the_exact_gradient() {
         let params = CgParams::default()
             .with_rel_tol(1e-10)
             .with_null_space(ns)
-            .with_preconditioner(Preconditioner::Multigrid(mg));
+            .with_preconditioner(mg);
         let solve = PoissonSolve::new(Arc::new(a), params);
         let log = solve.log();
         let tape = Tape::<f64>::new();

@@ -45,7 +45,7 @@ pub use gradcheck::{
 pub use ndarray::{ArrayD, ArrayViewD, IxDyn};
 pub use op::{BackwardArgs, Op};
 pub use optim::{Adam, GradientDescent, Optimizer};
-pub use real::Real;
+pub use real::{PerPrecision, Real};
 pub use tape::{Tape, TapeStats, Var};
 
 /// A 1-D dynamic-dimension array from a slice, the shape most examples start from.

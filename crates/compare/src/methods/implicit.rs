@@ -14,7 +14,7 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use diffphys_ops::cg::{conjugate_gradient, CgParams, Preconditioner};
+use diffphys_ops::cg::{conjugate_gradient, CgParams, Preconditioning};
 use diffphys_ops::poisson::{poisson_solve_vjp, PoissonSolve, SolveLog};
 use diffphys_ops::stencil::Laplacian2;
 use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, Tape, TapeError};
@@ -114,7 +114,7 @@ pub fn run_implicit<T: Real>(
     forward: Stop,
     adjoint: Stop,
 ) -> Result<RunOutcome<T>> {
-    run_implicit_preconditioned(problem, forward, adjoint, Preconditioner::None)
+    run_implicit_preconditioned(problem, forward, adjoint, Preconditioning::None)
 }
 
 /// [`run_implicit`] with `preconditioner` in both the forward and the adjoint
@@ -127,7 +127,7 @@ pub fn run_implicit_preconditioned<T: Real>(
     problem: &Problem<T>,
     forward: Stop,
     adjoint: Stop,
-    preconditioner: Preconditioner,
+    preconditioner: Preconditioning,
 ) -> Result<RunOutcome<T>> {
     let tape = Tape::<T>::new();
     let solve = PoissonSolve::new(

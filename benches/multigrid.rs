@@ -25,7 +25,7 @@ use diffphys::compare::methods::{GradientMethod, Stop};
 use diffphys::compare::problem::{Problem, ProblemSpec};
 use diffphys::ops::cg::{CgParams, Preconditioner};
 use diffphys::ops::multigrid::Multigrid;
-use diffphys::ops::poisson::{poisson_solve_tape, PoissonSolve};
+use diffphys::ops::poisson::PoissonSolve;
 use diffphys::Tape;
 use ndarray::Array2;
 
@@ -42,7 +42,7 @@ fn implicit_gradient(problem: &Problem<f64>, params: CgParams) -> (Array2<f64>, 
     let log = solve.log();
     let tape = Tape::<f64>::new();
     let b = tape.var(problem.b.clone().into_dyn());
-    let p = poisson_solve_tape(solve, b).expect("the solve converges");
+    let p = tape.apply(solve, &[b]).expect("the solve converges");
     let d = p
         .sub(tape.constant(problem.target.clone().into_dyn()))
         .expect("shapes");

@@ -165,7 +165,7 @@ fn loss_after<'t>(
 
 /// The plugin as a step function for [`loss_after`].
 fn plugin_step<'t>(u: Var<'t, f64>, kappa: Var<'t, f64>) -> Result<Var<'t, f64>, TapeError> {
-    u.apply1(DiffusionStep, &[kappa])
+    u.tape().apply(DiffusionStep, &[u, kappa])
 }
 
 /// A step of the diffusion, as the plugin or as primitives.

@@ -47,7 +47,7 @@ use diffphys::compare::harness::progress_bar;
 use diffphys::nn::{check_loss, stack, Activation, Layer, Padding, Params, UNet, UNetConfig};
 use diffphys::ops::cg::{conjugate_gradient, CgParams};
 use diffphys::ops::stencil::Laplacian2;
-use diffphys::ops::tape_ops::apply_linear;
+use diffphys::ops::tape_ops::LinearOp;
 use diffphys::{Adam, ArrayD, ArrayViewD, Boundary, Grid2, LinearOperator, Tape, Var};
 use ndarray::{Array2, ArrayViewMutD, Axis, IxDyn};
 use rand::rngs::StdRng;
@@ -225,7 +225,7 @@ fn unrolled_residual<'t>(
     x0: Var<'t, f64>,
     k: usize,
 ) -> Result<Var<'t, f64>, BoxError> {
-    let apply = |v: Var<'t, f64>| apply_linear(Arc::clone(a), v);
+    let apply = |v: Var<'t, f64>| v.tape().apply(LinearOp::new(Arc::clone(a)), &[v]);
     let mut r = b.sub(apply(x0)?)?;
     let mut p = r;
     let mut rr = batch_dot(r, r)?;

@@ -14,7 +14,7 @@ use common::*;
 use diffphys_ops::cg::{conjugate_gradient, CgError, CgParams, NullSpace, Preconditioner};
 use diffphys_ops::mac::MacGrid;
 use diffphys_ops::multigrid::Multigrid;
-use diffphys_ops::poisson::{poisson_solve_tape, PoissonSolve};
+use diffphys_ops::poisson::PoissonSolve;
 use diffphys_ops::projection::PressureProjection;
 use diffphys_ops::reference::SparseCholesky;
 use diffphys_ops::stencil::Laplacian2;
@@ -236,7 +236,7 @@ fn poisson_gradient_with_multigrid_matches_the_exact_gradient_for_every_boundary
         let log = solve.log();
         let tape = Tape::<f64>::new();
         let bv = tape.var(b.clone());
-        let p = poisson_solve_tape(solve, bv).unwrap();
+        let p = tape.apply(solve, &[bv]).unwrap();
         let d = p.sub(tape.constant(target.clone())).unwrap();
         let loss = d.mul(d).unwrap().sum().unwrap().mul_scalar(0.5).unwrap();
         let grads = tape.backward(loss, &[bv]).unwrap();
@@ -308,8 +308,8 @@ fn poisson_op_with_multigrid_passes_the_finite_difference_check() {
         let b = random_field::<f64>(&[11, 7], 21);
         // L = Σ w ⊙ p² (w the checker's weight): nonlinear in p.
         assert_gradient(
-            |_, v| {
-                let p = poisson_solve_tape(solve.clone(), v[0]).map_err(TapeError::from)?;
+            |t, v| {
+                let p = t.apply(solve.clone(), &[v[0]])?;
                 p.mul(p)
             },
             &[b],

@@ -42,13 +42,13 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
-use diffphys::compare::chart::{line_chart_svg, LineChart, Series};
-use diffphys::compare::harness::progress_bar;
+use diffphys_compare::chart::{line_chart_svg, LineChart, Series};
+use diffphys_compare::harness::progress_bar;
 use diffphys::nn::{check_loss, stack, Activation, Layer, Padding, Params, UNet, UNetConfig};
 use diffphys::ops::cg::{conjugate_gradient, CgParams};
 use diffphys::ops::stencil::Laplacian2;
 use diffphys::ops::tape_ops::LinearOp;
-use diffphys::{Adam, ArrayD, ArrayViewD, Boundary, Grid2, LinearOperator, Tape, Var};
+use diffphys::prelude::*;
 use ndarray::{Array2, ArrayViewMutD, Axis, IxDyn};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};

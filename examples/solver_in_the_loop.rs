@@ -26,12 +26,12 @@ use std::path::{Path, PathBuf};
 use std::rc::Rc;
 use std::time::Instant;
 
-use diffphys::compare::alloc::CountingAllocator;
-use diffphys::compare::chart::{line_chart_svg, LineChart, Series};
-use diffphys::compare::harness::progress_bar;
+use diffphys_compare::alloc::CountingAllocator;
+use diffphys_compare::chart::{line_chart_svg, LineChart, Series};
+use diffphys_compare::harness::progress_bar;
 use diffphys::nn::{check_loss, Activation, Bound, Layer, Padding, Params, UNet, UNetConfig};
 use diffphys::tape::{checkpointed_steps, Result as TapeResult, Schedule, StepFn};
-use diffphys::{check_gradient, Adam, ArrayD, GradCheckOptions, Tape, Var};
+use diffphys::prelude::*;
 use ndarray::{s, Array2};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};

@@ -12,7 +12,7 @@ use std::hint::black_box;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use diffphys::ops::advection::{AdvectionParams, Upwind1, Upwind2};
-use diffphys::{test_array, ArrayD, Boundary, Grid1, Grid2, Tape, TapeStats, Var};
+use diffphys::prelude::*;
 
 type StepResult<'t> = diffphys::tape::Result<Var<'t, f64>>;
 

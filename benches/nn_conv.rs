@@ -14,7 +14,7 @@ use std::time::Instant;
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use diffphys::nn::reference::conv_from_primitives;
 use diffphys::nn::{ConvOp, Padding};
-use diffphys::{test_array, ArrayD, Tape, TapeStats};
+use diffphys::prelude::*;
 
 const BATCH: usize = 8;
 const CHANNELS: usize = 16;

@@ -24,11 +24,11 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use candle_core::{Device, Tensor, Var as CandleVar};
-use diffphys::compare::chart::{line_chart_svg, LineChart, Series};
+use diffphys_compare::chart::{line_chart_svg, LineChart, Series};
 use diffphys::ops::cg::CgParams;
 use diffphys::ops::poisson::PoissonSolve;
 use diffphys::ops::stencil::Laplacian2;
-use diffphys::{ArrayD, Boundary, Grid2, Tape};
+use diffphys::prelude::*;
 use diffphys_candle::CandlePoisson;
 use ndarray::{Array1, Array2};
 

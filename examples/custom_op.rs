@@ -7,10 +7,7 @@
 
 mod common;
 
-use diffphys::{
-    check_adjoint, check_gradient, test_array, ArrayD, ArrayViewD, BackwardArgs, GradCheckOptions,
-    Op, Real, Tape, TapeError, TapeStats, Var,
-};
+use diffphys::prelude::*;
 use ndarray::{s, Array1, ArrayView1, IxDyn, Zip};
 
 // ---------------------------------------------------------------------------

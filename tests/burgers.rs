@@ -8,7 +8,7 @@ use std::sync::Arc;
 use diffphys::ops::advection::SemiLagrangian1;
 use diffphys::ops::stencil::{DiffusionParams, ExplicitDiffusion1};
 use diffphys::ops::tape_ops::LinearOp;
-use diffphys::{check_gradient, test_array, ArrayD, Boundary, GradCheckOptions, Grid1, Tape, Var};
+use diffphys::prelude::*;
 
 const N: usize = 128;
 const STEPS: usize = 32;

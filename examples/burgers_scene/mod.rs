@@ -14,7 +14,7 @@ use diffphys::nn::{Activation, Padding, Params, UNet, UNetConfig};
 use diffphys::ops::advection::{semi_lagrangian1, SemiLagrangian1};
 use diffphys::ops::stencil::{DiffusionParams, ExplicitDiffusion1};
 use diffphys::ops::tape_ops::LinearOp;
-use diffphys::{ArrayD, Boundary, Grid1, LinearOperator, Tape, Var};
+use diffphys::prelude::*;
 use ndarray::{Array1, Ix1};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
@@ -194,8 +194,8 @@ pub fn mse(a: &Array1<f64>, b: &Array1<f64>) -> f64 {
 }
 
 /// `(step, value)` pairs as a chart series.
-pub fn curve(label: &str, points: &[(usize, f64)]) -> diffphys::compare::chart::Series {
-    diffphys::compare::chart::Series::new(
+pub fn curve(label: &str, points: &[(usize, f64)]) -> diffphys_compare::chart::Series {
+    diffphys_compare::chart::Series::new(
         label,
         points.iter().map(|&(s, v)| (s as f64, v)).collect(),
     )

@@ -29,7 +29,7 @@ use std::sync::Arc;
 use diffphys::learn::{Simulator, Trajectory};
 use diffphys::ops::advection::{upwind1, upwind1_vjp, AdvectionParams, Wants};
 use diffphys::tape::Result as TapeResult;
-use diffphys::{ArrayD, ArrayViewD, BackwardArgs, Boundary, Grid1, Op, TapeError, Var};
+use diffphys::prelude::*;
 use ndarray::{s, Array1, Array2, ArrayView1, Axis};
 use rand::Rng;
 

@@ -19,14 +19,14 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use diffphys_compare::harness::relative_error;
-use diffphys_compare::methods::exact::ExactCholesky;
-use diffphys_compare::methods::{GradientMethod, Stop};
-use diffphys_compare::problem::{Problem, ProblemSpec};
 use diffphys::ops::cg::CgParams;
 use diffphys::ops::multigrid::Multigrid;
 use diffphys::ops::poisson::PoissonSolve;
 use diffphys::prelude::*;
+use diffphys_compare::harness::relative_error;
+use diffphys_compare::methods::exact::ExactCholesky;
+use diffphys_compare::methods::{GradientMethod, Stop};
+use diffphys_compare::problem::{Problem, ProblemSpec};
 use ndarray::Array2;
 
 const SIZES: [usize; 4] = [256, 512, 1024, 2048];

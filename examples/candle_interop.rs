@@ -24,12 +24,12 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use candle_core::{Device, Tensor, Var as CandleVar};
-use diffphys_compare::chart::{line_chart_svg, LineChart, Series};
 use diffphys::ops::cg::CgParams;
 use diffphys::ops::poisson::PoissonSolve;
 use diffphys::ops::stencil::Laplacian2;
 use diffphys::prelude::*;
 use diffphys_candle::CandlePoisson;
+use diffphys_compare::chart::{line_chart_svg, LineChart, Series};
 use ndarray::{Array1, Array2};
 
 type BoxError = Box<dyn std::error::Error>;

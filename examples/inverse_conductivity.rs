@@ -26,13 +26,13 @@ mod common;
 use std::path::Path;
 use std::time::Instant;
 
-use diffphys_compare::chart::{heatmap_svg_with_axes, line_chart_svg, LineChart, Series};
 use diffphys::ops::cg::CgParams;
 use diffphys::ops::cg::NullSpace;
 use diffphys::ops::conductivity::{Conductivity2, ConductivitySolve};
 use diffphys::ops::reference::SparseCholesky;
-use diffphys::tape::optim::{Adam, Optimizer};
 use diffphys::prelude::*;
+use diffphys::tape::optim::{Adam, Optimizer};
+use diffphys_compare::chart::{heatmap_svg_with_axes, line_chart_svg, LineChart, Series};
 use ndarray::{Array2, Ix2};
 
 type BoxError = Box<dyn std::error::Error>;

@@ -16,7 +16,12 @@ const ALLOWED: &[(&str, &[&str])] = &[
     ("candle", &["diffphys-tape", "diffphys-ops"]),
     (
         "python",
-        &["diffphys-tape", "diffphys-ops", "diffphys-flow", "diffphys-nn"],
+        &[
+            "diffphys-tape",
+            "diffphys-ops",
+            "diffphys-flow",
+            "diffphys-nn",
+        ],
     ),
 ];
 

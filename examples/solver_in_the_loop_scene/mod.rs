@@ -28,8 +28,8 @@ use std::sync::Arc;
 
 use diffphys::learn::{Simulator, Trajectory};
 use diffphys::ops::advection::{upwind1, upwind1_vjp, AdvectionParams, Wants};
-use diffphys::tape::Result as TapeResult;
 use diffphys::prelude::*;
+use diffphys::tape::Result as TapeResult;
 use ndarray::{s, Array1, Array2, ArrayView1, Axis};
 use rand::Rng;
 

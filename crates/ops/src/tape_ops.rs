@@ -2,7 +2,7 @@
 //!
 //! ```
 //! use std::sync::Arc;
-//! use diffphys_ops::{stencil::Laplacian1, tape_ops::apply_linear, Boundary, Grid1};
+//! use diffphys_ops::{stencil::Laplacian1, tape_ops::LinearOp, Boundary, Grid1};
 //! use diffphys_tape::{arr_dyn, Tape};
 //!
 //! let lap = Arc::new(Laplacian1::new(Grid1::new(4, 1.0, 0.0, Boundary::Periodic)?));

@@ -48,14 +48,33 @@ fn named_examples(page: &str) -> Vec<String> {
     names
 }
 
-/// The source lines of an example: its file and its scene folder, if any.
+/// The modules an example declares (`mod burgers_scene;`): folders or files
+/// beside it whose lines count as the example's.
+fn declared_modules(source: &str) -> Vec<String> {
+    source
+        .lines()
+        .filter_map(|l| l.trim().strip_prefix("mod ")?.strip_suffix(';'))
+        .map(|m| m.trim().to_string())
+        .collect()
+}
+
+/// The source lines of an example: its file, its scene folder and the
+/// modules it declares, if any.
 fn example_lines(root: &Path, name: &str) -> Vec<String> {
-    let mut files: Vec<PathBuf> = vec![root.join("examples").join(format!("{name}.rs"))];
-    for dir in [
+    let main = root.join("examples").join(format!("{name}.rs"));
+    let mut files: Vec<PathBuf> = vec![main.clone()];
+    let mut dirs = vec![
         root.join("examples").join(format!("{name}_scene")),
         root.join("examples").join(name),
         root.join("examples").join("common"),
-    ] {
+    ];
+    for module in declared_modules(&std::fs::read_to_string(&main).unwrap_or_default()) {
+        files.push(root.join("examples").join(format!("{module}.rs")));
+        dirs.push(root.join("examples").join(module));
+    }
+    dirs.sort();
+    dirs.dedup();
+    for dir in dirs {
         if let Ok(entries) = std::fs::read_dir(&dir) {
             files.extend(entries.filter_map(|e| e.ok().map(|e| e.path())));
         }

@@ -100,7 +100,8 @@ pub fn resample_forward<T: Real>(
 /// one of `x_shape`.
 ///
 /// # Errors
-/// As [`resample_forward`].
+/// As [`resample_forward`] for `x_shape`, and [`TapeError::ShapeMismatch`] if
+/// `grad_y` does not have the shape the forward gives `x_shape`.
 pub fn resample_adjoint<T: Real>(
     name: &str,
     direction: Direction,
@@ -109,6 +110,26 @@ pub fn resample_adjoint<T: Real>(
 ) -> Result<ArrayD<T>> {
     let (p, h, w) = planes(name, x_shape)?;
     let rank = x_shape.len();
+    let mut y_shape = x_shape.to_vec();
+    match direction {
+        Direction::Pool => {
+            if w % 2 != 0 || (rank == 4 && h % 2 != 0) {
+                return Err(TapeError::invalid(
+                    name,
+                    format!("2× pooling needs even spatial sizes, got shape {x_shape:?}"),
+                ));
+            }
+            y_shape[2..].iter_mut().for_each(|s| *s /= 2);
+        }
+        Direction::Upsample => y_shape[2..].iter_mut().for_each(|s| *s *= 2),
+    }
+    if grad_y.shape() != y_shape.as_slice() {
+        return Err(TapeError::shape(
+            &format!("{name} adjoint"),
+            &y_shape,
+            grad_y.shape(),
+        ));
+    }
     let g = grad_y.as_standard_layout();
     let gs = g.as_slice().expect("standard layout");
     let mut out = vec![T::zero(); x_shape.iter().product()];

@@ -234,6 +234,28 @@ fn pooling_and_upsampling_pass_finite_differences_and_the_dot_product_test() {
     );
 }
 
+/// The adjoint of pooling and upsampling given a gradient of the wrong shape
+/// (or an input shape pooling cannot take) is a typed error, not a panic.
+#[test]
+fn resampling_adjoints_refuse_gradients_of_the_wrong_shape() {
+    let x_shape = [1, 2, 4, 6];
+    for (direction, right) in [
+        (Direction::Pool, [1, 2, 2, 3]),
+        (Direction::Upsample, [1, 2, 8, 12]),
+    ] {
+        let ok = test_array::<f64>(&right, 1);
+        assert!(resample_adjoint("r", direction, ok.view(), &x_shape).is_ok());
+        for wrong in [vec![1, 2, 4, 6], vec![1, 2, 2], vec![2, 2, 2, 3], vec![]] {
+            let g = test_array::<f64>(&wrong, 2);
+            let e = resample_adjoint("r", direction, g.view(), &x_shape).unwrap_err();
+            assert!(e.to_string().contains("r adjoint"), "{direction:?} {wrong:?}: {e}");
+        }
+    }
+    let g = test_array::<f64>(&[1, 1, 2, 2], 3);
+    let e = resample_adjoint("r", Direction::Pool, g.view(), &[1, 1, 5, 4]).unwrap_err();
+    assert!(e.to_string().contains("even"), "{e}");
+}
+
 /// A tiny U-Net with a non-zero head, so every parameter gets a gradient.
 fn small_unet(dims: usize, padding: Padding) -> (Params<f64>, UNet) {
     let mut params = Params::new();

@@ -194,28 +194,58 @@ pub fn map_chunks_mut<T: Send, R: Send>(
 /// Runs `f(offset, a_chunk, b_chunk)` on matching [`CHUNK`]-sized chunks of two
 /// arrays of the same length, returning what each returned, in chunk order.
 ///
-/// # Panics
-/// If the lengths differ (a caller's broken invariant).
+/// # Errors
+/// [`LengthMismatch`] if the lengths differ.
 pub fn map_chunks_mut2<T: Send, U: Send, R: Send>(
     a: &mut [T],
     b: &mut [U],
     f: impl Fn(usize, &mut [T], &mut [U]) -> R + Sync + Send,
-) -> Vec<R> {
-    assert_eq!(a.len(), b.len(), "map_chunks_mut2: lengths differ");
+) -> Result<Vec<R>, LengthMismatch> {
+    same_len("parallel::map_chunks_mut2", a.len(), b.len())?;
     if !is_parallel(a.len()) {
-        return a
+        return Ok(a
             .chunks_mut(CHUNK)
             .zip(b.chunks_mut(CHUNK))
             .enumerate()
             .map(|(c, (a, b))| f(c * CHUNK, a, b))
-            .collect();
+            .collect());
     }
-    a.par_chunks_mut(CHUNK)
+    Ok(a.par_chunks_mut(CHUNK)
         .zip(b.par_chunks_mut(CHUNK))
         .enumerate()
         .with_min_len(min_tasks_len(CHUNK))
         .map(|(c, (a, b))| f(c * CHUNK, a, b))
-        .collect()
+        .collect())
+}
+
+/// Two slices a kernel combines entry by entry have different lengths.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error("{kernel}: the slices have {left} and {right} entries; they must have the same length")]
+pub struct LengthMismatch {
+    /// The kernel that was called.
+    pub kernel: &'static str,
+    /// The first slice's length.
+    pub left: usize,
+    /// The other slice's length.
+    pub right: usize,
+}
+
+impl From<LengthMismatch> for crate::TapeError {
+    fn from(e: LengthMismatch) -> Self {
+        crate::TapeError::invalid(e.kernel, e.to_string())
+    }
+}
+
+fn same_len(kernel: &'static str, left: usize, right: usize) -> Result<(), LengthMismatch> {
+    if left == right {
+        Ok(())
+    } else {
+        Err(LengthMismatch {
+            kernel,
+            left,
+            right,
+        })
+    }
 }
 
 #[inline(always)]
@@ -287,22 +317,22 @@ fn wide<T: Real>(x: T) -> f64 {
 
 /// `Σ a_i b_i` accumulated in `f64` whatever `T`, chunked (deterministic).
 ///
-/// # Panics
-/// If the lengths differ (a caller's broken invariant).
-pub fn dot<T: Real>(a: &[T], b: &[T]) -> f64 {
-    assert_eq!(a.len(), b.len(), "parallel::dot: lengths differ");
-    sum_chunks(a.len(), |r| dot_chunk_f64(&a[r.clone()], &b[r]))
+/// # Errors
+/// [`LengthMismatch`] if the lengths differ.
+pub fn dot<T: Real>(a: &[T], b: &[T]) -> Result<f64, LengthMismatch> {
+    same_len("parallel::dot", a.len(), b.len())?;
+    Ok(sum_chunks(a.len(), |r| dot_chunk_f64(&a[r.clone()], &b[r])))
 }
 
 /// `Σ a_i b_i` accumulated in `T`, chunked (deterministic): the tape's `dot`.
 ///
-/// # Panics
-/// If the lengths differ (a caller's broken invariant).
-pub fn dot_in<T: Real>(a: &[T], b: &[T]) -> T {
-    assert_eq!(a.len(), b.len(), "parallel::dot_in: lengths differ");
-    map_chunks(a.len(), |r| dot_chunk(&a[r.clone()], &b[r]))
+/// # Errors
+/// [`LengthMismatch`] if the lengths differ.
+pub fn dot_in<T: Real>(a: &[T], b: &[T]) -> Result<T, LengthMismatch> {
+    same_len("parallel::dot_in", a.len(), b.len())?;
+    Ok(map_chunks(a.len(), |r| dot_chunk(&a[r.clone()], &b[r]))
         .into_iter()
-        .fold(T::zero(), |s, p| s + p)
+        .fold(T::zero(), |s, p| s + p))
 }
 
 /// `Σ a_i` accumulated in `T`, chunked (deterministic): the tape's `sum` and `mean`.
@@ -314,31 +344,42 @@ pub fn sum_in<T: Real>(a: &[T]) -> T {
 
 /// `out_i = f(a_i)`, chunked and in parallel for large arrays.
 ///
-/// # Panics
-/// If the lengths differ (a caller's broken invariant).
-pub fn map_into<T: Real>(a: &[T], out: &mut [T], f: impl Fn(T) -> T + Sync + Send) {
-    assert_eq!(a.len(), out.len(), "parallel::map_into: lengths differ");
+/// # Errors
+/// [`LengthMismatch`] if the lengths differ.
+pub fn map_into<T: Real>(
+    a: &[T],
+    out: &mut [T],
+    f: impl Fn(T) -> T + Sync + Send,
+) -> Result<(), LengthMismatch> {
+    same_len("parallel::map_into", a.len(), out.len())?;
     for_each_chunk_mut(out, |off, o| {
         let n = o.len();
         for (o, &a) in o.iter_mut().zip(&a[off..off + n]) {
             *o = f(a);
         }
     });
+    Ok(())
 }
 
 /// `out_i = f(a_i, b_i)`, chunked and in parallel for large arrays.
 ///
-/// # Panics
-/// If the lengths differ (a caller's broken invariant).
-pub fn zip_map_into<T: Real>(a: &[T], b: &[T], out: &mut [T], f: impl Fn(T, T) -> T + Sync + Send) {
-    assert_eq!(a.len(), out.len(), "parallel::zip_map_into: lengths differ");
-    assert_eq!(b.len(), out.len(), "parallel::zip_map_into: lengths differ");
+/// # Errors
+/// [`LengthMismatch`] if the lengths differ.
+pub fn zip_map_into<T: Real>(
+    a: &[T],
+    b: &[T],
+    out: &mut [T],
+    f: impl Fn(T, T) -> T + Sync + Send,
+) -> Result<(), LengthMismatch> {
+    same_len("parallel::zip_map_into", a.len(), out.len())?;
+    same_len("parallel::zip_map_into", b.len(), out.len())?;
     for_each_chunk_mut(out, |off, o| {
         let r = off..off + o.len();
         for ((o, &a), &b) in o.iter_mut().zip(&a[r.clone()]).zip(&b[r]) {
             *o = f(a, b);
         }
     });
+    Ok(())
 }
 
 /// The number of entries of `a` that are NaN or infinite, chunked.
@@ -367,7 +408,7 @@ mod tests {
         set_min_parallel_len(TEST_MIN_LEN);
         for n in [0, 5, CHUNK + 3, TEST_MIN_LEN + 17, 10 * CHUNK + 1] {
             let (a, b) = (data(n, 0.37), data(n, 0.11));
-            let run = || (dot(&a, &b), dot_in(&a, &b), sum_in(&a));
+            let run = || (dot(&a, &b).unwrap(), dot_in(&a, &b).unwrap(), sum_in(&a));
             let one = with_threads(1, run);
             let three = with_threads(3, run);
             assert_eq!(one.0.to_bits(), three.0.to_bits(), "dot, n = {n}");
@@ -389,7 +430,7 @@ mod tests {
         let n = 3 * TEST_MIN_LEN + 5;
         let a = data(n, 0.2);
         let mut out = vec![0.0; n];
-        with_threads(3, || zip_map_into(&a, &a, &mut out, |x, y| x + y));
+        with_threads(3, || zip_map_into(&a, &a, &mut out, |x, y| x + y)).unwrap();
         assert!(out.iter().zip(&a).all(|(o, a)| *o == 2.0 * a));
         let mut x = vec![1.0; n];
         let mut y = vec![0u8; n];
@@ -399,7 +440,8 @@ mod tests {
                 y.fill(1);
                 x.len()
             })
-        });
+        })
+        .unwrap();
         assert_eq!(lens.iter().sum::<usize>(), n);
         assert_eq!(x[CHUNK + 1], 1.0 + CHUNK as f64);
         assert!(y.iter().all(|&v| v == 1));
@@ -407,6 +449,27 @@ mod tests {
         nan[n - 1] = f64::NAN;
         nan[7] = f64::INFINITY;
         assert_eq!(count_non_finite(&nan), 2);
+    }
+
+    /// Slices of different lengths are a typed error from every kernel that
+    /// combines two, on the serial and the parallel path, never a panic.
+    #[test]
+    fn mismatched_lengths_are_an_error_not_a_panic() {
+        set_min_parallel_len(TEST_MIN_LEN);
+        for n in [10, 3 * TEST_MIN_LEN] {
+            let (a, b) = (data(n, 0.3), data(n + 1, 0.4));
+            let e = dot(&a, &b).unwrap_err();
+            assert_eq!((e.kernel, e.left, e.right), ("parallel::dot", n, n + 1));
+            assert!(dot_in(&a, &b).is_err());
+            let mut out = vec![0.0; n];
+            assert!(map_into(&b, &mut out, |v| v).is_err());
+            assert!(zip_map_into(&a, &b, &mut out, |x, y| x + y).is_err());
+            assert!(zip_map_into(&b, &a, &mut out, |x, y| x + y).is_err());
+            let mut c = data(n + 1, 0.5);
+            assert!(map_chunks_mut2(&mut out, &mut c, |_, _, _| ()).is_err());
+            let te: crate::TapeError = e.into();
+            assert!(te.to_string().contains("must have the same length"), "{te}");
+        }
     }
 
     /// A recorded CG-like step (dot, division by a scalar, broadcasting

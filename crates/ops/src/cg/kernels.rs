@@ -15,9 +15,10 @@ fn lanes_total(acc: [f64; LANES]) -> f64 {
     (acc[0] + acc[1]) + (acc[2] + acc[3])
 }
 
-/// `Σ a_i b_i` in f64.
+/// `Σ a_i b_i` in f64. CG's vectors all have the problem's length (checked
+/// where the solve starts), so a mismatch here is a bug, not an input.
 pub(super) fn dot<T: Real>(a: &[T], b: &[T]) -> f64 {
-    parallel::dot(a, b)
+    parallel::dot(a, b).expect("CG's vectors have the problem's length")
 }
 
 /// A chunk of `chunks_exact(LANES)` as an array, so that the lane loops compile
@@ -175,7 +176,8 @@ pub(super) fn update_residual_jacobi<T: Real>(
             s.kz += kv * zv;
         }
         s
-    });
+    })
+    .expect("CG's vectors have the problem's length");
     parts.into_iter().fold(Sums::default(), |a, b| Sums {
         rr: a.rr + b.rr,
         rz: a.rz + b.rz,
@@ -211,7 +213,8 @@ pub(super) fn update_direction<T: Real>(
                 }
             }
         }
-    });
+    })
+    .expect("CG's vectors have the problem's length");
 }
 
 /// `x += α p`.

@@ -103,7 +103,7 @@ impl<T: Real> Op<T> for Dot {
             return Err(TapeError::shape("dot", a.shape(), b.shape()));
         }
         let y = match (a.as_slice(), b.as_slice()) {
-            (Some(a), Some(b)) => parallel::dot_in(a, b),
+            (Some(a), Some(b)) => parallel::dot_in(a, b)?,
             _ => Zip::from(a)
                 .and(b)
                 .fold(T::zero(), |acc, &a, &b| acc + a * b),
@@ -113,21 +113,21 @@ impl<T: Real> Op<T> for Dot {
 
     fn backward(&self, args: &BackwardArgs<'_, T>) -> Result<Vec<Option<ArrayD<T>>>> {
         let g = scalar_of(args.grad_out());
-        let scaled = |which: usize| {
+        let scaled = |which: usize| -> Result<ArrayD<T>> {
             let other = args.input(1 - which);
             match other.as_slice() {
                 Some(x) if x.len() >= crate::pool::MIN_POOLED_LEN => {
                     let mut out = crate::pool::take_array::<T>(other.shape());
                     let o = out.as_slice_mut().expect("pooled arrays are contiguous");
-                    parallel::map_into(x, o, |v| v * g);
-                    out
+                    parallel::map_into(x, o, |v| v * g)?;
+                    Ok(out)
                 }
-                _ => other.mapv(|v| v * g),
+                _ => Ok(other.mapv(|v| v * g)),
             }
         };
         Ok(vec![
-            args.needs(0).then(|| scaled(0)),
-            args.needs(1).then(|| scaled(1)),
+            args.needs(0).then(|| scaled(0)).transpose()?,
+            args.needs(1).then(|| scaled(1)).transpose()?,
         ])
     }
 }

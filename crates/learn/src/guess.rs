@@ -17,6 +17,7 @@ use diffphys_nn::{check_loss, Bound, Params};
 use diffphys_ops::cg::{conjugate_gradient, CgParams};
 use diffphys_ops::tape_ops::LinearOp;
 use diffphys_ops::LinearOperator;
+use diffphys_tape::pool::BufferPool;
 use diffphys_tape::{Adam, ArrayD, ArrayViewD, IxDyn, Tape, Var};
 use ndarray::{ArrayViewMutD, Axis};
 use rand::rngs::StdRng;
@@ -410,11 +411,12 @@ impl GuessTrainer {
         let mut losses = Vec::with_capacity(self.steps);
         let mut curve = Vec::new();
         let mut best: Option<(usize, f64, Params<f64>)> = None;
+        let pool = BufferPool::new(); // the steps' tapes share it; freed after training
         for step in 0..self.steps {
             let batch = (0..self.batch)
                 .map(|_| draw(&mut data))
                 .collect::<Result<Vec<_>>>()?;
-            let tape = Tape::new();
+            let tape = Tape::with_pool(&pool);
             let p = params.bind(&tape);
             let refs: Vec<&GuessProblem> = batch.iter().collect();
             let l = guess_loss(&tape, op, guesser, &p, loss, &refs)?;

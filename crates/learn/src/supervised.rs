@@ -5,6 +5,7 @@
 use std::time::Instant;
 
 use diffphys_nn::{check_loss, Layer, Params};
+use diffphys_tape::pool::BufferPool;
 use diffphys_tape::{Adam, ArrayD, Tape};
 use rand::rngs::StdRng;
 use rand::Rng;
@@ -130,6 +131,7 @@ impl SupervisedTrainer {
         let (mut losses, mut curve) = (Vec::with_capacity(self.steps), Vec::new());
         let mut best: Option<(usize, f64, Params<f64>)> = None;
         let (mut seconds_data, mut seconds_network) = (0.0, 0.0);
+        let pool = BufferPool::new(); // the steps' tapes share it; freed after training
         for step in 0..self.steps {
             let start = Instant::now();
             let pairs: Vec<Pair> = match &mut source {
@@ -145,7 +147,7 @@ impl SupervisedTrainer {
             let (x, target) = (batch_of(&inputs)?, batch_of(&targets)?);
             let made = Instant::now();
             seconds_data += (made - start).as_secs_f64();
-            let tape = Tape::new();
+            let tape = Tape::with_pool(&pool);
             let p = params.bind(&tape);
             let loss = net
                 .forward(&p, tape.constant(x))?

@@ -4,6 +4,7 @@
 use std::rc::Rc;
 
 use diffphys_nn::{check_loss, Bound, Params};
+use diffphys_tape::pool::BufferPool;
 use diffphys_tape::{Adam, ArrayD, Tape, Var};
 use rand::rngs::StdRng;
 use rand::Rng;
@@ -174,9 +175,12 @@ impl Trainer {
         let mut losses = Vec::with_capacity(iterations);
         let mut curve = Vec::new();
         let mut best: Option<(usize, f64, Params<f64>)> = None;
+        // One buffer pool for the tapes of all iterations (each step records
+        // the same shapes), freed when training ends.
+        let pool = BufferPool::new();
         for it in 0..iterations {
             let batch = self.draw_batch(&strategy, train, &mut rng)?;
-            let tape = Tape::new();
+            let tape = Tape::with_pool(&pool);
             let p = params.bind(&tape);
             let loss = Self::batch_loss(hybrid, &tape, &p, &strategy, &batch)?;
             losses.push(check_loss(it, loss.item()?)?);

@@ -93,6 +93,7 @@ impl<T: Real> Tape<T> {
         for v in wrt {
             self.check_owned("backward", v)?;
         }
+        let _current = self.pool().install();
         let inner = self.inner.borrow();
         let out_shape = inner.slots[output.index].data.shape();
         if seed.shape() != out_shape {

@@ -1,33 +1,51 @@
-//! A per-thread pool of array buffers, keyed by element type and length.
+//! Buffer pools: array buffers reused by type and length, owned by whoever
+//! made them.
 //!
 //! A tape that unrolls an iterative solver records arrays of a handful of
-//! lengths, thousands of times. Without reuse, every one of them is fresh memory
-//! that the operating system must fault in page by page (and, for large arrays,
-//! unmap again when the tape is dropped). With the pool, the buffers of a
-//! dropped tape ([`crate::Tape`] returns its values here), and the gradients the
-//! reverse sweep consumes, are handed to the next op that needs one of the same
-//! length: a repeated run and the backward pass touch memory that is already
-//! mapped.
+//! lengths, thousands of times, and its reverse sweep consumes as many
+//! gradients. Without reuse each is fresh memory the operating system faults in
+//! page by page. A [`BufferPool`] keeps the buffers that are let go (a consumed
+//! gradient, the values of a dropped tape) and hands them to the next op asking
+//! for one of the same type and length.
 //!
-//! The pool holds at most [`limit_bytes`] (4 GiB unless [`set_limit_bytes`]
-//! says otherwise); [`clear`] returns everything to the allocator, which a
-//! caller measuring the peak heap of a cold run should do first, since buffers
-//! taken from the pool are not new allocations.
+//! **Ownership.** There is no global pool. Every [`crate::Tape`] holds one:
+//! its own, made by [`crate::Tape::new`] and freed with the tape, or one the
+//! caller passes ([`crate::Tape::with_pool`]) or installs for a scope
+//! ([`BufferPool::install`], [`BufferPool::scope`]): a training loop that makes a
+//! new tape per step keeps one pool alive across steps, and that pool's memory
+//! is returned to the allocator when the caller drops its last handle. Each
+//! pool holds at most its limit ([`DEFAULT_LIMIT_BYTES`] unless set).
+//!
+//! While a tape runs an op's forward or backward (and while it drops its
+//! values), its pool is the thread's *current* pool: [`take`] and [`recycle`],
+//! which ops call, use it. Outside any tape (and with no pool installed) they
+//! fall back to the allocator.
 //!
 //! ```
-//! use diffphys_tape::pool;
+//! use diffphys_tape::pool::{self, BufferPool};
 //!
-//! let v: Vec<f64> = pool::take(10_000); // fresh: zeros
-//! pool::recycle(v);
-//! assert_eq!(pool::held_bytes(), 80_000);
-//! let w: Vec<f64> = pool::take(10_000); // the same buffer, contents unspecified
-//! assert_eq!((w.len(), pool::held_bytes()), (10_000, 0));
+//! let pool = BufferPool::new();
+//! {
+//!     let _current = pool.install();
+//!     let v: Vec<f64> = pool::take(10_000); // fresh: zeros
+//!     pool::recycle(v);
+//! }
+//! assert_eq!(pool.held_bytes(), 80_000);
+//! pool.scope(|| {
+//!     let w: Vec<f64> = pool::take(10_000); // the same buffer, contents unspecified
+//!     assert_eq!(w.len(), 10_000);
+//! });
+//! assert_eq!(pool.held_bytes(), 0);
+//! // With no pool current, buffers come from and go back to the allocator.
+//! pool::recycle(vec![0.0f64; 10_000]);
+//! assert_eq!(pool.held_bytes(), 0);
+//! drop(pool); // what it held goes back to the allocator
 //! ```
 
 use std::any::{Any, TypeId};
-use std::cell::RefCell;
+use std::cell::{Cell, RefCell};
 use std::collections::HashMap;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::rc::Rc;
 
 use ndarray::{ArrayD, IxDyn};
 
@@ -37,86 +55,192 @@ use crate::Real;
 /// sizes from memory it already holds.
 pub const MIN_POOLED_LEN: usize = 1024;
 
-static LIMIT_BYTES: AtomicUsize = AtomicUsize::new(4 << 30);
+/// The most bytes a pool keeps unless told otherwise: 512 MiB.
+pub const DEFAULT_LIMIT_BYTES: usize = 512 << 20;
 
 #[derive(Default)]
-struct Pool {
-    free: HashMap<(TypeId, usize), Vec<Box<dyn Any>>>,
+struct Free {
+    buffers: HashMap<(TypeId, usize), Vec<Box<dyn Any>>>,
     bytes: usize,
 }
 
+struct Shared {
+    free: RefCell<Free>,
+    limit: Cell<usize>,
+}
+
+/// A pool of array buffers, keyed by element type and length. A handle:
+/// clones share one pool, whose buffers go back to the allocator when the last
+/// handle is dropped. Not `Send`: a pool belongs to one thread, like the tapes
+/// that use it.
+#[derive(Clone)]
+pub struct BufferPool {
+    shared: Rc<Shared>,
+}
+
+impl Default for BufferPool {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl std::fmt::Debug for BufferPool {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("BufferPool")
+            .field("held_bytes", &self.held_bytes())
+            .field("limit_bytes", &self.limit_bytes())
+            .finish()
+    }
+}
+
 thread_local! {
-    static POOL: RefCell<Pool> = RefCell::new(Pool::default());
+    /// The pools made current by [`BufferPool::install`], innermost last.
+    static CURRENT: RefCell<Vec<BufferPool>> = const { RefCell::new(Vec::new()) };
 }
 
-/// The most bytes the pool of one thread keeps.
-pub fn limit_bytes() -> usize {
-    LIMIT_BYTES.load(Ordering::Relaxed)
+/// Makes a pool current until dropped (see [`BufferPool::install`]).
+#[must_use = "the pool is current only while the guard lives"]
+pub struct Installed {
+    // Not Send: the guard must be dropped on the thread that installed it.
+    _not_send: std::marker::PhantomData<*const ()>,
 }
 
-/// Sets the most bytes the pool of each thread keeps (0 turns reuse across
-/// tapes off); buffers beyond it go back to the allocator. Takes effect as
-/// buffers are recycled; [`clear`] empties the pool now.
-pub fn set_limit_bytes(bytes: usize) {
-    LIMIT_BYTES.store(bytes, Ordering::Relaxed);
+impl Drop for Installed {
+    fn drop(&mut self) {
+        // Take the handle out first: dropping it may free buffers, which must
+        // not happen under the borrow.
+        let popped = CURRENT.with(|c| c.borrow_mut().pop());
+        drop(popped);
+    }
 }
 
-/// Bytes this thread's pool holds now.
-pub fn held_bytes() -> usize {
-    POOL.with(|p| p.borrow().bytes)
+impl BufferPool {
+    /// An empty pool holding at most [`DEFAULT_LIMIT_BYTES`].
+    pub fn new() -> Self {
+        Self::with_limit_bytes(DEFAULT_LIMIT_BYTES)
+    }
+
+    /// An empty pool holding at most `bytes` (0: nothing is kept).
+    pub fn with_limit_bytes(bytes: usize) -> Self {
+        BufferPool {
+            shared: Rc::new(Shared {
+                free: RefCell::new(Free::default()),
+                limit: Cell::new(bytes),
+            }),
+        }
+    }
+
+    /// The pool that is current on this thread (the innermost installed, or
+    /// the pool of the tape running an op), if any.
+    pub fn current() -> Option<BufferPool> {
+        CURRENT.with(|c| c.borrow().last().cloned())
+    }
+
+    /// Makes this pool the thread's current one until the guard is dropped:
+    /// [`take`] and [`recycle`] use it, and a [`crate::Tape::new`] made meanwhile
+    /// shares it instead of making its own. Installs nest.
+    pub fn install(&self) -> Installed {
+        CURRENT.with(|c| c.borrow_mut().push(self.clone()));
+        Installed {
+            _not_send: std::marker::PhantomData,
+        }
+    }
+
+    /// Runs `f` with this pool installed (see [`BufferPool::install`]).
+    pub fn scope<R>(&self, f: impl FnOnce() -> R) -> R {
+        let _current = self.install();
+        f()
+    }
+
+    /// The most bytes this pool keeps.
+    pub fn limit_bytes(&self) -> usize {
+        self.shared.limit.get()
+    }
+
+    /// Sets the most bytes this pool keeps; buffers beyond it go back to the
+    /// allocator as they are recycled ([`BufferPool::clear`] empties the pool
+    /// now).
+    pub fn set_limit_bytes(&self, bytes: usize) {
+        self.shared.limit.set(bytes);
+    }
+
+    /// Bytes this pool holds now.
+    pub fn held_bytes(&self) -> usize {
+        self.shared.free.borrow().bytes
+    }
+
+    /// Returns every buffer this pool holds to the allocator.
+    pub fn clear(&self) {
+        let buffers = {
+            let mut free = self.shared.free.borrow_mut();
+            free.bytes = 0;
+            std::mem::take(&mut free.buffers)
+        };
+        drop(buffers);
+    }
+
+    /// Whether `other` is a handle to the same pool.
+    pub fn same_as(&self, other: &BufferPool) -> bool {
+        Rc::ptr_eq(&self.shared, &other.shared)
+    }
+
+    /// Whether this is the only handle to the pool (so what it would keep is
+    /// freed with it).
+    pub(crate) fn is_unshared(&self) -> bool {
+        Rc::strong_count(&self.shared) == 1
+    }
+
+    fn take<T: Real>(&self, len: usize) -> Option<Vec<T>> {
+        let v = {
+            let mut free = self.shared.free.borrow_mut();
+            let v = free.buffers.get_mut(&(TypeId::of::<T>(), len))?.pop()?;
+            free.bytes -= len * std::mem::size_of::<T>();
+            v
+        };
+        v.downcast::<Vec<T>>().ok().map(|v| *v)
+    }
+
+    /// Keeps `buffer` (full-length, long enough) or gives it back if the pool
+    /// is at its limit.
+    fn keep<T: Real>(&self, buffer: Vec<T>) -> Option<Vec<T>> {
+        let len = buffer.len();
+        let bytes = len * std::mem::size_of::<T>();
+        let mut free = self.shared.free.borrow_mut();
+        if free.bytes + bytes > self.limit_bytes() {
+            return Some(buffer);
+        }
+        free.bytes += bytes;
+        free.buffers
+            .entry((TypeId::of::<T>(), len))
+            .or_default()
+            .push(Box::new(buffer));
+        None
+    }
 }
 
-/// Returns every buffer of this thread's pool to the allocator.
-pub fn clear() {
-    // Take the map out first: dropping buffers must not run under the borrow.
-    let free = POOL.with(|p| {
-        let mut p = p.borrow_mut();
-        p.bytes = 0;
-        std::mem::take(&mut p.free)
-    });
-    drop(free);
-}
-
-/// A buffer of `len` elements: a recycled one (contents unspecified: callers
-/// overwrite every element) or, if the pool has none of that length, zeros.
+/// A buffer of `len` elements: a recycled one from the current pool (contents
+/// unspecified: callers overwrite every element) or, if it has none of that
+/// length or no pool is current, zeros.
 pub fn take<T: Real>(len: usize) -> Vec<T> {
     if len >= MIN_POOLED_LEN {
-        let found = POOL.with(|p| {
-            let mut p = p.borrow_mut();
-            let v = p.free.get_mut(&(TypeId::of::<T>(), len))?.pop()?;
-            p.bytes -= len * std::mem::size_of::<T>();
-            Some(v)
-        });
-        if let Some(v) = found {
-            if let Ok(v) = v.downcast::<Vec<T>>() {
-                return *v;
-            }
+        if let Some(v) = BufferPool::current().and_then(|p| p.take(len)) {
+            return v;
         }
     }
     vec![T::zero(); len]
 }
 
-/// Gives `buffer` to this thread's pool for a later [`take`] of its length
-/// (dropped instead if it is short or the pool is full).
+/// Gives `buffer` to the current pool for a later [`take`] of its length
+/// (dropped instead if it is short, if the pool is full or if no pool is
+/// current).
 pub fn recycle<T: Real>(buffer: Vec<T>) {
-    let len = buffer.len();
-    let bytes = len * std::mem::size_of::<T>();
-    if len < MIN_POOLED_LEN || buffer.capacity() != len {
+    if buffer.len() < MIN_POOLED_LEN || buffer.capacity() != buffer.len() {
         return;
     }
-    let rejected = POOL.with(|p| {
-        let mut p = p.borrow_mut();
-        if p.bytes + bytes > limit_bytes() {
-            return Some(buffer);
-        }
-        p.bytes += bytes;
-        p.free
-            .entry((TypeId::of::<T>(), len))
-            .or_default()
-            .push(Box::new(buffer));
-        None
-    });
-    drop(rejected);
+    if let Some(pool) = BufferPool::current() {
+        let rejected = pool.keep(buffer);
+        drop(rejected);
+    }
 }
 
 /// An array of `shape` in standard layout from [`take`] (contents unspecified).
@@ -134,8 +258,8 @@ pub fn take_zeroed_array<T: Real>(shape: &[usize]) -> ArrayD<T> {
     a
 }
 
-/// Gives the buffer of `a` to the pool (see [`recycle`]) if `a` owns all of it
-/// in standard layout.
+/// Gives the buffer of `a` to the current pool (see [`recycle`]) if `a` owns
+/// all of it in standard layout.
 pub fn recycle_array<T: Real>(a: ArrayD<T>) {
     if !a.is_standard_layout() {
         return;
@@ -150,66 +274,50 @@ pub fn recycle_array<T: Real>(a: ArrayD<T>) {
 mod tests {
     use super::*;
 
-    /// The values of a dropped tape serve the next tape's ops of the same length.
-    #[test]
-    fn a_dropped_tape_gives_its_values_to_the_next() {
-        use crate::{test_array, Tape};
-        clear();
-        let x0 = test_array::<f64>(&[5000], 3);
-        let record = || {
-            let tape = Tape::<f64>::new();
-            let x = tape.var(x0.clone());
-            let y = x.mul(x).unwrap().add(x).unwrap();
-            let g = tape.backward(y.sum().unwrap(), &[x]).unwrap();
-            // d/dx Σ (x² + x) = 2x + 1
-            let expect = x0.mapv(|v| 2.0 * v + 1.0);
-            assert!(g
-                .get(x)
-                .unwrap()
-                .iter()
-                .zip(&expect)
-                .all(|(a, b)| (a - b).abs() < 1e-12));
-        };
-        record();
-        let held = held_bytes();
-        // x, x², x² + x and the gradients the sweep consumed.
-        assert!(held >= 3 * 5000 * 8, "{held}");
-        record();
-        // Without reuse the second tape would add its x², x² + x and gradients
-        // again; with it, at most its own leaf is new.
-        let again = held_bytes();
-        assert!(again <= held + 5000 * 8, "{held} then {again}");
-        clear();
-    }
-
     #[test]
     fn buffers_are_reused_by_type_and_length_within_the_limit() {
-        clear();
+        let pool = BufferPool::new();
+        let _current = pool.install();
         let v: Vec<f64> = take(4096);
         assert!(v.iter().all(|&x| x == 0.0));
         let ptr = v.as_ptr();
         recycle(v);
-        assert_eq!(held_bytes(), 4096 * 8);
+        assert_eq!(pool.held_bytes(), 4096 * 8);
         // Another type or length does not get it.
         let w: Vec<f32> = take(4096);
         let u: Vec<f64> = take(4097);
-        assert_eq!(held_bytes(), 4096 * 8);
+        assert_eq!(pool.held_bytes(), 4096 * 8);
         let v: Vec<f64> = take(4096);
-        assert_eq!((v.as_ptr(), held_bytes()), (ptr, 0));
+        assert_eq!((v.as_ptr(), pool.held_bytes()), (ptr, 0));
         // Short buffers and those beyond the limit go back to the allocator.
         recycle(vec![1.0f64; 10]);
-        assert_eq!(held_bytes(), 0);
-        let before = limit_bytes();
-        set_limit_bytes(4096 * 8);
+        assert_eq!(pool.held_bytes(), 0);
+        pool.set_limit_bytes(4096 * 8);
         recycle(v);
         recycle(u);
-        assert_eq!(held_bytes(), 4096 * 8);
-        set_limit_bytes(before);
+        assert_eq!(pool.held_bytes(), 4096 * 8);
+        pool.set_limit_bytes(DEFAULT_LIMIT_BYTES);
         let a: ArrayD<f32> = take_array(&[64, 64]);
         recycle_array(a);
-        assert_eq!(held_bytes(), 4096 * 8 + 4096 * 4);
+        assert_eq!(pool.held_bytes(), 4096 * 8 + 4096 * 4);
         drop(w);
-        clear();
-        assert_eq!(held_bytes(), 0);
+        pool.clear();
+        assert_eq!(pool.held_bytes(), 0);
+    }
+
+    #[test]
+    fn installs_nest_and_end_with_their_guard() {
+        let (outer, inner) = (BufferPool::new(), BufferPool::new());
+        assert!(BufferPool::current().is_none());
+        let g = outer.install();
+        inner.scope(|| {
+            assert!(BufferPool::current().unwrap().same_as(&inner));
+            recycle(vec![0.0f32; 2048]);
+        });
+        assert!(BufferPool::current().unwrap().same_as(&outer));
+        recycle(vec![0.0f32; 4096]);
+        drop(g);
+        assert!(BufferPool::current().is_none());
+        assert_eq!((inner.held_bytes(), outer.held_bytes()), (8192, 16384));
     }
 }

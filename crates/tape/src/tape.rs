@@ -7,6 +7,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use ndarray::{Array, Array1, Array2, ArrayD, ArrayViewD, Dimension, Ix1, Ix2, IxDyn};
 use smallvec::SmallVec;
 
+use crate::pool::BufferPool;
 use crate::{Op, Pass, Real, Result, TapeError};
 
 static NEXT_TAPE_ID: AtomicU64 = AtomicU64::new(1);
@@ -61,6 +62,7 @@ pub struct TapeStats {
 pub struct Tape<T: Real> {
     id: u64,
     check_finite: std::cell::Cell<bool>,
+    pool: BufferPool,
     pub(crate) inner: RefCell<Inner<T>>,
 }
 
@@ -120,11 +122,21 @@ pub(crate) fn check_finite<T: Real>(op: &str, pass: Pass, a: &ArrayViewD<'_, T>)
 }
 
 impl<T: Real> Tape<T> {
-    /// An empty tape with a process-unique id.
+    /// An empty tape with a process-unique id. Its buffer pool is the one
+    /// installed on this thread ([`BufferPool::install`]) if there is one, else
+    /// a pool of its own, freed with the tape.
     pub fn new() -> Self {
+        Self::with_pool(&BufferPool::current().unwrap_or_default())
+    }
+
+    /// An empty tape whose ops take buffers from, and give them back to,
+    /// `pool` (shared with the caller, who decides how long it lives: a
+    /// training loop that makes a tape per step keeps one pool across steps).
+    pub fn with_pool(pool: &BufferPool) -> Self {
         Tape {
             id: NEXT_TAPE_ID.fetch_add(1, Ordering::Relaxed),
             check_finite: std::cell::Cell::new(true),
+            pool: pool.clone(),
             inner: RefCell::new(Inner {
                 slots: Vec::new(),
                 nodes: Vec::new(),
@@ -138,6 +150,11 @@ impl<T: Real> Tape<T> {
     /// This tape's id, as named in [`TapeError::ForeignVar`].
     pub fn id(&self) -> u64 {
         self.id
+    }
+
+    /// The buffer pool this tape's ops use.
+    pub fn pool(&self) -> &BufferPool {
+        &self.pool
     }
 
     /// Turns the NaN/infinity check of every op output and gradient on or off
@@ -212,6 +229,7 @@ impl<T: Real> Tape<T> {
         inputs: &[Var<'_, T>],
         expect_outputs: Option<usize>,
     ) -> Result<Vec<Var<'_, T>>> {
+        let _current = self.pool.install();
         for v in inputs {
             self.check_owned(op.name(), v)?;
         }
@@ -284,6 +302,7 @@ impl<T: Real> Tape<T> {
     /// Drops every value and node, keeping the id and the peak. Needs `&mut self`,
     /// so no [`Var`] of this tape can outlive it.
     pub fn clear(&mut self) {
+        let _current = self.pool.install();
         let inner = self.inner.get_mut();
         inner.recycle_values();
         inner.nodes.clear();
@@ -292,16 +311,21 @@ impl<T: Real> Tape<T> {
     }
 }
 
-/// The values of a dropped tape go to the buffer pool for the next one.
-impl<T: Real> Drop for Inner<T> {
+/// The values of a dropped tape go to its buffer pool if somebody else holds
+/// that pool (an installed or passed pool, for the next tape); a pool of the
+/// tape's own is freed with it, values and all.
+impl<T: Real> Drop for Tape<T> {
     fn drop(&mut self) {
-        self.recycle_values();
+        if !self.pool.is_unshared() {
+            let _current = self.pool.install();
+            self.inner.get_mut().recycle_values();
+        }
     }
 }
 
 impl<T: Real> Inner<T> {
     /// Drops every value, handing the buffers nobody else holds (no
-    /// [`Var::value`] outstanding) to [`crate::pool`].
+    /// [`Var::value`] outstanding) to the current [`crate::pool`].
     fn recycle_values(&mut self) {
         for slot in self.slots.drain(..) {
             if let Ok(a) = Rc::try_unwrap(slot.data) {

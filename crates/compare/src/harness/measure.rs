@@ -5,6 +5,7 @@
 use std::cell::Cell;
 use std::time::Instant;
 
+use diffphys_tape::pool::BufferPool;
 use diffphys_tape::Real;
 use ndarray::Array2;
 
@@ -56,9 +57,13 @@ pub fn measure_with<T: Real>(
     // A direct method ignores the stopping rule.
     let stop = stop.unwrap_or(Stop::Iterations(0));
     let first_peak = Cell::new(None);
+    // One buffer pool for the runs of this row, freed when the row is done:
+    // the tapes of repeated runs reuse each other's buffers.
+    let pool = BufferPool::with_limit_bytes(POOL_LIMIT_BYTES);
+    let _current = pool.install();
     let result = policy.run(
         || {
-            let window = cold_heap_window(heap, &first_peak);
+            let window = cold_heap_window(heap, &first_peak, Some(&pool));
             let out = method.run(problem, stop)?;
             if let Some(w) = window {
                 first_peak.set(Some(w.peak_above_baseline()));
@@ -92,20 +97,30 @@ pub fn measure_with<T: Real>(
     }
 }
 
+/// The most bytes the buffer pool of one row's runs keeps: an unrolled CG
+/// tape at the harness's largest sizes records gigabytes, and a pool that
+/// could hold only part of them would leave the later runs paying for fresh
+/// memory the first run did not.
+const POOL_LIMIT_BYTES: usize = 4 << 30;
+
 /// The heap window of a policy's first run (warm-up or timed), `None` for the
-/// others. The first run starts from an empty tape buffer pool
-/// ([`diffphys_tape::pool::clear`]), so its peak counts every buffer the method
-/// needs; later runs reuse pooled buffers (which is what makes them faster) and
-/// would report only what the pool could not supply.
+/// others. The first run starts from an empty buffer pool (`pool`, if any, is
+/// cleared),
+/// so its peak counts every buffer the method needs; later runs reuse pooled
+/// buffers (which is what makes them faster) and would report only what the
+/// pool could not supply.
 fn cold_heap_window<'h>(
     heap: Option<&'h CountingAllocator>,
     first_peak: &Cell<Option<usize>>,
+    pool: Option<&BufferPool>,
 ) -> Option<HeapWindow<'h>> {
     let heap = heap?;
     if first_peak.get().is_some() {
         return None;
     }
-    diffphys_tape::pool::clear();
+    if let Some(pool) = pool {
+        pool.clear();
+    }
     Some(HeapWindow::start(heap))
 }
 
@@ -195,7 +210,7 @@ pub fn measure_baseline_with<T: Real>(
     let first_peak = Cell::new(None);
     let result = policy.run(
         || {
-            let window = cold_heap_window(heap, &first_peak);
+            let window = cold_heap_window(heap, &first_peak, None);
             let start = Instant::now();
             let mut x = vec![T::zero(); b.len()];
             let info = baseline_cg(&a, b, &mut x, stop)?;

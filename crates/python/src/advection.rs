@@ -1,9 +1,7 @@
 //! Semi-Lagrangian and first-order upwind advection of a cell-centred field by
 //! a cell-centred velocity on a 2D grid, and their vector–Jacobian products.
 
-use diffphys_ops::advection::{
-    semi_lagrangian_2d, semi_lagrangian_2d_vjp, upwind_2d, upwind_2d_vjp, AdvectionParams, Wants,
-};
+use diffphys_ops::advection::{self as ops, AdvectionParams, Wants};
 use diffphys_ops::Grid2;
 use diffphys_tape::Real;
 use numpy::{Element, PyReadonlyArrayDyn, PyUntypedArrayMethods};
@@ -60,10 +58,10 @@ fn forward_t<'py, T: Real + Element>(
     let uv = x.u.as_array().into_dimensionality().expect("checked 3D");
     let grid = x.grid;
     let out = check(py.detach(|| match scheme {
-        Scheme::SemiLagrangian => semi_lagrangian_2d(&grid, dt, dv, uv),
+        Scheme::SemiLagrangian => ops::semi_lagrangian2(&grid, dt, dv, uv),
         Scheme::Upwind {
             allow_cfl_violation,
-        } => upwind_2d(&grid, &params(dt, allow_cfl_violation), dv, uv),
+        } => ops::upwind2(&grid, &params(dt, allow_cfl_violation), dv, uv),
     }))?;
     Ok(to_numpy(py, out))
 }
@@ -93,10 +91,17 @@ fn vjp_t<'py, T: Real + Element>(
     let gv = g.as_array().into_dimensionality().expect("checked 2D");
     let grid = x.grid;
     let grads = check(py.detach(|| match scheme {
-        Scheme::SemiLagrangian => semi_lagrangian_2d_vjp(&grid, dt, dv, uv, gv, Wants::BOTH),
+        Scheme::SemiLagrangian => ops::semi_lagrangian2_vjp(&grid, dt, dv, uv, gv, Wants::BOTH),
         Scheme::Upwind {
             allow_cfl_violation,
-        } => upwind_2d_vjp(&grid, &params(dt, allow_cfl_violation), dv, uv, gv, Wants::BOTH),
+        } => ops::upwind2_vjp(
+            &grid,
+            &params(dt, allow_cfl_violation),
+            dv,
+            uv,
+            gv,
+            Wants::BOTH,
+        ),
     }))?;
     let field = grads.field.expect("asked for");
     let velocity = grads.velocity.expect("asked for");

@@ -55,12 +55,13 @@ pub(crate) fn view<'py, T: Element>(
     what: &str,
 ) -> PyResult<PyReadonlyArrayDyn<'py, T>> {
     obj.extract::<PyReadonlyArrayDyn<'py, T>>().map_err(|_| {
-        let found = dtype_of(obj, what)
-            .map(|d| format!("{d:?}").to_lowercase())
-            .unwrap_or_else(|e| e.to_string());
+        let found = obj.cast::<PyUntypedArray>().map_or_else(
+            |_| format!("a {}", type_name(obj)),
+            |a| format!("dtype {}", a.dtype()),
+        );
         PyTypeError::new_err(format!(
             "{what} must be a numpy array of {}, like the first array of the call (found {found})",
-            std::any::type_name::<T>()
+            numpy::dtype::<T>(obj.py())
         ))
     })
 }

@@ -46,7 +46,10 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
     m.add("DiffphysError", py.get_type::<DiffphysError>())?;
     m.add("ShapeError", py.get_type::<ShapeError>())?;
-    m.add("InvalidArgumentError", py.get_type::<InvalidArgumentError>())?;
+    m.add(
+        "InvalidArgumentError",
+        py.get_type::<InvalidArgumentError>(),
+    )?;
     m.add("NonFiniteError", py.get_type::<NonFiniteError>())?;
     m.add("NotConvergedError", py.get_type::<NotConvergedError>())?;
     m.add("UnstableError", py.get_type::<UnstableError>())?;

@@ -86,11 +86,7 @@ impl Poisson {
     /// `p = A⁻¹ b`; with `return_info`, `(p, info)` where `info` has the
     /// iterations and the relative residual of the solve.
     #[pyo3(signature = (b, *, return_info = false))]
-    fn solve<'py>(
-        &self,
-        b: &Bound<'py, PyAny>,
-        return_info: bool,
-    ) -> PyResult<Bound<'py, PyAny>> {
+    fn solve<'py>(&self, b: &Bound<'py, PyAny>, return_info: bool) -> PyResult<Bound<'py, PyAny>> {
         match dtype_of(b, "b")? {
             Dtype::F32 => self.run::<f32>(b, "b", false, return_info),
             Dtype::F64 => self.run::<f64>(b, "b", false, return_info),

@@ -66,11 +66,14 @@ impl Projection {
         let mac = match obstacle {
             None => MacGrid::new(grid),
             Some(solid) => {
-                let solid = solid.extract::<PyReadonlyArrayDyn<'_, bool>>().map_err(|_| {
-                    PyTypeError::new_err("obstacle must be a numpy array of bool")
-                })?;
+                let solid = solid
+                    .extract::<PyReadonlyArrayDyn<'_, bool>>()
+                    .map_err(|_| PyTypeError::new_err("obstacle must be a numpy array of bool"))?;
                 let active = solid.as_array().mapv(|s| !s);
-                check(MacGrid::with_mask(grid, CellMask::from_array(active.view())))?
+                check(MacGrid::with_mask(
+                    grid,
+                    CellMask::from_array(active.view()),
+                ))?
             }
         };
         let options = Options {
@@ -142,7 +145,9 @@ impl Projection {
             .flatten()
             .next()
             .ok_or_else(|| {
-                PyTypeError::new_err("Projection.vjp needs at least one of grad_ux, grad_uy, grad_p")
+                PyTypeError::new_err(
+                    "Projection.vjp needs at least one of grad_ux, grad_uy, grad_p",
+                )
             })?;
         match dtype_of(first, "the gradient")? {
             Dtype::F32 => self.vjp_t::<f32>(py, grad_ux, grad_uy, grad_p),
@@ -190,7 +195,8 @@ impl Projection {
         grad_uy: Option<&Bound<'py, PyAny>>,
         grad_p: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyTuple>> {
-        let read = |a: Option<&Bound<'py, PyAny>>, what: &str| a.map(|a| view::<T>(a, what)).transpose();
+        let read =
+            |a: Option<&Bound<'py, PyAny>>, what: &str| a.map(|a| view::<T>(a, what)).transpose();
         let (gx, gy, gp) = (
             read(grad_ux, "grad_ux")?,
             read(grad_uy, "grad_uy")?,

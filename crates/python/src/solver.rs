@@ -3,7 +3,7 @@
 
 use std::sync::Arc;
 
-use diffphys_ops::cg::{CgInfo, CgParams, Preconditioner};
+use diffphys_ops::cg::{CgInfo, CgParams, Preconditioning};
 use diffphys_ops::multigrid::Multigrid;
 use diffphys_tape::Real;
 use pyo3::prelude::*;
@@ -106,10 +106,10 @@ impl Options {
         }
         base = match self.preconditioner {
             Kind::None => base,
-            Kind::Jacobi => base.with_preconditioner(Preconditioner::Jacobi),
+            Kind::Jacobi => base.with_preconditioner(Preconditioning::Jacobi),
             Kind::Multigrid => {
                 let mg = Arc::new(check(multigrid(self.sweeps))?);
-                base.with_preconditioner(Preconditioner::Multigrid(mg))
+                base.with_preconditioner(mg)
             }
         };
         let pair = |default: f64| {

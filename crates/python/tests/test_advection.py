@@ -26,7 +26,7 @@ SCHEMES = {
 def fields(seed, dtype=np.float64):
     rng = np.random.default_rng(seed)
     d = rng.standard_normal(SHAPE).astype(dtype)
-    u = rng.standard_normal((2, *SHAPE)).astype(dtype)
+    u = 0.5 * rng.standard_normal((2, *SHAPE)).astype(dtype)
     return d, u
 
 

@@ -11,8 +11,8 @@
 use std::hint::black_box;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
-use diffphys::ops::advection::{upwind_1d_tape, upwind_2d_tape, AdvectionParams};
-use diffphys::{test_array, ArrayD, Boundary, Grid1, Grid2, Tape, TapeStats, Var};
+use diffphys::ops::advection::{AdvectionParams, Upwind1, Upwind2};
+use diffphys::prelude::*;
 
 type StepResult<'t> = diffphys::tape::Result<Var<'t, f64>>;
 
@@ -79,7 +79,9 @@ struct OneD {
 impl Scheme for OneD {
     fn step<'t>(&self, variant: Variant, d: Var<'t, f64>, u: Var<'t, f64>) -> StepResult<'t> {
         match variant {
-            Variant::Op => Ok(upwind_1d_tape(&self.grid, &self.params, d, u)?),
+            Variant::Op => Ok(d
+                .tape()
+                .apply(Upwind1::new(self.grid, self.params), &[d, u])?),
             Variant::Primitives => upwind_1d_primitives(&self.grid, self.params.dt, d, u),
         }
     }
@@ -93,7 +95,9 @@ struct TwoD {
 impl Scheme for TwoD {
     fn step<'t>(&self, variant: Variant, d: Var<'t, f64>, u: Var<'t, f64>) -> StepResult<'t> {
         match variant {
-            Variant::Op => Ok(upwind_2d_tape(&self.grid, &self.params, d, u)?),
+            Variant::Op => Ok(d
+                .tape()
+                .apply(Upwind2::new(self.grid, self.params), &[d, u])?),
             Variant::Primitives => upwind_2d_primitives(&self.grid, self.params.dt, d, u),
         }
     }

@@ -27,15 +27,15 @@ use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
-use diffphys::compare::harness::relative_error;
-use diffphys::compare::methods::baseline::{baseline_cg, StraightforwardLaplacian};
-use diffphys::compare::methods::exact::ExactCholesky;
-use diffphys::compare::methods::implicit::{cg_params, ImplicitSolve};
-use diffphys::compare::methods::naive::NaiveUnrolled;
-use diffphys::compare::methods::{GradientMethod, Stop};
-use diffphys::compare::problem::{Problem, ProblemSpec};
 use diffphys::ops::cg::conjugate_gradient;
 use diffphys::tape::parallel;
+use diffphys_compare::harness::relative_error;
+use diffphys_compare::methods::baseline::{baseline_cg, StraightforwardLaplacian};
+use diffphys_compare::methods::exact::ExactCholesky;
+use diffphys_compare::methods::implicit::{cg_params, ImplicitSolve};
+use diffphys_compare::methods::naive::NaiveUnrolled;
+use diffphys_compare::methods::{GradientMethod, Stop};
+use diffphys_compare::problem::{Problem, ProblemSpec};
 use ndarray::{ArrayD, IxDyn};
 
 const ITERATION_SIZES: [usize; 5] = [64, 128, 256, 512, 1024];

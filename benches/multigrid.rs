@@ -19,14 +19,14 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use diffphys::compare::harness::relative_error;
-use diffphys::compare::methods::exact::ExactCholesky;
-use diffphys::compare::methods::{GradientMethod, Stop};
-use diffphys::compare::problem::{Problem, ProblemSpec};
-use diffphys::ops::cg::{CgParams, Preconditioner};
+use diffphys::ops::cg::CgParams;
 use diffphys::ops::multigrid::Multigrid;
-use diffphys::ops::poisson::{poisson_solve_tape, PoissonSolve};
-use diffphys::Tape;
+use diffphys::ops::poisson::PoissonSolve;
+use diffphys::prelude::*;
+use diffphys_compare::harness::relative_error;
+use diffphys_compare::methods::exact::ExactCholesky;
+use diffphys_compare::methods::{GradientMethod, Stop};
+use diffphys_compare::problem::{Problem, ProblemSpec};
 use ndarray::Array2;
 
 const SIZES: [usize; 4] = [256, 512, 1024, 2048];
@@ -42,7 +42,7 @@ fn implicit_gradient(problem: &Problem<f64>, params: CgParams) -> (Array2<f64>, 
     let log = solve.log();
     let tape = Tape::<f64>::new();
     let b = tape.var(problem.b.clone().into_dyn());
-    let p = poisson_solve_tape(solve, b).expect("the solve converges");
+    let p = tape.apply(solve, &[b]).expect("the solve converges");
     let d = p
         .sub(tape.constant(problem.target.clone().into_dyn()))
         .expect("shapes");
@@ -69,7 +69,7 @@ fn mg_params(problem: &Problem<f64>) -> CgParams {
     let mg = Multigrid::new(&problem.grid, sweeps()).expect("the grid coarsens");
     CgParams::default()
         .with_rel_tol(RTOL)
-        .with_preconditioner(Preconditioner::Multigrid(Arc::new(mg)))
+        .with_preconditioner(Arc::new(mg))
 }
 
 fn best_of_3(mut f: impl FnMut()) -> f64 {

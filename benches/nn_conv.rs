@@ -1,4 +1,4 @@
-//! `Conv2d` forward + backward as the fused op (im2col and a matrix product, one
+//! `Conv2` forward + backward as the fused op (im2col and a matrix product, one
 //! node, adjoint by hand) against the same convolution built from tape
 //! primitives (per kernel tap: roll, broadcast multiply, sum over input
 //! channels, add), at batch 8, 16 → 16 channels, 3×3 kernel, 64² cells, periodic
@@ -14,7 +14,7 @@ use std::time::Instant;
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use diffphys::nn::reference::conv_from_primitives;
 use diffphys::nn::{ConvOp, Padding};
-use diffphys::{test_array, ArrayD, Tape, TapeStats};
+use diffphys::prelude::*;
 
 const BATCH: usize = 8;
 const CHANNELS: usize = 16;
@@ -52,7 +52,7 @@ fn run(variant: Variant, inp: &Inputs) -> ([ArrayD<f64>; 3], TapeStats) {
         tape.var(inp.b.clone()),
     );
     let y = match variant {
-        Variant::Op => tape.apply1(
+        Variant::Op => tape.apply(
             ConvOp {
                 name: "conv2d".into(),
                 padding: Padding::Periodic,

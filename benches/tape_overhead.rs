@@ -22,7 +22,7 @@
 use std::hint::black_box;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
-use diffphys::{test_array, ArrayD, Tape, TapeError, Var};
+use diffphys::prelude::*;
 
 const SIZES: [usize; 5] = [100, 1_000, 10_000, 100_000, 1_000_000];
 

@@ -18,9 +18,9 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use diffphys::compare::chart::{line_chart_svg, LineChart, Series};
-use diffphys::ops::advection::{upwind_1d_tape, AdvectionParams};
-use diffphys::{ArrayD, Boundary, Grid1, Tape, Var};
+use diffphys::ops::advection::{AdvectionParams, Upwind1};
+use diffphys::prelude::*;
+use diffphys_compare::chart::{line_chart_svg, LineChart, Series};
 use ndarray::Array1;
 
 type BoxError = Box<dyn std::error::Error>;
@@ -58,7 +58,8 @@ impl Scene {
 
 /// One advection step as the monolithic op.
 fn step_op<'t>(scene: &Scene, d: Var<'t, f64>, u: Var<'t, f64>) -> Result<Var<'t, f64>, BoxError> {
-    Ok(upwind_1d_tape(&scene.grid, &scene.params, d, u)?)
+    Ok(d.tape()
+        .apply(Upwind1::new(scene.grid, scene.params), &[d, u])?)
 }
 
 /// The same step in tape primitives, following the seed formula literally:

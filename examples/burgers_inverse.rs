@@ -20,11 +20,11 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
-use diffphys::compare::chart::{heatmap_svg_with_axes, line_chart_svg, LineChart, Series};
-use diffphys::ops::advection::{semi_lagrangian_1d, semi_lagrangian_1d_tape};
+use diffphys::ops::advection::{semi_lagrangian1, SemiLagrangian1};
 use diffphys::ops::stencil::{DiffusionParams, ExplicitDiffusion1};
-use diffphys::ops::tape_ops::apply_linear;
-use diffphys::{ArrayD, Boundary, Grid1, LinearOperator, Tape, Var};
+use diffphys::ops::tape_ops::LinearOp;
+use diffphys::prelude::*;
+use diffphys_compare::chart::{heatmap_svg_with_axes, line_chart_svg, LineChart, Series};
 use ndarray::{Array1, Array2, Ix1};
 
 type BoxError = Box<dyn std::error::Error>;
@@ -61,10 +61,10 @@ impl Burgers {
 
     /// One step on the tape: diffuse, then advect the diffused state by itself.
     fn step<'t>(&self, u: Var<'t, f64>) -> Result<Var<'t, f64>, BoxError> {
-        let diffused = apply_linear(Arc::clone(&self.diffusion), u)?;
-        Ok(semi_lagrangian_1d_tape(
-            &self.grid, self.dt, diffused, diffused,
-        )?)
+        let tape = u.tape();
+        let diffused = tape.apply(LinearOp::new(Arc::clone(&self.diffusion)), &[u])?;
+        let advect = SemiLagrangian1::new(self.grid, self.dt);
+        Ok(tape.apply(advect, &[diffused, diffused])?)
     }
 
     /// The loss `mean((u₁₆ − target)²)` and its gradient with respect to `u₀`.
@@ -91,7 +91,7 @@ impl Burgers {
                 .diffusion
                 .apply(u.view().into_dyn())?
                 .into_dimensionality::<Ix1>()?;
-            u = semi_lagrangian_1d(&self.grid, self.dt, diffused.view(), diffused.view())?;
+            u = semi_lagrangian1(&self.grid, self.dt, diffused.view(), diffused.view())?;
             out.row_mut(t).assign(&u);
         }
         Ok(out)

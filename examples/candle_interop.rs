@@ -24,12 +24,12 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use candle_core::{Device, Tensor, Var as CandleVar};
-use diffphys::compare::chart::{line_chart_svg, LineChart, Series};
 use diffphys::ops::cg::CgParams;
-use diffphys::ops::poisson::{poisson_solve_tape, PoissonSolve};
+use diffphys::ops::poisson::PoissonSolve;
 use diffphys::ops::stencil::Laplacian2;
-use diffphys::{ArrayD, Boundary, Grid2, Tape};
+use diffphys::prelude::*;
 use diffphys_candle::CandlePoisson;
+use diffphys_compare::chart::{line_chart_svg, LineChart, Series};
 use ndarray::{Array1, Array2};
 
 type BoxError = Box<dyn std::error::Error>;
@@ -123,9 +123,9 @@ impl Scene {
         let b = av
             .matmul(tape.constant(self.basis.clone().into_dyn()))?
             .reshape(&[self.n, self.n])?;
-        let x = poisson_solve_tape(
+        let x = b.tape().apply(
             PoissonSolve::new(Arc::clone(&self.op), self.params.clone()),
-            b,
+            &[b],
         )?;
         let loss = x
             .sub(tape.constant(self.observed.clone()))?

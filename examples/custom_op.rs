@@ -7,10 +7,7 @@
 
 mod common;
 
-use diffphys::{
-    check_adjoint, check_gradient, test_array, ArrayD, ArrayViewD, BackwardArgs, GradCheckOptions,
-    Op, Real, Tape, TapeError, TapeStats, Var,
-};
+use diffphys::prelude::*;
 use ndarray::{s, Array1, ArrayView1, IxDyn, Zip};
 
 // ---------------------------------------------------------------------------
@@ -165,7 +162,7 @@ fn loss_after<'t>(
 
 /// The plugin as a step function for [`loss_after`].
 fn plugin_step<'t>(u: Var<'t, f64>, kappa: Var<'t, f64>) -> Result<Var<'t, f64>, TapeError> {
-    u.apply1(DiffusionStep, &[kappa])
+    u.tape().apply(DiffusionStep, &[u, kappa])
 }
 
 /// A step of the diffusion, as the plugin or as primitives.

@@ -25,15 +25,13 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
-use diffphys::compare::chart::{heatmap_svg, line_chart_svg, quiver_svg, LineChart, Series};
 use diffphys::ops::cg::CgParams;
 use diffphys::ops::mac::MacGrid;
 use diffphys::ops::poisson::{SolveLog, WarmStart};
-use diffphys::ops::projection::{
-    max_abs_divergence, project_tape, PressureProjection, ProjectionOp,
-};
+use diffphys::ops::projection::{max_abs_divergence, PressureProjection, ProjectionOp};
 use diffphys::ops::reference::SparseCholesky;
-use diffphys::{ArrayD, Boundary, Grid2, Tape};
+use diffphys::prelude::*;
+use diffphys_compare::chart::{heatmap_svg, line_chart_svg, quiver_svg, LineChart, Series};
 use ndarray::{Array2, Ix2, Zip};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
@@ -167,7 +165,8 @@ fn gradient_step(scene: &Scene, op: ProjectionOp<f64>, v: &Faces) -> Result<Step
     let (vx, vy) = (tape.var(v.x.clone()), tape.var(v.y.clone()));
     let ux = vx.mul(tape.constant(scene.left.x.clone()))?;
     let uy = vy.mul(tape.constant(scene.left.y.clone()))?;
-    let [px, py, pressure] = project_tape(op, ux, uy)?;
+    let out = tape.apply_multi(op, &[ux, uy])?; // [u'_x, u'_y, p]
+    let (px, py, pressure) = (out[0], out[1], out[2]);
     let ex = px
         .sub(tape.constant(scene.target.x.clone()))?
         .mul(tape.constant(scene.right.x.clone()))?;

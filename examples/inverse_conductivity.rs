@@ -26,13 +26,13 @@ mod common;
 use std::path::Path;
 use std::time::Instant;
 
-use diffphys::compare::chart::{heatmap_svg_with_axes, line_chart_svg, LineChart, Series};
 use diffphys::ops::cg::CgParams;
 use diffphys::ops::cg::NullSpace;
-use diffphys::ops::conductivity::{conductivity_solve_tape, Conductivity2, ConductivitySolve};
+use diffphys::ops::conductivity::{Conductivity2, ConductivitySolve};
 use diffphys::ops::reference::SparseCholesky;
+use diffphys::prelude::*;
 use diffphys::tape::optim::{Adam, Optimizer};
-use diffphys::{ArrayD, Boundary, Grid2, Tape, Var};
+use diffphys_compare::chart::{heatmap_svg_with_axes, line_chart_svg, LineChart, Series};
 use ndarray::{Array2, Ix2};
 
 type BoxError = Box<dyn std::error::Error>;
@@ -95,7 +95,7 @@ impl Scene {
         let mut total = tape.scalar(0.0);
         for (b, obs) in self.sources.iter().zip(&self.observed) {
             let solve = ConductivitySolve::new(self.grid, params.clone());
-            let p = conductivity_solve_tape(solve, tape.constant(b.clone()), k)?;
+            let p = tape.apply(solve, &[tape.constant(b.clone()), k])?;
             let d = p.sub(tape.constant(obs.clone()))?;
             total = total.add(d.mul(d)?.sum()?)?;
         }

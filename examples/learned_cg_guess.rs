@@ -25,8 +25,6 @@ mod learned_cg_guess_scene;
 use std::collections::BTreeMap;
 use std::time::Instant;
 
-use diffphys::compare::chart::{line_chart_svg, LineChart, Series};
-use diffphys::compare::harness::progress_bar;
 use diffphys::learn::guess::{
     guesses, iterations_to, GuessLoss, GuessProblem, GuessTrainer, InitialGuess, TrainedGuess,
 };
@@ -36,7 +34,9 @@ use diffphys::learn::{
 };
 use diffphys::nn::{Activation, Bound, Layer, Padding, Params, UNet, UNetConfig};
 use diffphys::ops::stencil::Laplacian2;
-use diffphys::{ArrayD, Boundary, Grid2, Var};
+use diffphys::prelude::{ArrayD, Boundary, Grid2, Var};
+use diffphys_compare::chart::{line_chart_svg, LineChart, Series};
+use diffphys_compare::harness::progress_bar;
 use ndarray::IxDyn;
 use rand::rngs::StdRng;
 use serde_json::json;

@@ -16,16 +16,16 @@
 
 mod common;
 
-use diffphys::compare::alloc::CountingAllocator;
-use diffphys::compare::chart::{line_chart_svg, LineChart, Series};
-use diffphys::compare::harness::measure;
-use diffphys::compare::methods::exact::ExactCholesky;
-use diffphys::compare::methods::implicit::ImplicitSolve;
-use diffphys::compare::methods::naive::NaiveUnrolled;
-use diffphys::compare::methods::{GradientMethod, Stop};
-use diffphys::compare::model::{Method, ResultRow};
-use diffphys::compare::problem::{Problem, ProblemSpec};
-use diffphys::compare::report::render_table;
+use diffphys_compare::alloc::CountingAllocator;
+use diffphys_compare::chart::{line_chart_svg, LineChart, Series};
+use diffphys_compare::harness::measure;
+use diffphys_compare::methods::exact::ExactCholesky;
+use diffphys_compare::methods::implicit::ImplicitSolve;
+use diffphys_compare::methods::naive::NaiveUnrolled;
+use diffphys_compare::methods::{GradientMethod, Stop};
+use diffphys_compare::model::{Method, ResultRow};
+use diffphys_compare::problem::{Problem, ProblemSpec};
+use diffphys_compare::report::render_table;
 
 type BoxError = Box<dyn std::error::Error>;
 

@@ -24,10 +24,10 @@ use burgers_scene::{
     batch_of, curve, learning_rate, mse, network, random_initial_state, sample_of, BoxError,
     Burgers, DESCENT_RATE, N,
 };
-use diffphys::compare::chart::{line_chart_svg, LineChart, Series};
-use diffphys::compare::harness::progress_bar;
 use diffphys::nn::{check_loss, Layer, Params, UNet};
-use diffphys::{Adam, ArrayD, Tape};
+use diffphys::prelude::*;
+use diffphys_compare::chart::{line_chart_svg, LineChart, Series};
+use diffphys_compare::harness::progress_bar;
 use ndarray::Array1;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};

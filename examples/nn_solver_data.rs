@@ -22,12 +22,12 @@ mod common;
 use std::time::Instant;
 
 use burgers_scene::{network, random_initial_state, Burgers, N};
-use diffphys::compare::chart::{line_chart_svg, LineChart, Series};
-use diffphys::compare::harness::progress_bar;
 use diffphys::learn::{
     mean_squared_error, select_best, Candidate, DataSeed, LearnError, LrSchedule, Pair, PairSource,
     Report, Split, Splits, SupervisedTrainer, TrainSeed, Trained, TrainedNet,
 };
+use diffphys_compare::chart::{line_chart_svg, LineChart, Series};
+use diffphys_compare::harness::progress_bar;
 use ndarray::Axis;
 use rand::rngs::StdRng;
 use rand::Rng;

@@ -25,14 +25,14 @@ use solver_in_the_loop_scene::study;
 use std::collections::BTreeMap;
 use std::time::Instant;
 
-use diffphys::compare::alloc::CountingAllocator;
-use diffphys::compare::harness::progress_bar;
 use diffphys::learn::{
     rollout, select_best, states_at, Budget, Candidate, Corrector, DataSeed, Hybrid, LrSchedule,
     Report, Schedule, Split, Splits, Strategy, TrainSeed, Trained, TrainedCorrector, Trainer,
 };
 use diffphys::nn::{Activation, Bound, Layer, Padding, Params, UNet, UNetConfig};
-use diffphys::{check_gradient, GradCheckOptions, Var};
+use diffphys::prelude::{check_gradient, GradCheckOptions, Var};
+use diffphys_compare::alloc::CountingAllocator;
+use diffphys_compare::harness::progress_bar;
 use serde_json::json;
 
 use solver_in_the_loop_scene::{one_step_rms, trajectories, BoxError, Solver};

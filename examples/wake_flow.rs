@@ -31,13 +31,13 @@ mod wake_flow_scene;
 use std::collections::BTreeMap;
 use std::time::Instant;
 
-use diffphys::compare::harness::progress_bar;
 use diffphys::flow::PressureSolver;
 use diffphys::learn::{
     rollout, select_best, Budget, Candidate, DataSeed, Hybrid, LrSchedule, Report, Schedule,
     Simulator, Split, Splits, Strategy, TrainSeed, Trained, TrainedCorrector, Trainer, Trajectory,
 };
 use diffphys::nn::Params;
+use diffphys_compare::harness::progress_bar;
 use ndarray::Array3;
 use serde_json::{json, Value};
 

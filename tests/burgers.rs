@@ -5,10 +5,10 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 
-use diffphys::ops::advection::semi_lagrangian_1d_tape;
+use diffphys::ops::advection::SemiLagrangian1;
 use diffphys::ops::stencil::{DiffusionParams, ExplicitDiffusion1};
-use diffphys::ops::tape_ops::apply_linear;
-use diffphys::{check_gradient, test_array, ArrayD, Boundary, GradCheckOptions, Grid1, Tape, Var};
+use diffphys::ops::tape_ops::LinearOp;
+use diffphys::prelude::*;
 
 const N: usize = 128;
 const STEPS: usize = 32;
@@ -59,9 +59,10 @@ fn simulate<'t>(
     mut u: Var<'t, f64>,
     steps: usize,
 ) -> diffphys::tape::Result<Var<'t, f64>> {
+    let tape = u.tape();
     for _ in 0..steps {
-        let diffused = apply_linear(Arc::clone(&s.diffusion), u)?;
-        u = semi_lagrangian_1d_tape(&s.grid, s.dt, diffused, diffused)?;
+        let diffused = tape.apply(LinearOp::new(Arc::clone(&s.diffusion)), &[u])?;
+        u = tape.apply(SemiLagrangian1::new(s.grid, s.dt), &[diffused, diffused])?;
     }
     Ok(u)
 }

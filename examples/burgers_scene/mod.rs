@@ -11,10 +11,10 @@
 use std::sync::Arc;
 
 use diffphys::nn::{Activation, Padding, Params, UNet, UNetConfig};
-use diffphys::ops::advection::{semi_lagrangian_1d, semi_lagrangian_1d_tape};
+use diffphys::ops::advection::{semi_lagrangian1, SemiLagrangian1};
 use diffphys::ops::stencil::{DiffusionParams, ExplicitDiffusion1};
-use diffphys::ops::tape_ops::apply_linear;
-use diffphys::{ArrayD, Boundary, Grid1, LinearOperator, Tape, Var};
+use diffphys::ops::tape_ops::LinearOp;
+use diffphys::prelude::*;
 use ndarray::{Array1, Ix1};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
@@ -54,10 +54,10 @@ impl Burgers {
 
     /// One step on the tape: diffuse, then advect the diffused state by itself.
     pub fn step<'t>(&self, u: Var<'t, f64>) -> Result<Var<'t, f64>, BoxError> {
-        let diffused = apply_linear(Arc::clone(&self.diffusion), u)?;
-        Ok(semi_lagrangian_1d_tape(
-            &self.grid, self.dt, diffused, diffused,
-        )?)
+        let tape = u.tape();
+        let diffused = tape.apply(LinearOp::new(Arc::clone(&self.diffusion)), &[u])?;
+        let advect = SemiLagrangian1::new(self.grid, self.dt);
+        Ok(tape.apply(advect, &[diffused, diffused])?)
     }
 
     /// The observed state `P(u₀)` (16 steps) of one `[N]` state, on the tape.
@@ -90,7 +90,7 @@ impl Burgers {
                 .diffusion
                 .apply(u.view().into_dyn())?
                 .into_dimensionality::<Ix1>()?;
-            u = semi_lagrangian_1d(&self.grid, self.dt, diffused.view(), diffused.view())?;
+            u = semi_lagrangian1(&self.grid, self.dt, diffused.view(), diffused.view())?;
         }
         Ok(u)
     }
@@ -194,8 +194,8 @@ pub fn mse(a: &Array1<f64>, b: &Array1<f64>) -> f64 {
 }
 
 /// `(step, value)` pairs as a chart series.
-pub fn curve(label: &str, points: &[(usize, f64)]) -> diffphys::compare::chart::Series {
-    diffphys::compare::chart::Series::new(
+pub fn curve(label: &str, points: &[(usize, f64)]) -> diffphys_compare::chart::Series {
+    diffphys_compare::chart::Series::new(
         label,
         points.iter().map(|&(s, v)| (s as f64, v)).collect(),
     )

@@ -69,11 +69,11 @@ impl ExampleArgs {
     pub fn write_npy(
         &self,
         arrays: &[(&str, ndarray::ArrayViewD<'_, f64>, &str)],
-    ) -> Result<(), diffphys::compare::CompareError> {
+    ) -> Result<(), diffphys_compare::CompareError> {
         if !self.npy {
             return Ok(());
         }
-        let mut npy = diffphys::compare::npy::NpyWriter::new(self.out.join("npy"))?;
+        let mut npy = diffphys_compare::npy::NpyWriter::new(self.out.join("npy"))?;
         for (name, array, meaning) in arrays {
             npy.write(name, array.view(), meaning)?;
         }
@@ -91,11 +91,18 @@ impl ExampleArgs {
     }
 }
 
-/// Prints the example's key figures as its last stdout line.
+/// Prints the example's key figures as its last stdout line, with the process's
+/// peak resident memory as `peak_rss_bytes` (added where the example did not set
+/// it; `null` where the kernel does not say).
 pub fn print_json_line(value: &serde_json::Value) {
+    let mut value = value.clone();
+    if let Some(map) = value.as_object_mut() {
+        map.entry("peak_rss_bytes")
+            .or_insert_with(|| serde_json::json!(peak_rss_bytes()));
+    }
     println!(
         "{}",
-        serde_json::to_string(value).expect("a JSON value serialises")
+        serde_json::to_string(&value).expect("a JSON value serialises")
     );
 }
 

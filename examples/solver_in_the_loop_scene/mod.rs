@@ -3,7 +3,7 @@
 //!
 //! Advection of a density `d` by a fixed, spatially varying velocity,
 //! `∂d/∂t + c(x) ∂d/∂x = 0` with `c(x) = 1 + ½ sin πx`, on the periodic domain
-//! [−1, 1]. Both solvers take first-order upwind steps (`upwind_1d` of
+//! [−1, 1]. Both solvers take first-order upwind steps (`upwind1` of
 //! `diffphys-ops`):
 //!
 //! - coarse: [`COARSE`] cells, one step of `dt` = [`DT`] per step (Courant
@@ -22,14 +22,14 @@
 //!
 //! The coarse step is one tape op over a batch `[batch, 1, COARSE]`
 //! ([`CoarseStepOp`]); it is linear in the density, and its adjoint is the
-//! field adjoint of `upwind_1d` (`upwind_1d_vjp`).
+//! field adjoint of `upwind1` (`upwind1_vjp`).
 
 use std::sync::Arc;
 
 use diffphys::learn::{Simulator, Trajectory};
-use diffphys::ops::advection::{upwind_1d, upwind_1d_vjp, AdvectionParams, Wants};
+use diffphys::ops::advection::{upwind1, upwind1_vjp, AdvectionParams, Wants};
+use diffphys::prelude::*;
 use diffphys::tape::Result as TapeResult;
-use diffphys::{ArrayD, ArrayViewD, BackwardArgs, Boundary, Grid1, Op, TapeError, Var};
 use ndarray::{s, Array1, Array2, ArrayView1, Axis};
 use rand::Rng;
 
@@ -96,7 +96,7 @@ impl Solver {
 
     /// One upwind step of one density.
     pub fn step(&self, d: ArrayView1<'_, f64>) -> TapeResult<Array1<f64>> {
-        upwind_1d(
+        upwind1(
             &self.grid,
             &AdvectionParams::new(self.dt),
             d,
@@ -108,7 +108,7 @@ impl Solver {
     /// The vector–Jacobian product of [`Solver::step`] for `g = ∂L/∂d'`.
     pub fn step_vjp(&self, g: ArrayView1<'_, f64>) -> TapeResult<Array1<f64>> {
         let zeros = Array1::zeros(self.grid.n);
-        let grads = upwind_1d_vjp(
+        let grads = upwind1_vjp(
             &self.grid,
             &AdvectionParams::new(self.dt),
             zeros.view(),
@@ -125,11 +125,11 @@ impl Solver {
 
     /// Records one step of every state of a `[batch, 1, n]` batch.
     pub fn step_tape<'t>(&self, u: Var<'t, f64>) -> TapeResult<Var<'t, f64>> {
-        u.apply1(
+        u.tape().apply(
             CoarseStepOp {
                 solver: self.clone(),
             },
-            &[],
+            &[u],
         )
     }
 }

@@ -7,9 +7,9 @@ use std::path::Path;
 use std::rc::Rc;
 use std::time::Instant;
 
-use diffphys::compare::chart::{line_chart_svg, LineChart, Series};
 use diffphys::learn::{states_at, Corrector, Hybrid, Schedule, Simulator, Trajectory};
 use diffphys::nn::Params;
+use diffphys_compare::chart::{line_chart_svg, LineChart, Series};
 
 use super::BoxError;
 

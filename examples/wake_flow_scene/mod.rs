@@ -28,8 +28,8 @@ use diffphys::flow::{
     Advection, Boundary, FlowError, Obstacle, PressureSolver, Scene, Sides, Splitting,
 };
 use diffphys::learn::{standard_normal, Corrector, LearnError, Simulator, Split};
-use diffphys::nn::{Bound, Conv2d, ConvConfig, Init, Layer, NnError, Padding, Params};
-use diffphys::{ArrayD, TapeError, Var};
+use diffphys::nn::{Bound, Conv2, ConvConfig, Init, Layer, NnError, Padding, Params};
+use diffphys::tape::{ArrayD, TapeError, Var};
 use rand::rngs::StdRng;
 use rand::Rng;
 
@@ -407,9 +407,9 @@ impl NetSize {
 /// ReLU, its last layer starting at zero (the hybrid starts as the coarse
 /// solver); its output is masked to the [`free_faces`].
 pub struct Net {
-    stem: Conv2d,
-    blocks: Vec<(Conv2d, Conv2d)>,
-    head: Conv2d,
+    stem: Conv2,
+    blocks: Vec<(Conv2, Conv2)>,
+    head: Conv2,
     free: ArrayD<f64>,
     c_out: usize,
 }
@@ -443,17 +443,17 @@ impl Net {
             init,
         };
         let w = size.width;
-        let stem = Conv2d::new(&mut params, "stem", conv(3, w, Init::He), rng)?;
+        let stem = Conv2::new(&mut params, "stem", conv(3, w, Init::He), rng)?;
         let blocks = (0..size.blocks)
             .map(|b| {
                 Ok((
-                    Conv2d::new(
+                    Conv2::new(
                         &mut params,
                         &format!("block{b}.a"),
                         conv(w, w, Init::He),
                         rng,
                     )?,
-                    Conv2d::new(
+                    Conv2::new(
                         &mut params,
                         &format!("block{b}.b"),
                         conv(w, w, Init::He),
@@ -462,7 +462,7 @@ impl Net {
                 ))
             })
             .collect::<Result<Vec<_>>>()?;
-        let head = Conv2d::new(&mut params, "head", conv(w, c_out, Init::Zeros), rng)?;
+        let head = Conv2::new(&mut params, "head", conv(w, c_out, Init::Zeros), rng)?;
         Ok((
             Net {
                 stem,

@@ -6,11 +6,11 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::time::Instant;
 
-use diffphys::compare::chart::{line_chart_svg, LineChart, Series};
 use diffphys::flow::diagnostics::vorticity;
 use diffphys::flow::{restrict_velocity, FlowParams, FlowState, PressureSolver, Scene};
 use diffphys::learn::{relative_l2, rollout, Corrector, Hybrid, Simulator, Trajectory};
 use diffphys::nn::Params;
+use diffphys_compare::chart::{line_chart_svg, LineChart, Series};
 use ndarray::{Array2, Array3, Axis};
 use serde_json::{json, Value};
 
@@ -419,7 +419,7 @@ pub fn charts(
     coarse: &Scene,
     sol: Option<usize>,
 ) -> Result<()> {
-    let e = |e: diffphys::compare::CompareError| WakeError::Output(e.to_string());
+    let e = |e: diffphys_compare::CompareError| WakeError::Output(e.to_string());
     let series: Vec<Series> = curves
         .iter()
         .filter(|(_, c)| !c.is_empty() && !c[0].is_empty())
@@ -522,9 +522,9 @@ fn write_vorticity(
     path: &Path,
     title: &str,
     w: &Array2<f64>,
-) -> std::result::Result<(), diffphys::compare::CompareError> {
+) -> std::result::Result<(), diffphys_compare::CompareError> {
     // The chart's rows run down the page: put y (axis 1) down, x across.
     let field = w.t().to_owned();
     let flipped = field.slice(ndarray::s![..;-1, ..]).to_owned();
-    diffphys::compare::chart::heatmap_svg(path, title, flipped.view())
+    diffphys_compare::chart::heatmap_svg(path, title, flipped.view())
 }

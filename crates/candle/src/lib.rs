@@ -7,7 +7,7 @@
 //!
 //! Every diffphys operator is first a pair of plain functions on ndarray views,
 //! its forward and its vector–Jacobian product (`poisson_solve` and
-//! `poisson_solve_vjp`, `upwind_1d` and `upwind_1d_vjp`); the tape's ops and
+//! `poisson_solve_vjp`, `upwind1` and `upwind1_vjp`); the tape's ops and
 //! these candle ops are two thin adapters over the same pair. The forward reads
 //! candle's contiguous buffer in place (an ndarray view) and hands its result
 //! vector to candle without a copy; the backward copies the incoming gradient
@@ -40,7 +40,7 @@ use candle_core::backend::BackendStorage;
 use candle_core::{
     CpuStorage, CustomOp1, CustomOp2, DType, Error, Layout, Result, Shape, Tensor, WithDType,
 };
-use diffphys_ops::advection::{upwind_1d, upwind_1d_vjp, AdvectionParams, Wants};
+use diffphys_ops::advection::{upwind1, upwind1_vjp, AdvectionParams, Wants};
 use diffphys_ops::cg::CgParams;
 use diffphys_ops::poisson::{poisson_solve, poisson_solve_vjp};
 use diffphys_ops::{Grid1, LinearOperator};
@@ -217,19 +217,19 @@ fn into_vec<T: Clone>(a: ArrayD<T>) -> Vec<T> {
 /// One first-order upwind step `d' = d − dt·[u⁺ (d_{i+1} − d_i) + u⁻ (d_i − d_{i−1})]`
 /// of a field `d` by a velocity `u` on a 1D grid (see
 /// [`diffphys_ops::advection`]) as a candle op of `(d, u)`, with both gradients
-/// in backward (`upwind_1d_vjp`). A CFL violation is a candle error.
+/// in backward (`upwind1_vjp`). A CFL violation is a candle error.
 #[derive(Debug, Clone)]
-pub struct CandleUpwind1d {
+pub struct CandleUpwind1 {
     grid: Grid1,
     params: AdvectionParams,
 }
 
 const NAME_UPWIND: &str = "diffphys-upwind-1d";
 
-impl CandleUpwind1d {
+impl CandleUpwind1 {
     /// The step on `grid` with time step and CFL policy `params`.
     pub fn new(grid: Grid1, params: AdvectionParams) -> Self {
-        CandleUpwind1d { grid, params }
+        CandleUpwind1 { grid, params }
     }
 
     /// `d` advected one step by `u` (both of shape `[n]`), recorded for candle's
@@ -248,7 +248,7 @@ impl CandleUpwind1d {
         u: ArrayViewD<'_, T>,
     ) -> Result<Vec<T>> {
         let (d, u) = (vector(d)?, vector(u)?);
-        Ok(upwind_1d(&self.grid, &self.params, d, u)
+        Ok(upwind1(&self.grid, &self.params, d, u)
             .map_err(Error::wrap)?
             .to_vec())
     }
@@ -260,7 +260,7 @@ impl CandleUpwind1d {
         g: &Tensor,
     ) -> Result<(Option<Tensor>, Option<Tensor>)> {
         let (da, ua, ga) = (to_array::<T>(d)?, to_array::<T>(u)?, to_array::<T>(g)?);
-        let grads = upwind_1d_vjp(
+        let grads = upwind1_vjp(
             &self.grid,
             &self.params,
             vector(da.view())?,
@@ -287,7 +287,7 @@ fn vector<T>(a: ArrayViewD<'_, T>) -> Result<ArrayView1<'_, T>> {
     })
 }
 
-impl CustomOp2 for CandleUpwind1d {
+impl CustomOp2 for CandleUpwind1 {
     fn name(&self) -> &'static str {
         NAME_UPWIND
     }

@@ -4,10 +4,10 @@
 use std::sync::Arc;
 
 use candle_core::{DType, Device, Tensor, Var as CandleVar, WithDType};
-use diffphys_candle::{CandlePoisson, CandleUpwind1d};
-use diffphys_ops::advection::{upwind_1d_tape, AdvectionParams};
+use diffphys_candle::{CandlePoisson, CandleUpwind1};
+use diffphys_ops::advection::{AdvectionParams, Upwind1};
 use diffphys_ops::cg::CgParams;
-use diffphys_ops::poisson::{poisson_solve_tape, PoissonSolve};
+use diffphys_ops::poisson::PoissonSolve;
 use diffphys_ops::stencil::Laplacian2;
 use diffphys_ops::{Boundary, Grid1, Grid2};
 use diffphys_tape::{test_array, ArrayD, Real, Tape};
@@ -62,7 +62,7 @@ fn poisson_gradients<T: Real + WithDType>(rtol: f64) -> (ArrayD<T>, ArrayD<T>) {
 
     let tape = Tape::<T>::new();
     let bt = tape.var(b);
-    let x = poisson_solve_tape(PoissonSolve::new(op, params), bt).unwrap();
+    let x = tape.apply(PoissonSolve::new(op, params), &[bt]).unwrap();
     let loss = x
         .mul(x)
         .unwrap()
@@ -87,7 +87,7 @@ fn upwind_gradients<T: Real + WithDType>() -> [(ArrayD<T>, ArrayD<T>); 2] {
         CandleVar::from_tensor(&tensor(&d)).unwrap(),
         CandleVar::from_tensor(&tensor(&u)).unwrap(),
     );
-    let out = CandleUpwind1d::new(grid, params)
+    let out = CandleUpwind1::new(grid, params)
         .apply(dv.as_tensor(), uv.as_tensor())
         .unwrap();
     // Squared, so that the gradient in u depends on d' and not only on w.
@@ -103,7 +103,7 @@ fn upwind_gradients<T: Real + WithDType>() -> [(ArrayD<T>, ArrayD<T>); 2] {
 
     let tape = Tape::<T>::new();
     let (dt, ut) = (tape.var(d), tape.var(u));
-    let out = upwind_1d_tape(&grid, &params, dt, ut).unwrap();
+    let out = tape.apply(Upwind1::new(grid, params), &[dt, ut]).unwrap();
     let loss = out
         .mul(out)
         .unwrap()
@@ -155,7 +155,7 @@ fn bad_input_is_a_candle_error_not_a_panic() {
     let ints = Tensor::zeros((4, 4), DType::U32, &Device::Cpu).unwrap();
     assert!(solve.apply(&ints).is_err());
     // A CFL violation: |u| dt/dx = 10.
-    let step = CandleUpwind1d::new(
+    let step = CandleUpwind1::new(
         Grid1::new(8, 0.1, 0.0, Boundary::Periodic).unwrap(),
         AdvectionParams::new(1.0),
     );

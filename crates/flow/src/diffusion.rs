@@ -26,7 +26,7 @@
 //! Explicit diffusion is stable for `ν dt (1/dx² + 1/dy²) ≤ ½`
 //! ([`explicit_diffusion_number`]); the step checks it.
 
-use diffphys_ops::cg::{conjugate_gradient, CgParams, Preconditioner};
+use diffphys_ops::cg::{conjugate_gradient, CgParams, Preconditioning};
 use diffphys_ops::LinearOperator;
 use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
 use ndarray::{Array1, Array2, ArrayView1, ArrayView2, ArrayViewMutD, IxDyn};
@@ -520,5 +520,5 @@ impl<T: Real> Op<T> for Diffuse {
 pub(crate) fn default_viscosity_solver() -> CgParams {
     CgParams::default()
         .with_rel_tol(1e-10)
-        .with_preconditioner(Preconditioner::Jacobi)
+        .with_preconditioner(Preconditioning::Jacobi)
 }

@@ -131,9 +131,9 @@ impl FlowError {
     /// (an op of this crate failed inside the tape), else wrapped.
     pub fn from_tape(e: TapeError) -> Self {
         match e {
-            TapeError::Op { source, op, kind } => match source.downcast::<FlowError>() {
+            TapeError::Op { cause, op, kind } => match cause.downcast::<FlowError>() {
                 Ok(flow) => *flow,
-                Err(source) => FlowError::Tape(TapeError::Op { op, source, kind }),
+                Err(cause) => FlowError::Tape(TapeError::Op { op, cause, kind }),
             },
             other => FlowError::Tape(other),
         }

@@ -87,5 +87,5 @@ pub(crate) fn record<'t, T: Real, O: Op<T> + 'static>(
     op: O,
     inputs: &[Var<'t, T>],
 ) -> diffphys_tape::Result<Vec<Var<'t, T>>> {
-    tape.apply(op, inputs)
+    tape.apply_multi(op, inputs)
 }

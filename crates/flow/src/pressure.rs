@@ -37,7 +37,7 @@ use std::cell::RefCell;
 use std::rc::Rc;
 use std::sync::Arc;
 
-use diffphys_ops::cg::{conjugate_gradient, CgParams, NullSpace, Preconditioner};
+use diffphys_ops::cg::{conjugate_gradient, CgParams, NullSpace, Preconditioning};
 use diffphys_ops::mac::MacGrid;
 use diffphys_ops::multigrid::Multigrid;
 use diffphys_ops::reference::SparseCholesky;
@@ -192,7 +192,7 @@ impl PressureSystem {
                 cg = cg
                     .with_rel_tol(*rel_tol)
                     .with_max_iters(*max_iters)
-                    .with_preconditioner(Preconditioner::Jacobi);
+                    .with_preconditioner(Preconditioning::Jacobi);
             }
             PressureSolver::MultigridCg {
                 rel_tol,
@@ -203,7 +203,7 @@ impl PressureSystem {
                 cg = cg
                     .with_rel_tol(*rel_tol)
                     .with_max_iters(*max_iters)
-                    .with_preconditioner(Preconditioner::Multigrid(Arc::new(mg)));
+                    .with_preconditioner(Arc::new(mg));
             }
         }
         Ok(PressureSystem {

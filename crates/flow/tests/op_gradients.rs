@@ -29,7 +29,7 @@ fn record<'t, O: Op<f64> + 'static>(
     op: O,
     inputs: &[Var<'t, f64>],
 ) -> Vec<Var<'t, f64>> {
-    tape.apply(op, inputs).unwrap()
+    tape.apply_multi(op, inputs).unwrap()
 }
 
 fn assert_gradient<F>(what: &str, f: F, inputs: &[ArrayD<f64>])

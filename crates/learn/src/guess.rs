@@ -104,7 +104,7 @@ fn record_linear<'t, A: LinearOperator<f64> + 'static>(
     op: A,
     x: Var<'t, f64>,
 ) -> diffphys_tape::Result<Var<'t, f64>> {
-    x.tape().apply1(LinearOp::new(op), &[x])
+    x.tape().apply(LinearOp::new(op), &[x])
 }
 
 /// `<a_b, c_b>` for every sample `b` of a batch, shaped `[batch, 1, 1, …]` to

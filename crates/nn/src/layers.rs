@@ -105,12 +105,13 @@ impl<T: Real> Layer<T> for Dense {
         let op = DenseOp {
             name: format!("dense {:?}", self.name),
         };
-        x.apply1(op, &[params.get(self.weight), params.get(self.bias)])
+        x.tape()
+            .apply(op, &[x, params.get(self.weight), params.get(self.bias)])
     }
 }
 
-/// A convolution layer of either dimension (see [`crate::conv`]); [`Conv1d`] and
-/// [`Conv2d`] build it.
+/// A convolution layer of either dimension (see [`crate::conv`]); [`Conv1`] and
+/// [`Conv2`] build it.
 #[derive(Debug, Clone)]
 struct Conv {
     name: String,
@@ -183,15 +184,16 @@ impl Conv {
             name: self.name.clone(),
             padding: self.padding,
         };
-        x.apply1(op, &[params.get(self.weight), params.get(self.bias)])
+        x.tape()
+            .apply(op, &[x, params.get(self.weight), params.get(self.bias)])
     }
 }
 
 /// A 1D convolution on `[batch, c_in, n]` → `[batch, c_out, n]` ("same" size).
 #[derive(Debug, Clone)]
-pub struct Conv1d(Conv);
+pub struct Conv1(Conv);
 
-impl Conv1d {
+impl Conv1 {
     /// Adds the kernel `[c_out, c_in, k]` and the bias `[c_out]` to `params` as
     /// `"{name}.weight"` and `"{name}.bias"`.
     ///
@@ -204,11 +206,11 @@ impl Conv1d {
         config: ConvConfig,
         rng: &mut impl Rng,
     ) -> crate::Result<Self> {
-        Conv::new(params, "conv1d", name, 1, config, rng).map(Conv1d)
+        Conv::new(params, "conv1d", name, 1, config, rng).map(Conv1)
     }
 }
 
-impl<T: Real> Layer<T> for Conv1d {
+impl<T: Real> Layer<T> for Conv1 {
     fn forward<'t>(&self, params: &Bound<'t, T>, x: Var<'t, T>) -> Result<Var<'t, T>> {
         self.0.forward(params, x)
     }
@@ -216,58 +218,60 @@ impl<T: Real> Layer<T> for Conv1d {
 
 /// A 2D convolution on `[batch, c_in, h, w]` → `[batch, c_out, h, w]` ("same" size).
 #[derive(Debug, Clone)]
-pub struct Conv2d(Conv);
+pub struct Conv2(Conv);
 
-impl Conv2d {
+impl Conv2 {
     /// Adds the kernel `[c_out, c_in, k, k]` and the bias `[c_out]` to `params` as
     /// `"{name}.weight"` and `"{name}.bias"`.
     ///
     /// # Errors
-    /// As [`Conv1d::new`].
+    /// As [`Conv1::new`].
     pub fn new<T: Scalar>(
         params: &mut Params<T>,
         name: &str,
         config: ConvConfig,
         rng: &mut impl Rng,
     ) -> crate::Result<Self> {
-        Conv::new(params, "conv2d", name, 2, config, rng).map(Conv2d)
+        Conv::new(params, "conv2d", name, 2, config, rng).map(Conv2)
     }
 }
 
-impl<T: Real> Layer<T> for Conv2d {
+impl<T: Real> Layer<T> for Conv2 {
     fn forward<'t>(&self, params: &Bound<'t, T>, x: Var<'t, T>) -> Result<Var<'t, T>> {
         self.0.forward(params, x)
     }
 }
 
-/// 2× average pooling over the spatial axes (see [`crate::resample`]).
+/// 2× average pooling over the spatial axes, 1D or 2D (see [`crate::resample`]);
+/// `2x` is the factor, not a dimension.
 #[derive(Debug, Clone, Copy, Default)]
-pub struct AvgPool2;
+pub struct AvgPool2x;
 
-impl<T: Real> Layer<T> for AvgPool2 {
+impl<T: Real> Layer<T> for AvgPool2x {
     fn forward<'t>(&self, _params: &Bound<'t, T>, x: Var<'t, T>) -> Result<Var<'t, T>> {
-        x.apply1(
+        x.tape().apply(
             Resample {
                 name: "avg_pool2".into(),
                 direction: Direction::Pool,
             },
-            &[],
+            &[x],
         )
     }
 }
 
-/// 2× nearest-neighbour upsampling over the spatial axes (see [`crate::resample`]).
+/// 2× nearest-neighbour upsampling over the spatial axes, 1D or 2D (see
+/// [`crate::resample`]); `2x` is the factor, not a dimension.
 #[derive(Debug, Clone, Copy, Default)]
-pub struct Upsample2;
+pub struct Upsample2x;
 
-impl<T: Real> Layer<T> for Upsample2 {
+impl<T: Real> Layer<T> for Upsample2x {
     fn forward<'t>(&self, _params: &Bound<'t, T>, x: Var<'t, T>) -> Result<Var<'t, T>> {
-        x.apply1(
+        x.tape().apply(
             Resample {
                 name: "upsample2".into(),
                 direction: Direction::Upsample,
             },
-            &[],
+            &[x],
         )
     }
 }

@@ -143,6 +143,20 @@ impl<T: Scalar> Params<T> {
         }
     }
 
+    /// Every parameter as a constant of `tape`: a network that runs but does not
+    /// train (a pretrained corrector inside a solver loop, say). No gradient
+    /// reaches these values and the nodes that read only them and other
+    /// constants are not recorded; do not pass the result to [`Params::step`].
+    pub fn bind_frozen<'t>(&self, tape: &'t Tape<T>) -> Bound<'t, T> {
+        Bound {
+            vars: self
+                .values
+                .iter()
+                .map(|v| tape.constant(v.clone()))
+                .collect(),
+        }
+    }
+
     /// One optimizer step from the gradients of a sweep that requested
     /// `bound.vars()`.
     ///

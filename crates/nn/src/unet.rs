@@ -14,7 +14,7 @@ use diffphys_tape::{Real, Result, Var};
 use rand::Rng;
 
 use crate::conv::Padding;
-use crate::layers::{Activation, AvgPool2, Conv1d, Conv2d, ConvConfig, Layer, Upsample2};
+use crate::layers::{Activation, AvgPool2x, Conv1, Conv2, ConvConfig, Layer, Upsample2x};
 use crate::params::{Bound, Init, Params, Scalar};
 use crate::NnError;
 
@@ -40,8 +40,8 @@ pub struct UNetConfig {
 /// One of the two convolution kinds.
 #[derive(Debug, Clone)]
 enum AnyConv {
-    D1(Conv1d),
-    D2(Conv2d),
+    D1(Conv1),
+    D2(Conv2),
 }
 
 impl AnyConv {
@@ -53,9 +53,9 @@ impl AnyConv {
         rng: &mut impl Rng,
     ) -> crate::Result<Self> {
         Ok(if dims == 1 {
-            AnyConv::D1(Conv1d::new(params, name, config, rng)?)
+            AnyConv::D1(Conv1::new(params, name, config, rng)?)
         } else {
-            AnyConv::D2(Conv2d::new(params, name, config, rng)?)
+            AnyConv::D2(Conv2::new(params, name, config, rng)?)
         })
     }
 
@@ -211,12 +211,12 @@ impl<T: Real> Layer<T> for UNet {
         for b in &self.down {
             h = run(b, h)?;
             skips.push(h);
-            h = AvgPool2.forward(params, h)?;
+            h = AvgPool2x.forward(params, h)?;
         }
         h = run(&self.bottom, h)?;
         for b in &self.up {
             let skip = skips.pop().expect("one skip per level");
-            h = Upsample2.forward(params, h)?;
+            h = Upsample2x.forward(params, h)?;
             h = Var::concat(&[skip, h], 1)?;
             h = run(b, h)?;
         }

@@ -45,7 +45,7 @@ fn conv_passes_finite_differences_in_1d_and_2d_for_both_paddings() {
                 test_array::<f64>(&[w_shape[0]], 3),
             ];
             let report = check_gradient(
-                |t, v| t.apply1(conv_op(padding), &[v[0], v[1], v[2]]),
+                |t, v| t.apply(conv_op(padding), &[v[0], v[1], v[2]]),
                 &inputs,
                 f64_options(),
             )
@@ -112,7 +112,7 @@ fn conv_matches_the_chain_of_primitives_in_value_and_gradient() {
                 let w = tape.var(test_array(&w_shape, 8));
                 let b = tape.var(test_array(&[4], 10));
                 let y = if fused {
-                    tape.apply1(conv_op(padding), &[x, w, b]).unwrap()
+                    tape.apply(conv_op(padding), &[x, w, b]).unwrap()
                 } else {
                     conv_from_primitives(x, w, b, padding).unwrap()
                 };
@@ -160,7 +160,7 @@ fn dense_passes_finite_differences_and_the_dot_product_test() {
         name: "dense".into(),
     };
     let report = check_gradient(
-        |t, v| t.apply1(op(), &[v[0], v[1], v[2]]),
+        |t, v| t.apply(op(), &[v[0], v[1], v[2]]),
         &inputs,
         f64_options(),
     )
@@ -172,7 +172,7 @@ fn dense_passes_finite_differences_and_the_dot_product_test() {
         let tape = Tape::<f64>::new();
         let x = tape.var(inputs[0].clone());
         let y = tape
-            .apply1(
+            .apply(
                 op(),
                 &[x, tape.constant(w.clone()), tape.constant(zeros(&[5]))],
             )
@@ -203,7 +203,7 @@ fn pooling_and_upsampling_pass_finite_differences_and_the_dot_product_test() {
             };
             let x = test_array::<f64>(&shape, 5);
             let report = check_gradient(
-                |t, v| t.apply1(op(), &[v[0]]),
+                |t, v| t.apply(op(), &[v[0]]),
                 std::slice::from_ref(&x),
                 f64_options(),
             )

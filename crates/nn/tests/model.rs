@@ -2,8 +2,8 @@
 //! deterministic training, and a non-finite loss.
 
 use diffphys_nn::{
-    check_loss, stack, Activation, Conv1d, Conv2d, ConvConfig, Dense, Init, Layer, NnError,
-    Padding, Params, UNet, UNetConfig,
+    check_loss, stack, Activation, Conv1, Conv2, ConvConfig, Dense, Init, Layer, NnError, Padding,
+    Params, UNet, UNetConfig,
 };
 use diffphys_tape::{test_array, Adam, ArrayD, IxDyn, Tape, TapeError};
 use rand::SeedableRng;
@@ -44,7 +44,7 @@ fn scratch(name: &str) -> std::path::PathBuf {
 #[test]
 fn a_wrong_input_shape_is_an_error_naming_the_layer_and_the_shapes() {
     let mut params = Params::<f64>::new();
-    let conv = Conv2d::new(&mut params, "enc", conv_config(2, 4), &mut rng(1)).unwrap();
+    let conv = Conv2::new(&mut params, "enc", conv_config(2, 4), &mut rng(1)).unwrap();
     let dense = Dense::new(&mut params, "fc", 6, 3, Init::Glorot, &mut rng(1)).unwrap();
     let tape = Tape::new();
     let p = params.bind(&tape);
@@ -64,7 +64,7 @@ fn a_wrong_input_shape_is_an_error_naming_the_layer_and_the_shapes() {
     assert!(err.to_string().contains("[2, 7]"), "{err}");
     // A 1D layer given a 2D field, and a 2D U-Net given a size its pooling cannot halve.
     let mut params1 = Params::<f64>::new();
-    let conv1 = Conv1d::new(&mut params1, "c1", conv_config(1, 1), &mut rng(1)).unwrap();
+    let conv1 = Conv1::new(&mut params1, "c1", conv_config(1, 1), &mut rng(1)).unwrap();
     let p1 = params1.bind(&tape);
     assert!(conv1
         .forward(&p1, tape.constant(ArrayD::zeros(IxDyn(&[1, 1, 4, 4]))))
@@ -86,16 +86,16 @@ fn bad_configurations_are_errors() {
         ..conv_config(1, 1)
     };
     assert!(matches!(
-        Conv2d::new(&mut params, "k4", even, &mut rng(1)),
+        Conv2::new(&mut params, "k4", even, &mut rng(1)),
         Err(NnError::Config { .. })
     ));
     assert!(matches!(
         Dense::new(&mut params, "d", 0, 3, Init::He, &mut rng(1)),
         Err(NnError::Config { .. })
     ));
-    Conv2d::new(&mut params, "twice", conv_config(1, 1), &mut rng(1)).unwrap();
+    Conv2::new(&mut params, "twice", conv_config(1, 1), &mut rng(1)).unwrap();
     assert!(matches!(
-        Conv2d::new(&mut params, "twice", conv_config(1, 1), &mut rng(1)),
+        Conv2::new(&mut params, "twice", conv_config(1, 1), &mut rng(1)),
         Err(NnError::DuplicateName { .. })
     ));
 }
@@ -221,8 +221,8 @@ fn train(seed: u64, steps: usize, lr: f64) -> diffphys_nn::Result<Vec<f64>> {
         padding: Padding::Periodic,
         ..conv_config(c_in, c_out)
     };
-    let c1 = Conv1d::new(&mut params, "c1", periodic(1, 8), &mut r)?;
-    let c2 = Conv1d::new(&mut params, "c2", periodic(8, 1), &mut r)?;
+    let c1 = Conv1::new(&mut params, "c1", periodic(1, 8), &mut r)?;
+    let c2 = Conv1::new(&mut params, "c2", periodic(8, 1), &mut r)?;
     let samples: Vec<ArrayD<f64>> = (0..4).map(|k| test_array(&[1, 16], 100 + k)).collect();
     let x = stack(&samples.iter().collect::<Vec<_>>())?;
     let target = x.mapv(|v| v * v - 0.3);

@@ -21,7 +21,7 @@
 //! ```
 //! use std::sync::Arc;
 //! use diffphys_ops::cg::CgParams;
-//! use diffphys_ops::conductivity::{conductivity_solve_tape, ConductivitySolve};
+//! use diffphys_ops::conductivity::ConductivitySolve;
 //! use diffphys_ops::{Boundary, Grid2};
 //! use diffphys_tape::Tape;
 //!
@@ -29,7 +29,7 @@
 //! let tape = Tape::<f64>::new();
 //! let b = tape.constant(ndarray::ArrayD::ones(vec![8, 8]));
 //! let k = tape.var(ndarray::ArrayD::from_elem(vec![8, 8], 2.0));
-//! let p = conductivity_solve_tape(ConductivitySolve::new(grid, CgParams::default()), b, k)?;
+//! let p = tape.apply(ConductivitySolve::new(grid, CgParams::default()), &[b, k])?;
 //! let loss = p.sum()?;
 //! let grads = tape.backward(loss, &[k])?;
 //! // A higher conductivity lowers the potential everywhere: ∂L/∂k < 0.
@@ -43,7 +43,7 @@
 //! - C. R. Vogel, *Computational Methods for Inverse Problems*, SIAM 2002, ch. 1
 //!   and 8 (the inverse conductivity problem, Tikhonov regularisation).
 
-use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError, Var};
+use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
 use ndarray::{ArrayView2, IxDyn};
 
 use crate::cg::{conjugate_gradient, CgInfo, CgParams};
@@ -362,8 +362,10 @@ const SOLVE: &str = "conductivity_solve";
 ///
 /// The backward reads `k` and `p` from the tape and rebuilds the operator; the
 /// op keeps nothing else ([`Op::saved_bytes`] is 0). Solves are recorded in a
-/// [`SolveLog`]. Errors surface as [`TapeError::Op`] named
-/// `conductivity_solve`, with the [`OpsError`] as source.
+/// [`SolveLog`], shared by every clone (no warm starts: a clone shares only
+/// the counts). Recorded with `tape.apply(solve, &[b, k])`. Errors surface as
+/// [`TapeError::Op`] named `conductivity_solve`, with the [`OpsError`] as
+/// its cause.
 #[derive(Debug, Clone)]
 pub struct ConductivitySolve<T> {
     grid: Grid2,
@@ -457,43 +459,5 @@ impl<T: Real> Op<T> for ConductivitySolve<T> {
         })?;
         self.log.record_adjoint(&info, &lambda, false);
         Ok(vec![args.needs(0).then_some(lambda), grad_k])
-    }
-}
-
-/// Records `p = A(k)⁻¹ b` on the tape of `b` and `k` (see [`ConductivitySolve`]).
-///
-/// # Errors
-/// A failed solve or a bad `k` as [`OpsError::Tape`] holding [`TapeError::Op`]
-/// named `conductivity_solve`; the tape's own errors.
-pub fn conductivity_solve_tape<'t, T: Real>(
-    solve: ConductivitySolve<T>,
-    b: Var<'t, T>,
-    k: Var<'t, T>,
-) -> Result<Var<'t, T>> {
-    Ok(b.apply1(solve, &[k])?)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::stencil::Laplacian2;
-    use diffphys_tape::test_array;
-
-    #[test]
-    fn unit_conductivity_is_the_negative_laplacian() {
-        for b in [Boundary::ZeroDirichlet, Boundary::Closed] {
-            let grid = Grid2::new(5, 4, 0.3, 0.2, b).unwrap();
-            let ones = ndarray::Array2::<f64>::ones((5, 4));
-            let a = Conductivity2::new(grid, ones.view()).unwrap();
-            let x = test_array::<f64>(&[5, 4], 3);
-            let want = Laplacian2::negative(grid).apply(x.view()).unwrap();
-            let got = LinearOperator::<f64>::apply(&a, x.view()).unwrap();
-            for (p, q) in got.iter().zip(&want) {
-                assert!(
-                    (p - q).abs() <= 1e-12 * q.abs().max(1.0),
-                    "{b:?}: {p} vs {q}"
-                );
-            }
-        }
     }
 }

@@ -3,7 +3,7 @@
 use diffphys_tape::Real;
 use ndarray::{ArrayD, ArrayViewD, ArrayViewMutD, IxDyn};
 
-use crate::{OpsError, Result};
+use crate::{CellMask, OpsError, Result};
 
 /// `x` in `f64`, for reductions. (`Real::as_f64` is not `#[inline]` across
 /// crates, which keeps reduction loops from vectorising; num-traits'
@@ -93,4 +93,27 @@ pub trait LinearOperator<T: Real> {
         self.apply_transpose_into(y, out.view_mut());
         Ok(out)
     }
+}
+
+/// The null space of a singular symmetric positive semidefinite operator, which
+/// solvers project out ([`crate::cg`]: of the right-hand side, the
+/// preconditioned residuals and the solution). A property of the operator,
+/// so it lives beside [`LinearOperator`] (re-exported as `cg::NullSpace`).
+///
+/// For an operator with `A k = 0` (all-Neumann or periodic Laplacians: `k` the
+/// constants), `A x = b` is solvable only for `b ⟂ k`; CG solves
+/// `A x = Π b` with `Π = I − k kᵀ / (kᵀ k)` and returns the solution with
+/// `kᵀ x = 0` (for constants, zero mean).
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+#[non_exhaustive]
+pub enum NullSpace {
+    /// `A` is positive definite.
+    #[default]
+    None,
+    /// The constants: the mean is removed.
+    Constant,
+    /// The constants on the active cells of a mask (zero on the others, where
+    /// the operator is typically the identity): the mean over the active cells
+    /// is removed from them.
+    ConstantOn(CellMask),
 }

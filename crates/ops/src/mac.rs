@@ -40,8 +40,7 @@
 use diffphys_tape::Real;
 use ndarray::{ArrayD, ArrayViewD, ArrayViewMutD, IxDyn};
 
-use crate::cg::NullSpace;
-use crate::linear::wide;
+use crate::linear::{wide, NullSpace};
 use crate::stencil::Laplacian2;
 use crate::{Boundary, CellMask, Grid2, LinearOperator, OpsError, Result};
 

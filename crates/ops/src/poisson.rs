@@ -23,7 +23,7 @@
 //! ```
 //! use std::sync::Arc;
 //! use diffphys_ops::cg::CgParams;
-//! use diffphys_ops::poisson::{poisson_solve_tape, PoissonSolve};
+//! use diffphys_ops::poisson::PoissonSolve;
 //! use diffphys_ops::{stencil::Laplacian2, Boundary, Grid2};
 //! use diffphys_tape::Tape;
 //!
@@ -32,7 +32,8 @@
 //! let log = solve.log();
 //! let tape = Tape::<f64>::new();
 //! let b = tape.var(diffphys_tape::test_array(&[16, 16], 3));
-//! let p = poisson_solve_tape(solve, b)?;
+//! let p = tape.apply(solve.clone(), &[b])?; // a handle: records into the same log
+//! assert_eq!(log.forward_solves(), 1);
 //! let loss = p.mul(p)?.sum()?; // L = Σ p², grad_b = A⁻¹ (2p)
 //! let grads = tape.backward(loss, &[b])?;
 //! assert_eq!(grads.get(b).unwrap().shape(), &[16, 16]);
@@ -51,10 +52,10 @@ use std::cell::RefCell;
 use std::rc::Rc;
 use std::sync::Arc;
 
-use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError, Var};
+use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
 use ndarray::IxDyn;
 
-use crate::cg::{conjugate_gradient, CgError, CgInfo, CgParams, Preconditioner};
+use crate::cg::{conjugate_gradient, CgError, CgInfo, CgParams, Preconditioning};
 use crate::multigrid::Multigrid;
 use crate::{LinearOperator, OpsError, Result};
 
@@ -292,8 +293,21 @@ fn store<T: Real>(slot: &mut Option<ArrayD<T>>, x: &ArrayD<T>) {
 /// `p`. Its [`Op::saved_bytes`] is 0; the warm-start solutions live in the log,
 /// shared by all steps ([`SolveLog::warm_start_bytes`]).
 ///
+/// Recorded with `tape.apply(solve, &[b])`; the tape keeps the op, so a time
+/// loop records a clone per step.
+///
+/// # What a clone shares
+/// A `PoissonSolve` is a cheap handle. [`Clone`] shares everything with the
+/// original: the operator (an `Arc`), the parameters (copied, but equal), and
+/// the [`SolveLog`], which holds the counts and the warm-start solutions. So
+/// the clones recorded on successive steps of one loop warm-start from each
+/// other, and one [`PoissonSolve::log`] handle reads them all. For a solve
+/// that must not see another's warm start or counts (two independent fields,
+/// a validation run beside training), take [`PoissonSolve::clone_with_new_log`]:
+/// the same operator and parameters, its own empty log.
+///
 /// Errors of a solve surface as [`TapeError::Op`] named `poisson_solve`, with the
-/// [`CgError`] as source.
+/// [`CgError`] as its cause.
 #[derive(Debug)]
 pub struct PoissonSolve<T, A> {
     op: Arc<A>,
@@ -303,6 +317,8 @@ pub struct PoissonSolve<T, A> {
     log: SolveLog<T>,
 }
 
+/// Another handle on the same solve, sharing its log and warm starts (see
+/// [`PoissonSolve`]).
 impl<T, A> Clone for PoissonSolve<T, A> {
     fn clone(&self) -> Self {
         PoissonSolve {
@@ -350,7 +366,7 @@ impl<T: Real, A: LinearOperator<T>> PoissonSolve<T, A> {
         if expected != found {
             return Err(OpsError::shape("poisson_solve multigrid", expected, found));
         }
-        let pre = Preconditioner::Multigrid(mg);
+        let pre = Preconditioning::from(mg);
         self.forward.preconditioner = pre.clone();
         self.adjoint.preconditioner = pre;
         Ok(self)
@@ -368,7 +384,14 @@ impl<T: Real, A: LinearOperator<T>> PoissonSolve<T, A> {
         self
     }
 
-    /// A handle on the log.
+    /// The same operator, parameters and warm-start policy with a log of its
+    /// own: unlike a [`Clone`], it neither reads nor writes the original's
+    /// warm-start solutions and counts.
+    pub fn clone_with_new_log(&self) -> Self {
+        self.clone().with_log(SolveLog::new())
+    }
+
+    /// A handle on the log (shared by every clone of this solve).
     pub fn log(&self) -> SolveLog<T> {
         self.log.clone()
     }
@@ -453,17 +476,4 @@ impl<T: Real, A: LinearOperator<T>> Op<T> for PoissonSolve<T, A> {
     fn saved_bytes(&self) -> usize {
         0
     }
-}
-
-/// Records `p = A⁻¹ b` on `b`'s tape (see [`PoissonSolve`]).
-///
-/// # Errors
-/// A failed solve as [`crate::OpsError::Tape`] holding [`TapeError::Op`] named
-/// `poisson_solve` with the [`CgError`] as source; a shape mismatch; the tape's
-/// own errors.
-pub fn poisson_solve_tape<'t, T: Real, A: LinearOperator<T> + 'static>(
-    solve: PoissonSolve<T, A>,
-    b: Var<'t, T>,
-) -> Result<Var<'t, T>> {
-    Ok(b.apply1(solve, &[])?)
 }

@@ -52,10 +52,10 @@
 
 use std::sync::Arc;
 
-use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError, Var};
+use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
 use ndarray::{IxDyn, Zip};
 
-use crate::cg::{conjugate_gradient, CgInfo, CgParams, Preconditioner};
+use crate::cg::{conjugate_gradient, CgInfo, CgParams, Preconditioning};
 use crate::mac::{MacGrid, PressureOperator};
 use crate::multigrid::Multigrid;
 use crate::poisson::{SolveLog, WarmStart};
@@ -127,7 +127,7 @@ impl PressureProjection {
     /// # Errors
     /// As [`Multigrid::for_mac`] (`sweeps` of 0).
     pub fn with_multigrid(mut self, sweeps: usize) -> Result<Self> {
-        let mg = Preconditioner::Multigrid(Arc::new(Multigrid::for_mac(&self.mac, sweeps)?));
+        let mg = Preconditioning::from(Arc::new(Multigrid::for_mac(&self.mac, sweeps)?));
         self.forward.preconditioner = mg.clone();
         self.adjoint.preconditioner = mg;
         Ok(self)
@@ -261,7 +261,12 @@ impl PressureProjection {
 /// [`SolveLog`] (the infos of the solves, the previous pressure and adjoint
 /// solution). Keeps nothing of the forward solve: [`Op::saved_bytes`] is 0.
 /// Solver failures surface as [`TapeError::Op`] named `pressure_projection`
-/// with the [`CgError`](crate::cg::CgError) as source.
+/// with the [`CgError`](crate::cg::CgError) as its cause.
+///
+/// Recorded with `let out = tape.apply_multi(op, &[ux, uy])?` (`out` is
+/// `[u'_x, u'_y, p]`). As with [`crate::poisson::PoissonSolve`], a clone is
+/// another handle sharing the log and its warm starts;
+/// [`ProjectionOp::clone_with_new_log`] gives one with its own.
 #[derive(Debug)]
 pub struct ProjectionOp<T> {
     projection: Arc<PressureProjection>,
@@ -316,7 +321,14 @@ impl<T: Real> ProjectionOp<T> {
         self
     }
 
-    /// A handle on the log.
+    /// The same projection and warm-start policy with a log of its own: unlike
+    /// a clone, it neither reads nor writes the original's warm-start solutions
+    /// and counts.
+    pub fn clone_with_new_log(&self) -> Self {
+        self.clone().with_log(SolveLog::new())
+    }
+
+    /// A handle on the log (shared by every clone of this op).
     pub fn log(&self) -> SolveLog<T> {
         self.log.clone()
     }
@@ -380,25 +392,6 @@ impl<T: Real> Op<T> for ProjectionOp<T> {
     fn saved_bytes(&self) -> usize {
         0
     }
-}
-
-/// Records the projection of `(u_x, u_y)` on their tape; returns
-/// `[u'_x, u'_y, p]`.
-///
-/// # Errors
-/// A failed solve as [`OpsError::Tape`] holding [`TapeError::Op`] named
-/// `pressure_projection` with the [`CgError`](crate::cg::CgError) as source; shape mismatches; the
-/// tape's own errors.
-pub fn project_tape<'t, T: Real>(
-    op: ProjectionOp<T>,
-    ux: Var<'t, T>,
-    uy: Var<'t, T>,
-) -> Result<[Var<'t, T>; 3]> {
-    let out = ux.tape().apply(op, &[ux, uy])?;
-    let [vx, vy, p]: [Var<'t, T>; 3] = out
-        .try_into()
-        .map_err(|_| OpsError::invalid(NAME, "expected three outputs"))?;
-    Ok([vx, vy, p])
 }
 
 /// Checks, for tests and reports, the largest `|D u|` over the cells.

@@ -2,13 +2,13 @@
 //!
 //! ```
 //! use std::sync::Arc;
-//! use diffphys_ops::{stencil::Laplacian1, tape_ops::apply_linear, Boundary, Grid1};
+//! use diffphys_ops::{stencil::Laplacian1, tape_ops::LinearOp, Boundary, Grid1};
 //! use diffphys_tape::{arr_dyn, Tape};
 //!
 //! let lap = Arc::new(Laplacian1::new(Grid1::new(4, 1.0, 0.0, Boundary::Periodic)?));
 //! let tape = Tape::<f64>::new();
 //! let x = tape.var(arr_dyn(&[0.0, 1.0, 0.0, 0.0]));
-//! let y = apply_linear(Arc::clone(&lap), x)?; // ∇²x = [1, −2, 1, 0]
+//! let y = tape.apply(LinearOp::new(Arc::clone(&lap)), &[x])?; // ∇²x = [1, −2, 1, 0]
 //! let loss = y.sum()?;
 //! let grads = tape.backward(loss, &[x])?;
 //! // grad_x = Aᵀ·1 = 0: the periodic Laplacian sums to zero over each column.
@@ -18,10 +18,10 @@
 
 use std::sync::Arc;
 
-use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError, Var};
+use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
 use ndarray::ArrayViewMutD;
 
-use crate::{LinearOperator, OpsError, Result};
+use crate::{LinearOperator, OpsError};
 
 /// A tape op that applies a linear operator `A`: forward `y = A x`, backward
 /// `grad_x = Aᵀ grad_y` (computed only when `x` needs a gradient).
@@ -43,6 +43,13 @@ impl<A> LinearOp<A> {
     /// The operator.
     pub fn operator(&self) -> &A {
         &self.op
+    }
+}
+
+impl<A> LinearOp<Transpose<A>> {
+    /// The op of the transpose: forward `y = Aᵀ x`, backward `grad_x = A grad_y`.
+    pub fn transposed(op: A) -> Self {
+        LinearOp::new(Transpose(op))
     }
 }
 
@@ -85,31 +92,6 @@ impl<T: Real, A: LinearOperator<T>> Op<T> for LinearOp<A> {
         self.op.apply_transpose_into(g.view(), out.view_mut());
         Ok(vec![Some(out)])
     }
-}
-
-/// Records `A x` on `x`'s tape; its gradient is `Aᵀ grad`.
-///
-/// # Errors
-/// [`crate::OpsError::ShapeMismatch`] if `x` is not of `A`'s input shape (as
-/// [`crate::OpsError::Tape`]), and the tape's own errors.
-pub fn apply_linear<'t, T, A>(op: A, x: Var<'t, T>) -> Result<Var<'t, T>>
-where
-    T: Real,
-    A: LinearOperator<T> + 'static,
-{
-    Ok(x.apply1(LinearOp::new(op), &[])?)
-}
-
-/// Records `Aᵀ y` on `y`'s tape; its gradient is `A grad`.
-///
-/// # Errors
-/// As [`apply_linear`], with `A`'s output shape.
-pub fn apply_linear_transpose<'t, T, A>(op: A, y: Var<'t, T>) -> Result<Var<'t, T>>
-where
-    T: Real,
-    A: LinearOperator<T> + 'static,
-{
-    apply_linear(Transpose(op), y)
 }
 
 /// The transpose `Aᵀ` of a linear operator, itself a linear operator.
@@ -183,68 +165,3 @@ macro_rules! forward_linear_operator {
 
 forward_linear_operator!(Arc);
 forward_linear_operator!(Box);
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::stencil::{Divergence2, Gradient1, Gradient2, Laplacian2};
-    use crate::{Boundary, Grid1, Grid2, OpsError};
-    use diffphys_tape::{check_gradient, test_array, GradCheckOptions, Tape};
-
-    #[test]
-    fn gradient_through_linear_ops_matches_finite_differences() {
-        let grid = Grid2::new(5, 4, 0.3, 0.2, Boundary::Closed)
-            .unwrap()
-            .with_boundaries(Boundary::ZeroDirichlet, Boundary::Periodic);
-        let lap = Arc::new(Laplacian2::new(grid));
-        let grad = Arc::new(Gradient2::new(grid));
-        let div = Divergence2::new(grid);
-        let x = test_array::<f64>(&[5, 4], 11);
-        // f(x) = Σ x ⊙ ∇²x + Σ (D G x)², nonlinear so every entry is checked;
-        // ∂f/∂x = (A + Aᵀ) x + 2 Gᵀ Dᵀ (D G x).
-        let report = check_gradient(
-            |_, v| {
-                let ax = apply_linear(Arc::clone(&lap), v[0])?;
-                let dgx = apply_linear(div.clone(), apply_linear(Arc::clone(&grad), v[0])?)?;
-                v[0].mul(ax)?.sum()?.add(dgx.mul(dgx)?.sum()?)
-            },
-            &[x],
-            GradCheckOptions::for_type::<f64>(),
-        )
-        .unwrap();
-        assert!(report.passed, "{report:?}");
-    }
-
-    #[test]
-    fn transpose_op_gradient_and_boxed_operators() {
-        let g = Grid1::new(6, 0.5, 0.0, Boundary::ZeroDirichlet).unwrap();
-        let boxed: Box<dyn LinearOperator<f64> + Send + Sync> = Box::new(Gradient1::new(g));
-        let shared = Arc::new(boxed);
-        let y = test_array::<f64>(&[6], 3);
-        let report = check_gradient(
-            |_, v| {
-                let gty = apply_linear_transpose(Arc::clone(&shared), v[0])?;
-                gty.mul(gty)?.sum()
-            },
-            &[y],
-            GradCheckOptions::for_type::<f64>(),
-        )
-        .unwrap();
-        assert!(report.passed, "{report:?}");
-    }
-
-    #[test]
-    fn constant_input_records_nothing_and_wrong_shape_is_an_error() {
-        let grid = Grid2::new(3, 3, 1.0, 1.0, Boundary::Periodic).unwrap();
-        let tape = Tape::<f64>::new();
-        let c = tape.constant(ArrayD::zeros(vec![3, 3]));
-        apply_linear(Laplacian2::new(grid), c).unwrap();
-        assert_eq!(tape.stats().nodes, 0);
-        let bad = tape.var(ArrayD::zeros(vec![3, 4]));
-        let err = apply_linear(Laplacian2::new(grid), bad).unwrap_err();
-        assert!(
-            matches!(err, OpsError::Tape(TapeError::Op { .. })),
-            "{err:?}"
-        );
-    }
-}

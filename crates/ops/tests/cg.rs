@@ -5,14 +5,17 @@ mod common;
 
 use common::*;
 use diffphys_ops::cg::{
-    cg_solve, conjugate_gradient, CgError, CgParams, NullSpace, Preconditioner,
+    cg_solve, conjugate_gradient, CgError, CgParams, Identity, Jacobi, NullSpace, Preconditioner,
+    Preconditioning, Structure,
 };
 use diffphys_ops::dense::DenseOperator;
 use diffphys_ops::mac::{MacGrid, MacPoisson};
 use diffphys_ops::reference::SparseCholesky;
 use diffphys_ops::stencil::Laplacian2;
 use diffphys_ops::{Boundary, Grid2, LinearOperator};
+use diffphys_tape::{parallel, test_array};
 use ndarray::{arr1, arr2, Array2, ArrayD, ArrayViewD, ArrayViewMutD, IxDyn};
+use std::sync::Arc;
 
 /// `‖x − x*‖ / ‖x*‖` in f64.
 fn rel_err<T: Real>(x: &ArrayD<T>, x_star: &ArrayD<f64>) -> f64 {
@@ -56,7 +59,7 @@ fn manufactured_dense_spd<T: Real>() {
     let a = DenseOperator::<T>::with_spectrum(&spectrum, 7);
     let x_star = random_field::<f64>(&[n], 11);
     let b = a64.apply(x_star.view()).unwrap();
-    for pre in [Preconditioner::None, Preconditioner::Jacobi] {
+    for pre in [Preconditioning::None, Preconditioning::Jacobi] {
         let params = CgParams::default()
             .with_rel_tol(rel_tol::<T>())
             .with_preconditioner(pre.clone());
@@ -84,7 +87,7 @@ fn manufactured_laplacian<T: Real>() {
     let x_ref = exact.solve(b.view()).unwrap();
     // faer's Cholesky reproduces x* to rounding: the reference is exact.
     assert!(rel_err(&x_ref, &x_star) < 1e-12);
-    for pre in [Preconditioner::None, Preconditioner::Jacobi] {
+    for pre in [Preconditioning::None, Preconditioning::Jacobi] {
         let params = CgParams::default()
             .with_rel_tol(rel_tol::<T>())
             .with_preconditioner(pre.clone())
@@ -171,7 +174,7 @@ fn jacobi_pays_off_on_a_badly_scaled_matrix() {
             .with_max_iters(100_000);
         cg_solve(&scaled, b.view(), &params).unwrap().1.iterations
     };
-    let (plain, jacobi) = (run(Preconditioner::None), run(Preconditioner::Jacobi));
+    let (plain, jacobi) = (run(Preconditioning::None), run(Preconditioning::Jacobi));
     assert!(
         3 * jacobi < plain,
         "Jacobi {jacobi} iterations vs {plain} without"
@@ -188,7 +191,7 @@ fn singular_neumann_system_with_the_mean_removed() {
     // b = A x* + 3: the constant is in the kernel's direction, not in the range;
     // the solver removes it and returns the zero-mean solution x*.
     let b = LinearOperator::<f64>::apply(&a, x_star.view()).unwrap() + 3.0;
-    for pre in [Preconditioner::None, Preconditioner::Jacobi] {
+    for pre in [Preconditioning::None, Preconditioning::Jacobi] {
         let params = CgParams::default()
             .with_rel_tol(1e-11)
             .with_null_space(NullSpace::Constant)
@@ -308,7 +311,7 @@ fn every_error_is_provoked() {
     }
     // … and a negative diagonal, caught before iterating by Jacobi.
     let neg = DenseOperator::new(arr2(&[[-1.0, 0.0], [0.0, 1.0]]));
-    let jacobi = CgParams::default().with_preconditioner(Preconditioner::Jacobi);
+    let jacobi = CgParams::default().with_preconditioner(Preconditioning::Jacobi);
     assert_eq!(
         cg_solve(&neg, b.view(), &jacobi).unwrap_err(),
         CgError::NotPositiveDefinite {
@@ -622,4 +625,187 @@ fn f32_iteration_counts_match_the_f64_summed_curvature() {
     }
     check("stencil", &Laplacian2::negative(grid), &b, &params);
     check("faces", &MacPoisson::new(MacGrid::new(grid)), &b, &params);
+}
+
+#[test]
+fn f32_fixed_iterations_far_past_convergence_stop_at_the_rounding_floor() {
+    // Without the stagnation stop the recurrence shrank until the curvature
+    // <p, A p> underflowed (a non-finite error at iteration 1026 here).
+    let grid = Grid2::square(32, 32, 1.0 / 32.0, Boundary::ZeroDirichlet).unwrap();
+    let a = Laplacian2::negative(grid);
+    let b = diffphys_tape::test_array::<f32>(&[32, 32], 11);
+    let params = CgParams::default().fixed_iterations(3000);
+    let (x, info) = cg_solve(&a, b.view(), &params).unwrap();
+    assert!(info.iterations < 3000, "{}", info.iterations);
+    assert!(info.relative_residual < 1e-4, "{}", info.relative_residual);
+    assert!(x.iter().all(|v| v.is_finite()));
+    // f64 on the same system runs far longer before its floor stops it.
+    let b64 = b.mapv(f64::from);
+    let (_, info64) = cg_solve(&a, b64.view(), &params).unwrap();
+    assert!(info64.iterations > info.iterations);
+}
+
+#[test]
+fn errors_display_their_context() {
+    let e = CgError::NotPositiveDefinite {
+        iteration: 3,
+        curvature: -2.0,
+    };
+    assert!(e.to_string().contains("at iteration 3"));
+    assert!(e.to_string().contains("null_space"));
+    let e = CgError::ShapeMismatch {
+        what: "right-hand side b".into(),
+        expected: vec![2, 3],
+        found: vec![3, 2],
+    };
+    assert!(e.to_string().contains("[3, 2]"));
+}
+
+/// Above the parallel threshold (150 × 130 cells, rows not a multiple of the
+/// chunk, threshold lowered), a solve on one thread and on three gives bitwise the same
+/// iterate, residual and iteration count, for the plain, the Jacobi and the
+/// projected (closed walls) iteration; so does the stencil's fused dot.
+#[test]
+fn solves_are_bitwise_the_same_on_any_number_of_threads() {
+    // Low enough for this grid to take the parallel path (results do not
+    // depend on it; the tape's tests set the same value).
+    parallel::set_min_parallel_len(2 * parallel::CHUNK);
+    let (nx, ny) = (150, 130);
+    let dirichlet = Grid2::new(nx, ny, 0.01, 0.02, Boundary::ZeroDirichlet).unwrap();
+    let closed = Grid2::new(nx, ny, 0.01, 0.02, Boundary::Closed)
+        .unwrap()
+        .with_boundaries(Boundary::Closed, Boundary::Periodic);
+    let b = test_array::<f64>(&[nx, ny], 5);
+    let cases = [
+        (Laplacian2::negative(dirichlet), CgParams::default()),
+        (
+            Laplacian2::negative(dirichlet),
+            CgParams::default().with_preconditioner(Preconditioning::Jacobi),
+        ),
+        (
+            Laplacian2::negative(closed),
+            CgParams::default().with_null_space(NullSpace::Constant),
+        ),
+    ];
+    for (a, params) in &cases {
+        let params = params.clone().fixed_iterations(40);
+        let run = || {
+            let (x, info) = cg_solve(a, b.view(), &params).unwrap();
+            let mut ax = ArrayD::zeros(b.raw_dim());
+            let dot = a.apply_into_dot(x.view(), ax.view_mut());
+            (x, info.iterations, info.relative_residual, dot, ax)
+        };
+        let one = parallel::with_threads(1, run);
+        let three = parallel::with_threads(3, run);
+        assert_eq!(one.1, three.1);
+        assert_eq!(one.2.to_bits(), three.2.to_bits());
+        assert_eq!(one.3.to_bits(), three.3.to_bits());
+        let bits = |v: &ArrayD<f64>| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&one.0), bits(&three.0));
+        assert_eq!(bits(&one.4), bits(&three.4));
+        // The fused dot is <x, A x> to rounding.
+        let plain: f64 = one.0.iter().zip(&one.4).map(|(x, y)| x * y).sum();
+        assert!((one.3 - plain).abs() <= 1e-12 * plain.abs());
+    }
+}
+
+/// Jacobi written by a user against [`Preconditioner`], in both precisions:
+/// `1/diag` of the operator it was built for, declared diagonal (CG fuses
+/// it) or not (CG calls `apply`).
+#[derive(Debug)]
+struct UserJacobi {
+    inv32: Vec<f32>,
+    inv64: Vec<f64>,
+    declared: bool,
+}
+
+impl UserJacobi {
+    fn new(diag: &ArrayD<f64>, declared: bool) -> Self {
+        UserJacobi {
+            inv32: diag.iter().map(|&d| 1.0 / d as f32).collect(),
+            inv64: diag.iter().map(|&d| 1.0 / d).collect(),
+            declared,
+        }
+    }
+}
+
+macro_rules! user_jacobi {
+    ($t:ty, $inv:ident) => {
+        impl Preconditioner<$t> for UserJacobi {
+            fn name(&self) -> &str {
+                "user_jacobi"
+            }
+            fn apply(&self, r: &[$t], z: &mut [$t]) {
+                for ((z, &r), &d) in z.iter_mut().zip(r).zip(&self.$inv) {
+                    *z = r * d;
+                }
+            }
+            fn structure(&self) -> Structure<'_, $t> {
+                if self.declared {
+                    Structure::Diagonal(&self.$inv)
+                } else {
+                    Structure::General
+                }
+            }
+        }
+    };
+}
+user_jacobi!(f32, inv32);
+user_jacobi!(f64, inv64);
+
+/// Any preconditioner reaches CG through the one trait: a user's Jacobi
+/// declared diagonal is the built-in Jacobi bit for bit (the same fused
+/// pass), applied as a general preconditioner it takes the same iterations
+/// to the same solution (to the rounding of separately summed dot
+/// products), and the identity shared as a preconditioner is no
+/// preconditioner, bit for bit.
+fn user_preconditioners_go_through_the_trait<T: Real>() {
+    let grid = Grid2::new(40, 30, 1.0 / 40.0, 1.0 / 30.0, Boundary::ZeroDirichlet).unwrap();
+    let mask = diffphys_ops::CellMask::from_fn2(&grid, |c| {
+        let (x, y) = (c[0] - 0.5, c[1] - 0.5);
+        x * x + y * y > 0.04
+    });
+    let a = MacPoisson::new(MacGrid::with_mask(grid, mask).unwrap());
+    let diag = LinearOperator::<f64>::diagonal(&a).unwrap();
+    let b = random_field::<T>(&[40, 30], 4);
+    let run = |pre: Preconditioning| {
+        let params = CgParams::default()
+            .with_rel_tol(rel_tol::<T>())
+            .with_null_space(a.mac().null_space())
+            .with_preconditioner(pre);
+        cg_solve(&a, b.view(), &params).unwrap()
+    };
+    let bits = |x: &ArrayD<T>| x.iter().map(|v| v.as_f64().to_bits()).collect::<Vec<_>>();
+    let (x_jacobi, info_jacobi) = run(Preconditioning::Jacobi);
+    let (x_declared, info_declared) = run(Arc::new(UserJacobi::new(&diag, true)).into());
+    assert_eq!(bits(&x_declared), bits(&x_jacobi));
+    assert_eq!(info_declared, info_jacobi);
+    let (x_general, info_general) = run(Arc::new(UserJacobi::new(&diag, false)).into());
+    assert_eq!(info_general.iterations, info_jacobi.iterations);
+    let x_ref = x_jacobi.mapv(|v| v.as_f64());
+    assert!(rel_err(&x_general, &x_ref) < tol::<T>().close);
+    let (x_none, info_none) = run(Preconditioning::None);
+    let (x_identity, info_identity) = run(Arc::new(Identity).into());
+    assert_eq!(bits(&x_identity), bits(&x_none));
+    assert_eq!(info_identity, info_none);
+    assert!(info_jacobi.iterations < info_none.iterations);
+}
+both_precisions!(user_preconditioners_go_through_the_trait);
+
+#[test]
+fn jacobi_is_typed_and_checks_its_operator() {
+    let grid = Grid2::new(6, 5, 0.5, 0.25, Boundary::ZeroDirichlet).unwrap();
+    let a = Laplacian2::negative(grid);
+    let m = Jacobi::<f32>::new(&a).unwrap();
+    assert_eq!(Preconditioner::<f32>::shape(&m), Some(&[6, 5][..]));
+    // diag(−∇²) = 2/dx² + 2/dy² at an interior cell.
+    let r = vec![1.0f32; 30];
+    let mut z = vec![0.0f32; 30];
+    m.apply(&r, &mut z);
+    assert_eq!(z[6], 1.0 / (2.0 / 0.25 + 2.0 / 0.0625));
+    assert_eq!(Preconditioner::<f32>::name(&m), "jacobi");
+    assert!(matches!(
+        Jacobi::<f64>::new(&DenseOperator::new(arr2(&[[1.0, 0.0], [0.0, -1.0]]))),
+        Err(CgError::NotPositiveDefinite { .. })
+    ));
 }

@@ -7,10 +7,9 @@ mod common;
 
 use common::*;
 use diffphys_ops::cg::{CgParams, NullSpace};
-use diffphys_ops::conductivity::{
-    conductivity_solve, conductivity_solve_tape, Conductivity2, ConductivitySolve,
-};
+use diffphys_ops::conductivity::{conductivity_solve, Conductivity2, ConductivitySolve};
 use diffphys_ops::reference::SparseCholesky;
+use diffphys_ops::stencil::Laplacian2;
 use diffphys_ops::{Boundary, Grid2, LinearOperator, OpsError};
 use ndarray::{Array2, ArrayD, Ix2};
 
@@ -97,10 +96,9 @@ fn gradients_in_b_and_k_match_finite_differences() {
         assert_gradient(
             |tape, v| {
                 let solve = ConductivitySolve::new(grid, params.clone());
-                let p = conductivity_solve_tape(solve, v[0], v[1])?;
+                let p = tape.apply(solve, &[v[0], v[1]])?;
                 // A second solve with the same k feeds p back in: k enters twice.
-                let q =
-                    conductivity_solve_tape(ConductivitySolve::new(grid, params.clone()), p, v[1])?;
+                let q = tape.apply(ConductivitySolve::new(grid, params.clone()), &[p, v[1]])?;
                 let d = q.sub(tape.constant(t.clone()))?;
                 d.mul(d)?.sum()?.mul_scalar(0.5)
             },
@@ -150,7 +148,7 @@ fn gradients_match_the_exact_gradient() {
         let (bv, kv) = (tape.var(b.clone()), tape.var(k.clone().into_dyn()));
         let solve = ConductivitySolve::new(grid, params);
         let log = solve.log();
-        let pv = conductivity_solve_tape(solve, bv, kv).unwrap();
+        let pv = tape.apply(solve, &[bv, kv]).unwrap();
         let d = pv.sub(tape.constant(t.clone())).unwrap();
         let l = d.mul(d).unwrap().sum().unwrap().mul_scalar(0.5).unwrap();
         let grads = tape.backward(l, &[bv, kv]).unwrap();
@@ -209,11 +207,30 @@ fn bad_conductivities_and_boundaries_are_typed_errors() {
     let tape = Tape::<f64>::new();
     let b = tape.var(ArrayD::ones(vec![4, 3]));
     let kv = tape.var(ArrayD::from_elem(vec![4, 3], -1.0));
-    let e = conductivity_solve_tape(ConductivitySolve::new(grid, CgParams::default()), b, kv)
+    let e = tape
+        .apply(ConductivitySolve::new(grid, CgParams::default()), &[b, kv])
         .unwrap_err();
     let text = e.to_string();
     assert!(
         text.contains("conductivity") && text.contains("positive"),
         "{text}"
     );
+}
+
+#[test]
+fn unit_conductivity_is_the_negative_laplacian() {
+    for b in [Boundary::ZeroDirichlet, Boundary::Closed] {
+        let grid = Grid2::new(5, 4, 0.3, 0.2, b).unwrap();
+        let ones = ndarray::Array2::<f64>::ones((5, 4));
+        let a = Conductivity2::new(grid, ones.view()).unwrap();
+        let x = diffphys_tape::test_array::<f64>(&[5, 4], 3);
+        let want = Laplacian2::negative(grid).apply(x.view()).unwrap();
+        let got = LinearOperator::<f64>::apply(&a, x.view()).unwrap();
+        for (p, q) in got.iter().zip(&want) {
+            assert!(
+                (p - q).abs() <= 1e-12 * q.abs().max(1.0),
+                "{b:?}: {p} vs {q}"
+            );
+        }
+    }
 }

@@ -7,14 +7,12 @@ mod common;
 use std::sync::Arc;
 
 use common::*;
-use diffphys_ops::cg::{CgError, CgParams, NullSpace, Preconditioner};
+use diffphys_ops::cg::{CgError, CgParams, NullSpace};
 use diffphys_ops::multigrid::Multigrid;
-use diffphys_ops::poisson::{
-    poisson_solve, poisson_solve_tape, poisson_solve_vjp, PoissonSolve, SolveLog, WarmStart,
-};
+use diffphys_ops::poisson::{poisson_solve, poisson_solve_vjp, PoissonSolve, SolveLog, WarmStart};
 use diffphys_ops::reference::SparseCholesky;
 use diffphys_ops::stencil::Laplacian2;
-use diffphys_ops::{Boundary, Grid2, OpsError};
+use diffphys_ops::{Boundary, Grid2};
 use diffphys_tape::Op;
 use ndarray::ArrayD;
 
@@ -53,8 +51,8 @@ fn gradient_matches_finite_differences() {
         // L = Σ w ⊙ p² (w the checker's weight): nonlinear in p, so every entry
         // of grad_b = A⁻¹ (2 w ⊙ p) is exercised.
         assert_gradient(
-            |_, v| {
-                let p = poisson_solve_tape(solve.clone(), v[0]).map_err(TapeError::from)?;
+            |t, v| {
+                let p = t.apply(solve.clone(), &[v[0]])?;
                 p.mul(p)
             },
             &[b],
@@ -77,7 +75,7 @@ fn gradient_matches_the_exact_gradient() {
         let log = solve.log();
         let tape = Tape::<f64>::new();
         let bv = tape.var(b.clone());
-        let p = poisson_solve_tape(solve, bv).unwrap();
+        let p = tape.apply(solve, &[bv]).unwrap();
         let d = p.sub(tape.constant(target.clone())).unwrap();
         let loss = d.mul(d).unwrap().sum().unwrap().mul_scalar(0.5).unwrap();
         let grads = tape.backward(loss, &[bv]).unwrap();
@@ -111,12 +109,12 @@ fn multigrid_preconditioned_gradient_matches_the_exact_gradient() {
         let params = CgParams::default()
             .with_rel_tol(1e-10)
             .with_null_space(ns)
-            .with_preconditioner(Preconditioner::Multigrid(mg));
+            .with_preconditioner(mg);
         let solve = PoissonSolve::new(Arc::new(a), params);
         let log = solve.log();
         let tape = Tape::<f64>::new();
         let bv = tape.var(b.clone());
-        let p = poisson_solve_tape(solve, bv).unwrap();
+        let p = tape.apply(solve, &[bv]).unwrap();
         let d = p.sub(tape.constant(target.clone())).unwrap();
         let loss = d.mul(d).unwrap().sum().unwrap().mul_scalar(0.5).unwrap();
         let grads = tape.backward(loss, &[bv]).unwrap();
@@ -154,7 +152,7 @@ fn warm_started_gradient_matches_the_exact_gradient() {
             let g_exact = exact.solve((&p_exact - &target).view()).unwrap();
             let tape = Tape::<f64>::new();
             let bv = tape.var(b);
-            let p = poisson_solve_tape(solve.clone(), bv).unwrap();
+            let p = tape.apply(solve.clone(), &[bv]).unwrap();
             let d = p.sub(tape.constant(target.clone())).unwrap();
             let loss = d.mul(d).unwrap().sum().unwrap().mul_scalar(0.5).unwrap();
             let grads = tape.backward(loss, &[bv]).unwrap();
@@ -195,7 +193,7 @@ fn f32_gradient_on_64x64_is_within_1e_4_of_exact() {
         let log = solve.log();
         let tape = Tape::<f32>::new();
         let bv = tape.var(b.mapv(|v| v as f32));
-        let p = poisson_solve_tape(solve, bv).unwrap();
+        let p = tape.apply(solve, &[bv]).unwrap();
         let d = p.sub(tape.constant(target.mapv(|v| v as f32))).unwrap();
         let loss = d.mul(d).unwrap().sum().unwrap().mul_scalar(0.5).unwrap();
         let grads = tape.backward(loss, &[bv]).unwrap();
@@ -246,7 +244,7 @@ fn adjoint_has_its_own_tolerance_and_warm_start() {
     let step = |solve: PoissonSolve<f64, Laplacian2>| {
         let tape = Tape::<f64>::new();
         let bv = tape.var(b.clone());
-        let p = poisson_solve_tape(solve, bv).unwrap();
+        let p = tape.apply(solve, &[bv]).unwrap();
         let loss = p.sum().unwrap();
         tape.backward(loss, &[bv]).unwrap().get(bv).unwrap().clone()
     };
@@ -273,13 +271,13 @@ fn solver_failures_surface_as_tape_errors_naming_the_op() {
     );
     let tape = Tape::<f64>::new();
     let b = tape.var(random_field(&[32, 32], 6));
-    let err = poisson_solve_tape(solve.clone(), b).unwrap_err();
-    let OpsError::Tape(TapeError::Op { op, source, .. }) = &err else {
+    let err = tape.apply(solve.clone(), &[b]).unwrap_err();
+    let TapeError::Op { op, cause, .. } = &err else {
         panic!("expected a tape op error, got {err:?}");
     };
     assert_eq!(op, "poisson_solve");
     assert!(matches!(
-        source.downcast_ref::<CgError>(),
+        cause.downcast_ref::<CgError>(),
         Some(CgError::NoConvergence { iterations: 3, .. })
     ));
     assert!(err
@@ -289,19 +287,18 @@ fn solver_failures_surface_as_tape_errors_naming_the_op() {
     // NaN in b: a NonFinite CgError, not a NaN pressure.
     let mut bad = random_field::<f64>(&[32, 32], 6);
     bad[[3, 4]] = f64::NAN;
-    let err = poisson_solve_tape(solve.clone(), tape.var(bad)).unwrap_err();
-    let OpsError::Tape(TapeError::Op { source, .. }) = &err else {
+    let err = tape.apply(solve.clone(), &[tape.var(bad)]).unwrap_err();
+    let TapeError::Op { cause, .. } = &err else {
         panic!("{err:?}");
     };
     assert!(matches!(
-        source.downcast_ref::<CgError>(),
+        cause.downcast_ref::<CgError>(),
         Some(CgError::NonFinite { iteration: 0, .. })
     ));
 
     // A wrong shape.
-    let err = poisson_solve_tape(solve, tape.var(random_field(&[31, 32], 6))).unwrap_err();
-    assert!(
-        matches!(err, OpsError::Tape(TapeError::ShapeMismatch { .. })),
-        "{err:?}"
-    );
+    let err = tape
+        .apply(solve, &[tape.var(random_field(&[31, 32], 6))])
+        .unwrap_err();
+    assert!(matches!(err, TapeError::ShapeMismatch { .. }), "{err:?}");
 }

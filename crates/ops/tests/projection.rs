@@ -10,9 +10,7 @@ use common::*;
 use diffphys_ops::cg::{CgError, CgParams, NullSpace};
 use diffphys_ops::mac::{MacGrid, MacPoisson, PressureOperator};
 use diffphys_ops::poisson::WarmStart;
-use diffphys_ops::projection::{
-    max_abs_divergence, project_tape, PressureProjection, ProjectionOp,
-};
+use diffphys_ops::projection::{max_abs_divergence, PressureProjection, ProjectionOp};
 use diffphys_ops::reference::SparseCholesky;
 use diffphys_ops::stencil::Laplacian2;
 use diffphys_ops::CellMask;
@@ -348,7 +346,8 @@ fn projection_op_gradient_matches_finite_differences() {
         let report = check_gradient(
             |tape, v| {
                 let op = ProjectionOp::new(Arc::clone(&proj));
-                let [vx, vy, p] = project_tape(op, v[0], v[1]).map_err(TapeError::from)?;
+                let out = tape.apply_multi(op, &[v[0], v[1]])?;
+                let (vx, vy, p) = (out[0], out[1], out[2]);
                 let a = vx.mul(vx)?.mul(tape.constant(wx.clone()))?.sum()?;
                 let b = vy.mul(vy)?.mul(vy)?.sum()?;
                 let c = p.mul(tape.constant(wp.clone()))?.sum()?;
@@ -377,7 +376,8 @@ fn projection_op_warm_starts_records_and_errors() {
     let run = |op: ProjectionOp<f64>| {
         let tape = Tape::<f64>::new();
         let (vx, vy) = (tape.var(ux.clone()), tape.var(uy.clone()));
-        let [ox, _, p] = project_tape(op, vx, vy).unwrap();
+        let out = tape.apply_multi(op, &[vx, vy]).unwrap();
+        let (ox, p) = (out[0], out[2]);
         let loss = ox
             .mul(ox)
             .unwrap()
@@ -405,18 +405,18 @@ fn projection_op_warm_starts_records_and_errors() {
         CgParams::default().with_rel_tol(1e-12).with_max_iters(2),
     ));
     let tape = Tape::<f64>::new();
-    let err = project_tape(
-        ProjectionOp::new(strict),
-        tape.var(ux.clone()),
-        tape.var(uy.clone()),
-    )
-    .unwrap_err();
-    let OpsError::Tape(TapeError::Op { op, source, .. }) = &err else {
+    let err = tape
+        .apply_multi(
+            ProjectionOp::new(strict),
+            &[tape.var(ux.clone()), tape.var(uy.clone())],
+        )
+        .unwrap_err();
+    let TapeError::Op { op, cause, .. } = &err else {
         panic!("{err:?}");
     };
     assert_eq!(op, "pressure_projection");
     assert!(matches!(
-        source.downcast_ref::<CgError>(),
+        cause.downcast_ref::<CgError>(),
         Some(CgError::NoConvergence { .. })
     ));
     // Wrong shapes are shape errors.

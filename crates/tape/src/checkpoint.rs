@@ -305,7 +305,7 @@ impl<T: Real> Tape<T> {
             f,
             check_finite: self.checks_finite(),
         };
-        self.apply(op, inputs)
+        self.apply_multi(op, inputs)
     }
 }
 
@@ -369,7 +369,7 @@ fn segment<'t, T: Real>(
         check_finite: tape.checks_finite(),
     };
     let inputs: Vec<_> = state.iter().chain(params).copied().collect();
-    tape.apply(op, &inputs)
+    tape.apply_multi(op, &inputs)
 }
 
 /// `range` split into `branches` parts, each checkpointed; parts longer than

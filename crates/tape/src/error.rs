@@ -97,14 +97,19 @@ pub enum TapeError {
         tape: u64,
     },
     /// A plugin op failed for a reason of its own (a solver that did not converge, say).
-    #[error("{op} failed: {source}")]
+    ///
+    /// The message includes the cause's message (`poisson_solve failed: conjugate
+    /// gradient did not converge …`), so the cause is not also reported as
+    /// [`std::error::Error::source`]: an error chain prints it once. The cause
+    /// keeps its own type: downcast the `cause` field (or
+    /// [`TapeError::op_cause`]) to read its fields.
+    #[error("{op} failed: {cause}")]
     Op {
         /// The op.
         op: String,
         /// The op's own error.
-        #[source]
-        source: Box<dyn std::error::Error + Send + Sync + 'static>,
-        /// What kind of failure the source is, as its crate classified it
+        cause: Box<dyn std::error::Error + Send + Sync + 'static>,
+        /// What kind of failure the cause is, as its crate classified it
         /// ([`ErrorKind::Op`] when it did not).
         kind: ErrorKind,
     },
@@ -194,15 +199,24 @@ impl TapeError {
 
     /// Wraps a plugin's own error as [`TapeError::Op`]. A [`TapeError`] keeps
     /// its kind; any other error is [`ErrorKind::Op`] (see [`TapeError::op_of_kind`]).
-    pub fn op(op: &str, source: impl std::error::Error + Send + Sync + 'static) -> Self {
-        let source: Box<dyn std::error::Error + Send + Sync + 'static> = Box::new(source);
-        let kind = source
+    pub fn op(op: &str, cause: impl std::error::Error + Send + Sync + 'static) -> Self {
+        let cause: Box<dyn std::error::Error + Send + Sync + 'static> = Box::new(cause);
+        let kind = cause
             .downcast_ref::<TapeError>()
             .map_or(ErrorKind::Op, TapeError::kind);
         TapeError::Op {
             op: op.to_string(),
-            source,
+            cause,
             kind,
+        }
+    }
+
+    /// The plugin's own error of a [`TapeError::Op`] (downcast it to its type),
+    /// `None` for every other variant.
+    pub fn op_cause(&self) -> Option<&(dyn std::error::Error + Send + Sync + 'static)> {
+        match self {
+            TapeError::Op { cause, .. } => Some(cause.as_ref()),
+            _ => None,
         }
     }
 
@@ -210,12 +224,12 @@ impl TapeError {
     /// determined, so that callers can classify it without knowing its type.
     pub fn op_of_kind(
         op: &str,
-        source: impl std::error::Error + Send + Sync + 'static,
+        cause: impl std::error::Error + Send + Sync + 'static,
         kind: ErrorKind,
     ) -> Self {
         TapeError::Op {
             op: op.to_string(),
-            source: Box::new(source),
+            cause: Box::new(cause),
             kind,
         }
     }

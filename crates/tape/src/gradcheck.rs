@@ -280,7 +280,7 @@ mod tests {
             }
         }
         let bad = check_gradient(
-            |t, v| t.apply1(Wrong, &[v[0]])?.sum(),
+            |t, v| t.apply(Wrong, &[v[0]])?.sum(),
             &[x],
             GradCheckOptions::for_type::<f64>(),
         )

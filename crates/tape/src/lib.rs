@@ -6,6 +6,11 @@
 //! requested variables and the loss. Plugins with hand-written adjoints join the
 //! tape through the same [`Op`] trait as the primitives.
 //!
+//! There is one way to record an op: a value implementing [`Op`], passed to
+//! [`Tape::apply`] with its inputs (`tape.apply(op, &[x, y])?`, one output) or
+//! to [`Tape::apply_multi`] (several outputs). The primitives' methods on
+//! [`Var`] (`x.mul(y)?`, `x.sum()?`) are sugar over the same call.
+//!
 //! ```
 //! use diffphys_tape::{Tape, arr_dyn};
 //!
@@ -40,7 +45,7 @@ pub use gradcheck::{
 pub use ndarray::{ArrayD, ArrayViewD, IxDyn};
 pub use op::{BackwardArgs, Op};
 pub use optim::{Adam, GradientDescent, Optimizer};
-pub use real::Real;
+pub use real::{PerPrecision, Real};
 pub use tape::{Tape, TapeStats, Var};
 
 /// A 1-D dynamic-dimension array from a slice, the shape most examples start from.

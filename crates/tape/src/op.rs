@@ -87,7 +87,7 @@ impl<'a, T: Real> BackwardArgs<'a, T> {
 ///
 /// let tape = Tape::<f64>::new();
 /// let x = tape.var(ndarray::arr1(&[2.0]).into_dyn());
-/// let y = tape.apply1(Cube, &[x])?.sum()?;
+/// let y = tape.apply(Cube, &[x])?.sum()?;
 /// let grads = tape.backward(y, &[x])?;
 /// assert_eq!(grads.get(x).unwrap()[[0]], 12.0);
 /// # Ok::<(), diffphys_tape::TapeError>(())

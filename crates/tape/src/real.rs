@@ -32,6 +32,33 @@ pub trait Real: NdFloat + Default + Display + Debug + Send + Sync + 'static {
     fn fd_step() -> Self {
         Self::EPS.cbrt()
     }
+    /// The member of a [`PerPrecision`] family for this precision: `single` for
+    /// `f32`, `double` for `f64`. Generic code that holds one value per precision
+    /// takes its own with it, typed, where it would otherwise downcast through
+    /// `std::any::Any`.
+    fn pick<F: PerPrecision>(single: F::Of<f32>, double: F::Of<f64>) -> F::Of<Self>;
+}
+
+/// A family of types with one member per precision, `Of<f32>` and `Of<f64>`
+/// (for example `&dyn Preconditioner<T>`, or `fn(&[T]) -> R`), from which
+/// [`Real::pick`] selects the member of a generic `T`.
+///
+/// ```
+/// use diffphys_tape::{PerPrecision, Real};
+///
+/// /// `fn(T) -> &str`, one function per precision.
+/// struct Describe;
+/// impl PerPrecision for Describe {
+///     type Of<T: Real> = fn(T) -> &'static str;
+/// }
+/// fn describe<T: Real>(x: T) -> &'static str {
+///     T::pick::<Describe>(|_| "single", |_| "double")(x)
+/// }
+/// assert_eq!((describe(1.0f32), describe(1.0f64)), ("single", "double"));
+/// ```
+pub trait PerPrecision {
+    /// The member for precision `T`.
+    type Of<T: Real>;
 }
 
 impl Real for f32 {
@@ -45,6 +72,10 @@ impl Real for f32 {
     fn as_f64(self) -> f64 {
         f64::from(self)
     }
+    #[inline]
+    fn pick<F: PerPrecision>(single: F::Of<f32>, _: F::Of<f64>) -> F::Of<f32> {
+        single
+    }
 }
 
 impl Real for f64 {
@@ -57,6 +88,10 @@ impl Real for f64 {
     #[inline]
     fn as_f64(self) -> f64 {
         self
+    }
+    #[inline]
+    fn pick<F: PerPrecision>(_: F::Of<f32>, double: F::Of<f64>) -> F::Of<f64> {
+        double
     }
 }
 

@@ -4,7 +4,7 @@ use std::cell::RefCell;
 use std::rc::Rc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use ndarray::{ArrayD, ArrayViewD, IxDyn};
+use ndarray::{Array, Array1, Array2, ArrayD, ArrayViewD, Dimension, Ix1, Ix2, IxDyn};
 use smallvec::SmallVec;
 
 use crate::{Op, Pass, Real, Result, TapeError};
@@ -152,14 +152,16 @@ impl<T: Real> Tape<T> {
         self.check_finite.get()
     }
 
-    /// A leaf that wants gradients.
-    pub fn var(&self, value: ArrayD<T>) -> Var<'_, T> {
-        self.push_leaf(value, true)
+    /// A leaf that wants gradients. Takes an array of any dimension
+    /// (`Array1`, `Array2`, `ArrayD`, …); the tape holds it as an `ArrayD`.
+    pub fn var<D: Dimension>(&self, value: Array<T, D>) -> Var<'_, T> {
+        self.push_leaf(value.into_dyn(), true)
     }
 
-    /// A leaf that never gets a gradient.
-    pub fn constant(&self, value: ArrayD<T>) -> Var<'_, T> {
-        self.push_leaf(value, false)
+    /// A leaf that never gets a gradient. Takes an array of any dimension, as
+    /// [`Tape::var`].
+    pub fn constant<D: Dimension>(&self, value: Array<T, D>) -> Var<'_, T> {
+        self.push_leaf(value.into_dyn(), false)
     }
 
     /// A 0-dimensional constant.
@@ -173,45 +175,42 @@ impl<T: Real> Tape<T> {
         Var { tape: self, index }
     }
 
-    /// Records `op` applied to `inputs` and returns its outputs.
+    /// Records a single-output `op` applied to `inputs` and returns its output.
+    /// This is the one way an op joins the tape: primitives (`x.mul(y)?` is
+    /// sugar for it), stencils, solves and network layers alike.
+    ///
+    /// The tape takes the op by value and keeps it for the backward sweep.
     ///
     /// # Errors
     /// [`TapeError::ForeignVar`] if an input belongs to another tape, whatever the
-    /// op's forward returns, and [`TapeError::NonFinite`] if an output holds NaN or
-    /// infinity while the check is on.
-    pub fn apply<O: Op<T> + 'static>(
+    /// op's forward returns, [`TapeError::NonFinite`] if the output holds NaN or
+    /// infinity while the check is on, and [`TapeError::InvalidArgument`] if the
+    /// op returned other than one output (use [`Tape::apply_multi`] for those).
+    pub fn apply<O: Op<T> + 'static>(&self, op: O, inputs: &[Var<'_, T>]) -> Result<Var<'_, T>> {
+        let mut out = self.apply_multi_boxed(Box::new(op), inputs, Some(1))?;
+        Ok(out.remove(0))
+    }
+
+    /// Records `op` applied to `inputs` and returns all its outputs, in the order
+    /// its forward returned them (a pressure projection's `[u'_x, u'_y, p]`, say).
+    ///
+    /// # Errors
+    /// As [`Tape::apply`], without the check on the number of outputs.
+    pub fn apply_multi<O: Op<T> + 'static>(
         &self,
         op: O,
         inputs: &[Var<'_, T>],
     ) -> Result<Vec<Var<'_, T>>> {
-        self.apply_boxed(Box::new(op), inputs)
+        self.apply_multi_boxed(Box::new(op), inputs, None)
     }
 
-    /// Records a single-output op and returns its output.
-    ///
-    /// # Errors
-    /// As [`Tape::apply`], and [`TapeError::InvalidArgument`] if the op returned
-    /// other than one output.
-    pub fn apply1<O: Op<T> + 'static>(&self, op: O, inputs: &[Var<'_, T>]) -> Result<Var<'_, T>> {
-        let name = op.name().to_string();
-        let mut out = self.apply(op, inputs)?;
-        if out.len() != 1 {
-            return Err(TapeError::invalid(
-                &name,
-                format!("expected one output, the op returned {}", out.len()),
-            ));
-        }
-        Ok(out.remove(0))
-    }
-
-    /// [`Tape::apply`] for an op already boxed.
-    ///
-    /// # Errors
-    /// As [`Tape::apply`].
-    pub fn apply_boxed(
+    /// [`Tape::apply_multi`] for an op already boxed; with `expect_outputs`, an
+    /// op returning another number of outputs is an error and records nothing.
+    fn apply_multi_boxed(
         &self,
         mut op: Box<dyn Op<T>>,
         inputs: &[Var<'_, T>],
+        expect_outputs: Option<usize>,
     ) -> Result<Vec<Var<'_, T>>> {
         for v in inputs {
             self.check_owned(op.name(), v)?;
@@ -226,6 +225,14 @@ impl<T: Real> Tape<T> {
             let requires_grad = inputs.iter().any(|v| inner.slots[v.index].requires_grad);
             (outputs, requires_grad)
         };
+        if let Some(n) = expect_outputs {
+            if outputs.len() != n {
+                return Err(TapeError::invalid(
+                    op.name(),
+                    format!("expected one output, the op returned {}", outputs.len()),
+                ));
+            }
+        }
         if self.checks_finite() {
             for out in &outputs {
                 check_finite(op.name(), Pass::Forward, &out.view())?;
@@ -355,6 +362,31 @@ impl<'t, T: Real> Var<'t, T> {
             .clone()
     }
 
+    /// A copy of its value as a 1-D array.
+    ///
+    /// # Errors
+    /// [`TapeError::InvalidArgument`] if the value is not 1-D.
+    pub fn to_array1(&self) -> Result<Array1<T>> {
+        self.array_of_rank::<Ix1>("to_array1")
+    }
+
+    /// A copy of its value as a 2-D array (the shape of a field on a `Grid2`).
+    ///
+    /// # Errors
+    /// [`TapeError::InvalidArgument`] if the value is not 2-D.
+    pub fn to_array2(&self) -> Result<Array2<T>> {
+        self.array_of_rank::<Ix2>("to_array2")
+    }
+
+    fn array_of_rank<D: Dimension>(&self, what: &str) -> Result<Array<T, D>> {
+        self.to_array().into_dimensionality::<D>().map_err(|_| {
+            TapeError::invalid(
+                what,
+                format!("value of shape {:?} has another rank", self.shape()),
+            )
+        })
+    }
+
     /// Its value if it holds exactly one element.
     ///
     /// # Errors
@@ -374,16 +406,5 @@ impl<'t, T: Real> Var<'t, T> {
     /// Whether a gradient can flow to it (a variable, or computed from one).
     pub fn requires_grad(&self) -> bool {
         self.tape.inner.borrow().slots[self.index].requires_grad
-    }
-
-    /// Records a single-output `op` with `self` as its first input.
-    ///
-    /// # Errors
-    /// As [`Tape::apply1`].
-    pub fn apply1<O: Op<T> + 'static>(self, op: O, others: &[Var<'t, T>]) -> Result<Var<'t, T>> {
-        let mut inputs: SmallVec<[Var<'t, T>; 4]> = SmallVec::new();
-        inputs.push(self);
-        inputs.extend_from_slice(others);
-        self.tape.apply1(op, &inputs)
     }
 }

@@ -158,15 +158,15 @@ impl Op<f64> for NeedsTwo {
 fn arity_errors_name_the_op_and_the_counts() {
     let tape = Tape::<f64>::new();
     let x = tape.var(arr_dyn(&[1.0]));
-    assert!(tape.apply1(NeedsTwo, &[x, x]).is_ok());
-    let err = tape.apply1(NeedsTwo, &[x]).unwrap_err();
+    assert!(tape.apply(NeedsTwo, &[x, x]).is_ok());
+    let err = tape.apply(NeedsTwo, &[x]).unwrap_err();
     assert!(
         matches!(&err, TapeError::Arity { op, expected: 2, found: 1 } if op == "needs_two"),
         "{err:?}"
     );
     assert_mentions(&err, &["needs_two", "2 input", "got 1"]);
     let before = tape.stats().nodes;
-    let err = tape.apply1(NeedsTwo, &[x, x, x]).unwrap_err();
+    let err = tape.apply(NeedsTwo, &[x, x, x]).unwrap_err();
     assert!(matches!(err, TapeError::Arity { found: 3, .. }));
     assert_eq!(tape.stats().nodes, before, "a failed op records nothing");
 }
@@ -216,7 +216,7 @@ fn variables_of_another_tape_are_refused_in_ops_and_in_backward() {
         Var::select(&array![true, false].into_dyn(), a, b).unwrap_err(),
         "select",
     );
-    foreign(tape_a.apply1(NeedsTwo, &[a, b]).unwrap_err(), "needs_two");
+    foreign(tape_a.apply(NeedsTwo, &[a, b]).unwrap_err(), "needs_two");
 
     // In backward: a requested variable of another tape, and a loss of another tape.
     let loss = a.sum().unwrap();
@@ -292,7 +292,7 @@ impl Op<f64> for ForwardOnly {
 fn a_forward_only_plugin_records_but_refuses_backward() {
     let tape = Tape::<f64>::new();
     let x = tape.var(arr_dyn(&[1.0, 2.0]));
-    let y = tape.apply1(ForwardOnly, &[x]).unwrap();
+    let y = tape.apply(ForwardOnly, &[x]).unwrap();
     assert_eq!(y.to_array(), arr_dyn(&[2.0, 4.0]));
     let err = y.sum().unwrap().backward(&[x]).unwrap_err();
     assert!(
@@ -350,21 +350,26 @@ fn a_plugin_error_keeps_its_source() {
     let tape = Tape::<f64>::new();
     let x = tape.var(arr_dyn(&[1.0]));
     let err = tape
-        .apply1(FailingSolver { fail_forward: true }, &[x])
+        .apply(FailingSolver { fail_forward: true }, &[x])
         .unwrap_err();
     assert!(
         matches!(&err, TapeError::Op { op, .. } if op == "solver"),
         "{err:?}"
     );
     assert_mentions(&err, &["solver failed", "diverged after 50 iterations"]);
-    let source = err.source().expect("the plugin's error is the source");
-    let inner = source
+    // The message carries the cause once; the cause keeps its own type.
+    assert!(
+        err.source().is_none(),
+        "the cause is in the message, not repeated"
+    );
+    let cause = err.op_cause().expect("the plugin's error is kept");
+    let inner = cause
         .downcast_ref::<SolverDiverged>()
         .expect("its own type");
     assert_eq!(inner.iterations, 50);
 
     let y = tape
-        .apply1(
+        .apply(
             FailingSolver {
                 fail_forward: false,
             },

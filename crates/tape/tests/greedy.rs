@@ -55,7 +55,7 @@ fn a_branch_from_a_parameter_nobody_asks_about_is_never_swept() {
     let x = tape.var(arr_dyn(&[1.0, 2.0]));
     let p = tape.var(arr_dyn(&[3.0, -1.0])); // a parameter, not requested
     let seen = Seen::default();
-    let q = tape.apply1(probe(&seen), &[p]).unwrap(); // q = p²
+    let q = tape.apply(probe(&seen), &[p]).unwrap(); // q = p²
     let loss = x.mul(q).unwrap().sum().unwrap(); // Σ x p²
     assert_eq!(tape.stats().nodes, 3); // probe, mul, sum
 
@@ -80,7 +80,7 @@ fn an_op_is_told_which_inputs_need_no_gradient() {
     let p = tape.var(arr_dyn(&[5.0, 5.0])); // on the graph, not requested
     let c = tape.constant(arr_dyn(&[7.0, 7.0]));
     let seen = Seen::default();
-    let y = tape.apply1(probe(&seen), &[x, p, c]).unwrap(); // x² + p² + c²
+    let y = tape.apply(probe(&seen), &[x, p, c]).unwrap(); // x² + p² + c²
     let grads = y.sum().unwrap().backward(&[x]).unwrap();
     assert_eq!(seen.backward_calls.get(), 1);
     assert_eq!(*seen.needs.borrow(), vec![vec![true, false, false]]);
@@ -94,7 +94,7 @@ fn ops_on_constants_only_are_not_recorded_nor_swept() {
     let c = tape.constant(arr_dyn(&[3.0, 4.0]));
     let seen = Seen::default();
     let nodes_before = tape.stats().nodes;
-    let c2 = tape.apply1(probe(&seen), &[c]).unwrap(); // c², evaluated now
+    let c2 = tape.apply(probe(&seen), &[c]).unwrap(); // c², evaluated now
     assert_eq!(c2.to_array(), arr_dyn(&[9.0, 16.0]));
     assert_eq!(
         tape.stats().nodes,
@@ -116,7 +116,7 @@ fn nodes_off_the_path_to_the_loss_are_not_visited() {
     let x = tape.var(arr_dyn(&[0.5, 1.5]));
     let seen = Seen::default();
     // Recorded, downstream of x, but the loss does not depend on them.
-    let unused = tape.apply1(probe(&seen), &[x]).unwrap();
+    let unused = tape.apply(probe(&seen), &[x]).unwrap();
     let _also_unused = unused.exp().unwrap().sum().unwrap();
     let loss = x.sin().unwrap().sum().unwrap();
     assert_eq!(tape.stats().nodes, 5);
@@ -138,7 +138,7 @@ fn a_value_used_more_than_once_gets_the_summed_gradient() {
     // Through a plugin that takes x twice, and through concat and roll:
     // d Σ probe(x, x)/dx = 4x; d Σ concat(x, roll(x)) / dx = 2.
     let seen = Seen::default();
-    let z = tape.apply1(probe(&seen), &[x, x]).unwrap().sum().unwrap();
+    let z = tape.apply(probe(&seen), &[x, x]).unwrap().sum().unwrap();
     let grads = z.backward(&[x]).unwrap();
     assert_eq!(grads.get(x).unwrap(), &arr_dyn(&[-4.0, 2.0, 12.0]));
     assert_eq!(*seen.needs.borrow(), vec![vec![true, true]]);

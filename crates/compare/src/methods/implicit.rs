@@ -14,8 +14,8 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use diffphys_ops::cg::{conjugate_gradient, CgParams, Preconditioner};
-use diffphys_ops::poisson::{poisson_solve_tape, poisson_solve_vjp, PoissonSolve, SolveLog};
+use diffphys_ops::cg::{conjugate_gradient, CgParams, Preconditioning};
+use diffphys_ops::poisson::{poisson_solve_vjp, PoissonSolve, SolveLog};
 use diffphys_ops::stencil::Laplacian2;
 use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, Tape, TapeError};
 use ndarray::{Array2, Ix2};
@@ -114,7 +114,7 @@ pub fn run_implicit<T: Real>(
     forward: Stop,
     adjoint: Stop,
 ) -> Result<RunOutcome<T>> {
-    run_implicit_preconditioned(problem, forward, adjoint, Preconditioner::None)
+    run_implicit_preconditioned(problem, forward, adjoint, Preconditioning::None)
 }
 
 /// [`run_implicit`] with `preconditioner` in both the forward and the adjoint
@@ -127,7 +127,7 @@ pub fn run_implicit_preconditioned<T: Real>(
     problem: &Problem<T>,
     forward: Stop,
     adjoint: Stop,
-    preconditioner: Preconditioner,
+    preconditioner: Preconditioning,
 ) -> Result<RunOutcome<T>> {
     let tape = Tape::<T>::new();
     let solve = PoissonSolve::new(
@@ -139,7 +139,7 @@ pub fn run_implicit_preconditioned<T: Real>(
 
     let start = Instant::now();
     let b = tape.var(problem.b.clone().into_dyn());
-    let p = poisson_solve_tape(solve, b)?;
+    let p = tape.apply(solve, &[b])?;
     let loss = problem.recorded_loss(p)?;
     let loss_value = loss.item()?.as_f64();
     let forward_s = start.elapsed().as_secs_f64();
@@ -252,7 +252,7 @@ pub fn implicit_initial_guess_gradient<T: Real>(
     };
     let b = tape.var(problem.b.clone().into_dyn());
     let x0v = tape.var(x0.clone().into_dyn());
-    let p = tape.apply1(op, &[b, x0v])?;
+    let p = tape.apply(op, &[b, x0v])?;
     let loss = problem.recorded_loss(p)?;
     let grads = tape.backward(loss, &[b, x0v])?;
     let get = |v, what| {

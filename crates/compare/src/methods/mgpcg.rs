@@ -20,7 +20,7 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use diffphys_ops::cg::Preconditioner;
+use diffphys_ops::cg::Preconditioning;
 use diffphys_ops::multigrid::Multigrid;
 use diffphys_tape::Real;
 
@@ -53,7 +53,7 @@ impl<T: Real> GradientMethod<T> for ImplicitMgpcg {
         let start = Instant::now();
         let cycle = Multigrid::new(&problem.grid, self.sweeps)?;
         let setup_s = start.elapsed().as_secs_f64();
-        let preconditioner = Preconditioner::Multigrid(Arc::new(cycle));
+        let preconditioner = Preconditioning::from(Arc::new(cycle));
         let mut out = run_implicit_preconditioned(problem, stop, stop, preconditioner)?;
         out.forward_s += setup_s;
         Ok(out)

@@ -24,7 +24,7 @@ use std::time::Instant;
 
 use diffphys_ops::cg::NullSpace;
 use diffphys_ops::stencil::Laplacian2;
-use diffphys_ops::tape_ops::apply_linear;
+use diffphys_ops::tape_ops::LinearOp;
 use diffphys_tape::{Real, Tape, TapeError, Var};
 use ndarray::{Array2, Ix2};
 
@@ -73,7 +73,7 @@ fn unrolled_cg<'t, T: Real>(
     let at = |iteration: usize| {
         move |source: TapeError| CompareError::NaiveIteration { iteration, source }
     };
-    let apply = |v: Var<'t, T>| apply_linear(Arc::clone(a), v).map_err(TapeError::from);
+    let apply = |v: Var<'t, T>| v.tape().apply(LinearOp::new(Arc::clone(a)), &[v]);
     let range = |v: Var<'t, T>| -> diffphys_tape::Result<Var<'t, T>> {
         if project {
             v.sub(v.mean()?)

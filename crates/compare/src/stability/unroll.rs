@@ -1,7 +1,7 @@
 //! Study 6: long unrolls of upwind advection at Courant numbers below and
 //! above 1.
 
-use diffphys_ops::advection::{upwind_1d_tape, AdvectionParams};
+use diffphys_ops::advection::{AdvectionParams, Upwind1};
 use diffphys_ops::{Boundary, Grid1, OpsError};
 use diffphys_tape::{Real, Tape, TapeError, Var};
 use ndarray::Array1;
@@ -65,8 +65,12 @@ pub fn unroll_gradient<T: Real>(n: usize, cfl: f64, steps: usize) -> Result<(f64
     let mut step_inputs = Vec::with_capacity(steps + 1);
     for step in 0..steps {
         step_inputs.push(d);
-        d = upwind_1d_tape(&grid, &params, d, u)
-            .map_err(|source| CompareError::UnrollStep { step, source })?;
+        d = tape
+            .apply(Upwind1::new(grid, params), &[d, u])
+            .map_err(|e| CompareError::UnrollStep {
+                step,
+                source: OpsError::Tape(e),
+            })?;
     }
     step_inputs.push(d);
     let loss = (|| {

@@ -4,21 +4,41 @@
 //!
 //! Each scheme is a pair of plain functions on ndarray views (the forward and its
 //! vector–Jacobian product, which computes only the gradients asked for in a
-//! [`Wants`]), bundled as an [`AdvectionScheme`] ([`Upwind1d`], [`Upwind2d`],
-//! [`SemiLagrangian1d`], [`SemiLagrangian2d`]); one generic tape op,
-//! [`AdvectionOp`], records any of them ([`advect`]). In 2D the velocity has shape
-//! `[2, nx, ny]` with components `[u_x, u_y]` on the same cells as the field.
+//! [`Wants`]), bundled as an [`AdvectionScheme`] ([`Upwind1`], [`Upwind2`],
+//! [`SemiLagrangian1`], [`SemiLagrangian2`]). Each scheme value is also a tape
+//! op with inputs `[d, u]`: `tape.apply(Upwind1::new(grid, params), &[d, u])`
+//! (a scheme of your own records through [`AdvectionOp`]). In 2D the velocity
+//! has shape `[2, nx, ny]` with components `[u_x, u_y]` on the same cells as
+//! the field.
 //!
 //! ```
-//! use diffphys_ops::advection::{upwind_1d, AdvectionParams};
+//! use diffphys_ops::advection::{upwind1, AdvectionParams};
 //! use diffphys_ops::{Boundary, Grid1};
 //! use ndarray::Array1;
 //!
 //! let grid = Grid1::new(8, 0.1, 0.0, Boundary::Periodic)?;
 //! let d = Array1::from_shape_fn(8, |i| if i == 2 { 1.0 } else { 0.0 });
 //! let u = Array1::from_elem(8, 0.5); // Courant number 0.5·0.2/0.1 = 1
-//! let d1 = upwind_1d(&grid, &AdvectionParams::new(0.2), d.view(), u.view())?;
+//! let d1 = upwind1(&grid, &AdvectionParams::new(0.2), d.view(), u.view())?;
 //! assert_eq!(d1[3], 1.0); // at Courant number 1, upwind moves the pulse one cell
+//! # Ok::<(), diffphys_ops::OpsError>(())
+//! ```
+//!
+//! On the tape, the same step with gradients for the field and the velocity:
+//!
+//! ```
+//! use diffphys_ops::advection::{AdvectionParams, Upwind1};
+//! use diffphys_ops::{Boundary, Grid1};
+//! use diffphys_tape::{arr_dyn, Tape};
+//!
+//! let grid = Grid1::new(4, 0.1, 0.0, Boundary::Periodic)?;
+//! let tape = Tape::<f64>::new();
+//! let d = tape.var(arr_dyn(&[0.0, 1.0, 0.0, 0.0]));
+//! let u = tape.var(arr_dyn(&[0.5; 4]));
+//! let d1 = tape.apply(Upwind1::new(grid, AdvectionParams::new(0.1)), &[d, u])?; // Courant number 0.5
+//! assert_eq!(d1.to_array(), arr_dyn(&[0.0, 0.5, 0.5, 0.0]));
+//! let grads = tape.backward(d1.sum()?, &[d, u])?;
+//! assert!(grads.get(u).is_some());
 //! # Ok::<(), diffphys_ops::OpsError>(())
 //! ```
 
@@ -26,15 +46,12 @@ pub mod semi_lagrangian;
 pub mod upwind;
 
 pub use semi_lagrangian::{
-    semi_lagrangian_1d, semi_lagrangian_1d_tape, semi_lagrangian_1d_vjp, semi_lagrangian_2d,
-    semi_lagrangian_2d_tape, semi_lagrangian_2d_vjp, SemiLagrangian1d, SemiLagrangian2d,
+    semi_lagrangian1, semi_lagrangian1_vjp, semi_lagrangian2, semi_lagrangian2_vjp,
+    SemiLagrangian1, SemiLagrangian2,
 };
-pub use upwind::{
-    upwind_1d, upwind_1d_tape, upwind_1d_vjp, upwind_2d, upwind_2d_tape, upwind_2d_vjp, Upwind1d,
-    Upwind2d,
-};
+pub use upwind::{upwind1, upwind1_vjp, upwind2, upwind2_vjp, Upwind1, Upwind2};
 
-use diffphys_tape::{ArrayD, BackwardArgs, Op, Real, TapeError, Var};
+use diffphys_tape::{ArrayD, BackwardArgs, Op, Real, TapeError};
 use ndarray::{Array, ArrayBase, ArrayView, ArrayViewD, Data, Dimension};
 
 use crate::{OpsError, Result};
@@ -190,6 +207,10 @@ pub trait AdvectionScheme<T: Real> {
 /// Any [`AdvectionScheme`] as a tape op: inputs `[d, u]`, output `d'`; the
 /// backward asks the scheme's vector–Jacobian product for exactly the gradients
 /// the tape needs. Keeps nothing beyond its inputs and output.
+///
+/// The built-in schemes ([`Upwind1`], [`Upwind2`], [`SemiLagrangian1`],
+/// [`SemiLagrangian2`]) are tape ops themselves (`tape.apply(scheme, &[d, u])`);
+/// wrap a scheme of your own in `AdvectionOp` to record it.
 #[derive(Debug, Clone, Copy)]
 pub struct AdvectionOp<S>(pub S);
 
@@ -199,58 +220,76 @@ impl<T: Real, S: AdvectionScheme<T>> Op<T> for AdvectionOp<S> {
     }
 
     fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
-        let op = self.0.name();
-        TapeError::check_arity(op, 2, inputs.len())?;
-        let d = tape_view::<T, S::Field>(op, &inputs[0])?;
-        let u = tape_view::<T, S::Velocity>(op, &inputs[1])?;
-        Ok(vec![self.0.step(d, u)?.into_dyn()])
+        scheme_forward(&self.0, inputs)
     }
 
     fn backward(
         &self,
         args: &BackwardArgs<'_, T>,
     ) -> diffphys_tape::Result<Vec<Option<ArrayD<T>>>> {
-        let op = self.0.name();
-        let wants = Wants {
-            field: args.needs(0),
-            velocity: args.needs(1),
-        };
-        let g = self.0.vjp(
-            tape_view::<T, S::Field>(op, args.input(0))?,
-            tape_view::<T, S::Velocity>(op, args.input(1))?,
-            tape_view::<T, S::Field>(op, args.grad_out())?,
-            wants,
-        )?;
-        Ok(vec![
-            g.field.map(|a| a.into_dyn()),
-            g.velocity.map(|a| a.into_dyn()),
-        ])
+        scheme_backward(&self.0, args)
     }
 }
 
-/// Records one step of `scheme` advecting `d` by `u` on their tape.
-///
-/// ```
-/// use diffphys_ops::advection::{advect, AdvectionParams, Upwind1d};
-/// use diffphys_ops::{Boundary, Grid1};
-/// use diffphys_tape::{arr_dyn, Tape};
-///
-/// let grid = Grid1::new(4, 0.1, 0.0, Boundary::Periodic)?;
-/// let tape = Tape::<f64>::new();
-/// let d = tape.var(arr_dyn(&[0.0, 1.0, 0.0, 0.0]));
-/// let u = tape.var(arr_dyn(&[0.5; 4]));
-/// let scheme = Upwind1d { grid, params: AdvectionParams::new(0.1) };
-/// let d1 = advect(scheme, d, u)?; // Courant number 0.5
-/// assert_eq!(d1.to_array(), arr_dyn(&[0.0, 0.5, 0.5, 0.0]));
-/// # Ok::<(), diffphys_ops::OpsError>(())
-/// ```
-///
-/// # Errors
-/// The scheme's errors (wrapped in [`OpsError::Tape`]), and the tape's own.
-pub fn advect<'t, T: Real, S: AdvectionScheme<T> + 'static>(
-    scheme: S,
-    d: Var<'t, T>,
-    u: Var<'t, T>,
-) -> Result<Var<'t, T>> {
-    Ok(d.apply1(AdvectionOp(scheme), &[u])?)
+/// The forward of a scheme recorded on a tape: `[d, u]` ↦ `[d']`.
+fn scheme_forward<T: Real, S: AdvectionScheme<T>>(
+    scheme: &S,
+    inputs: &[ArrayViewD<'_, T>],
+) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
+    let op = scheme.name();
+    TapeError::check_arity(op, 2, inputs.len())?;
+    let d = tape_view::<T, S::Field>(op, &inputs[0])?;
+    let u = tape_view::<T, S::Velocity>(op, &inputs[1])?;
+    Ok(vec![scheme.step(d, u)?.into_dyn()])
 }
+
+/// The backward of a scheme recorded on a tape: the gradients of `d` and `u`
+/// that the tape needs.
+fn scheme_backward<T: Real, S: AdvectionScheme<T>>(
+    scheme: &S,
+    args: &BackwardArgs<'_, T>,
+) -> diffphys_tape::Result<Vec<Option<ArrayD<T>>>> {
+    let op = scheme.name();
+    let wants = Wants {
+        field: args.needs(0),
+        velocity: args.needs(1),
+    };
+    let g = scheme.vjp(
+        tape_view::<T, S::Field>(op, args.input(0))?,
+        tape_view::<T, S::Velocity>(op, args.input(1))?,
+        tape_view::<T, S::Field>(op, args.grad_out())?,
+        wants,
+    )?;
+    Ok(vec![
+        g.field.map(|a| a.into_dyn()),
+        g.velocity.map(|a| a.into_dyn()),
+    ])
+}
+
+/// The built-in schemes are tape ops: inputs `[d, u]`, output `d'`, as
+/// [`AdvectionOp`] of the scheme.
+macro_rules! scheme_is_an_op {
+    ($($scheme:ty),*) => {$(
+        impl<T: Real> Op<T> for $scheme {
+            fn name(&self) -> &str {
+                AdvectionScheme::<T>::name(self)
+            }
+
+            fn forward(
+                &mut self,
+                inputs: &[ArrayViewD<'_, T>],
+            ) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
+                scheme_forward(self, inputs)
+            }
+
+            fn backward(
+                &self,
+                args: &BackwardArgs<'_, T>,
+            ) -> diffphys_tape::Result<Vec<Option<ArrayD<T>>>> {
+                scheme_backward(self, args)
+            }
+        }
+    )*};
+}
+
+scheme_is_an_op!(Upwind1, Upwind2, SemiLagrangian1, SemiLagrangian2);

@@ -25,12 +25,12 @@
 //! models — a review*, Mon. Wea. Rev. 119 (1991). J. Stam, *Stable Fluids*,
 //! SIGGRAPH 1999.
 
-use diffphys_tape::{Real, Var};
+use diffphys_tape::Real;
 use ndarray::{Array1, Array2, Array3, ArrayView1, ArrayView2, ArrayView3, Ix1, Ix2, Ix3};
 
 use super::{
-    advect, check_dt, check_finite_velocity, check_shape, AdvectionGrads, AdvectionScheme,
-    AdvectionVjp, Wants,
+    check_dt, check_finite_velocity, check_shape, AdvectionGrads, AdvectionScheme, AdvectionVjp,
+    Wants,
 };
 use crate::{Boundary, Grid1, Grid2, Result};
 
@@ -100,7 +100,7 @@ impl Axis1 {
 /// [`crate::OpsError::ShapeMismatch`] for wrong shapes,
 /// [`crate::OpsError::InvalidArgument`] for a non-positive `dt`, and
 /// [`crate::OpsError::NonFinite`] for a non-finite velocity.
-pub fn semi_lagrangian_1d<T: Real>(
+pub fn semi_lagrangian1<T: Real>(
     grid: &Grid1,
     dt: f64,
     d: ArrayView1<'_, T>,
@@ -125,12 +125,12 @@ pub fn semi_lagrangian_1d<T: Real>(
     Ok(Array1::from(out))
 }
 
-/// The vector–Jacobian product of [`semi_lagrangian_1d`]: `∂L/∂d` and `∂L/∂u` as
+/// The vector–Jacobian product of [`semi_lagrangian1`]: `∂L/∂d` and `∂L/∂u` as
 /// `wants` asks, given `g = ∂L/∂d'`.
 ///
 /// # Errors
-/// As [`semi_lagrangian_1d`].
-pub fn semi_lagrangian_1d_vjp<T: Real>(
+/// As [`semi_lagrangian1`].
+pub fn semi_lagrangian1_vjp<T: Real>(
     grid: &Grid1,
     dt: f64,
     d: ArrayView1<'_, T>,
@@ -208,8 +208,8 @@ impl Sample2 {
 /// interpolation; see the [module docs](self).
 ///
 /// # Errors
-/// As [`semi_lagrangian_1d`].
-pub fn semi_lagrangian_2d<T: Real>(
+/// As [`semi_lagrangian1`].
+pub fn semi_lagrangian2<T: Real>(
     grid: &Grid2,
     dt: f64,
     d: ArrayView2<'_, T>,
@@ -236,12 +236,12 @@ pub fn semi_lagrangian_2d<T: Real>(
     Ok(out)
 }
 
-/// The vector–Jacobian product of [`semi_lagrangian_2d`]: `∂L/∂d` (`[nx, ny]`)
+/// The vector–Jacobian product of [`semi_lagrangian2`]: `∂L/∂d` (`[nx, ny]`)
 /// and `∂L/∂u` (`[2, nx, ny]`) as `wants` asks.
 ///
 /// # Errors
-/// As [`semi_lagrangian_1d`].
-pub fn semi_lagrangian_2d_vjp<T: Real>(
+/// As [`semi_lagrangian1`].
+pub fn semi_lagrangian2_vjp<T: Real>(
     grid: &Grid2,
     dt: f64,
     d: ArrayView2<'_, T>,
@@ -302,19 +302,27 @@ pub fn semi_lagrangian_2d_vjp<T: Real>(
     })
 }
 
-/// Semi-Lagrangian advection on a 1D grid (field and velocity `[n]`), as an
-/// [`AdvectionScheme`] for the generic tape op [`AdvectionOp`]. Self-advection
+/// Semi-Lagrangian advection on a 1D grid (field and velocity `[n]`): an
+/// [`AdvectionScheme`] and a tape op with inputs `[d, u]`
+/// (`tape.apply(SemiLagrangian1::new(grid, dt), &[d, u])`). Self-advection
 /// (`u = d`, Burgers) passes the same variable twice; the tape sums the two
 /// gradients.
 #[derive(Debug, Clone, Copy)]
-pub struct SemiLagrangian1d {
+pub struct SemiLagrangian1 {
     /// The grid.
     pub grid: Grid1,
     /// The time step.
     pub dt: f64,
 }
 
-impl<T: Real> AdvectionScheme<T> for SemiLagrangian1d {
+impl SemiLagrangian1 {
+    /// The scheme on `grid` with time step `dt`.
+    pub fn new(grid: Grid1, dt: f64) -> Self {
+        SemiLagrangian1 { grid, dt }
+    }
+}
+
+impl<T: Real> AdvectionScheme<T> for SemiLagrangian1 {
     type Field = Ix1;
     type Velocity = Ix1;
 
@@ -323,7 +331,7 @@ impl<T: Real> AdvectionScheme<T> for SemiLagrangian1d {
     }
 
     fn step(&self, d: ArrayView1<'_, T>, u: ArrayView1<'_, T>) -> Result<Array1<T>> {
-        semi_lagrangian_1d(&self.grid, self.dt, d, u)
+        semi_lagrangian1(&self.grid, self.dt, d, u)
     }
 
     fn vjp(
@@ -333,21 +341,28 @@ impl<T: Real> AdvectionScheme<T> for SemiLagrangian1d {
         grad_out: ArrayView1<'_, T>,
         wants: Wants,
     ) -> AdvectionVjp<T, Ix1, Ix1> {
-        semi_lagrangian_1d_vjp(&self.grid, self.dt, d, u, grad_out, wants)
+        semi_lagrangian1_vjp(&self.grid, self.dt, d, u, grad_out, wants)
     }
 }
 
 /// Semi-Lagrangian advection on a 2D grid (field `[nx, ny]`, velocity
-/// `[2, nx, ny]`), as an [`AdvectionScheme`].
+/// `[2, nx, ny]`): an [`AdvectionScheme`] and a tape op with inputs `[d, u]`.
 #[derive(Debug, Clone, Copy)]
-pub struct SemiLagrangian2d {
+pub struct SemiLagrangian2 {
     /// The grid.
     pub grid: Grid2,
     /// The time step.
     pub dt: f64,
 }
 
-impl<T: Real> AdvectionScheme<T> for SemiLagrangian2d {
+impl SemiLagrangian2 {
+    /// The scheme on `grid` with time step `dt`.
+    pub fn new(grid: Grid2, dt: f64) -> Self {
+        SemiLagrangian2 { grid, dt }
+    }
+}
+
+impl<T: Real> AdvectionScheme<T> for SemiLagrangian2 {
     type Field = Ix2;
     type Velocity = Ix3;
 
@@ -356,7 +371,7 @@ impl<T: Real> AdvectionScheme<T> for SemiLagrangian2d {
     }
 
     fn step(&self, d: ArrayView2<'_, T>, u: ArrayView3<'_, T>) -> Result<Array2<T>> {
-        semi_lagrangian_2d(&self.grid, self.dt, d, u)
+        semi_lagrangian2(&self.grid, self.dt, d, u)
     }
 
     fn vjp(
@@ -366,197 +381,6 @@ impl<T: Real> AdvectionScheme<T> for SemiLagrangian2d {
         grad_out: ArrayView2<'_, T>,
         wants: Wants,
     ) -> AdvectionVjp<T, Ix2, Ix3> {
-        semi_lagrangian_2d_vjp(&self.grid, self.dt, d, u, grad_out, wants)
-    }
-}
-
-/// Records one 1D semi-Lagrangian step of `d` by `u` on their tape:
-/// `advect(SemiLagrangian1d { grid, dt }, d, u)`.
-///
-/// # Errors
-/// As [`semi_lagrangian_1d`] (wrapped in [`crate::OpsError::Tape`]), and the
-/// tape's own errors.
-pub fn semi_lagrangian_1d_tape<'t, T: Real>(
-    grid: &Grid1,
-    dt: f64,
-    d: Var<'t, T>,
-    u: Var<'t, T>,
-) -> Result<Var<'t, T>> {
-    advect(SemiLagrangian1d { grid: *grid, dt }, d, u)
-}
-
-/// Records one 2D semi-Lagrangian step of `d` (`[nx, ny]`) by `u` (`[2, nx, ny]`):
-/// `advect(SemiLagrangian2d { grid, dt }, d, u)`.
-///
-/// # Errors
-/// As [`semi_lagrangian_2d`], and the tape's own errors.
-pub fn semi_lagrangian_2d_tape<'t, T: Real>(
-    grid: &Grid2,
-    dt: f64,
-    d: Var<'t, T>,
-    u: Var<'t, T>,
-) -> Result<Var<'t, T>> {
-    advect(SemiLagrangian2d { grid: *grid, dt }, d, u)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use diffphys_tape::{
-        check_adjoint, check_gradient, test_array, ArrayD, ArrayViewD, GradCheckOptions,
-    };
-
-    const KINDS: [Boundary; 3] = [
-        Boundary::Periodic,
-        Boundary::ZeroDirichlet,
-        Boundary::Closed,
-    ];
-
-    /// Velocities whose displacement `u·dt/h` is `k + φ` cells with an integer
-    /// `k ∈ [−2, 2]` and a fraction `φ ∈ [0.2, 0.8]`: away from the kinks at
-    /// whole cells, so that finite differences see one linear piece.
-    fn velocity(shape: &[usize], seed: u64, cells_per_unit: f64) -> ArrayD<f64> {
-        let r = test_array::<f64>(shape, seed);
-        let s = test_array::<f64>(shape, seed + 99);
-        ndarray::Zip::from(&r)
-            .and(&s)
-            .map_collect(|&r, &s| ((2.5 * r).round() + 0.5 + 0.3 * s) / cells_per_unit)
-    }
-
-    #[test]
-    fn whole_cell_displacement_shifts_and_linear_fields_interpolate_exactly() {
-        let grid = Grid1::new(6, 0.5, 0.0, Boundary::Periodic).unwrap();
-        let d = ndarray::arr1(&[1.0, 2.0, 3.0, 4.0, 5.0, 6.0]);
-        // u·dt/dx = 1·1/0.5 = 2 cells to the right
-        let u = Array1::from_elem(6, 1.0);
-        let out = semi_lagrangian_1d(&grid, 1.0, d.view(), u.view()).unwrap();
-        assert_eq!(out, ndarray::arr1(&[5.0, 6.0, 1.0, 2.0, 3.0, 4.0]));
-        // 0.3 cells left on a closed grid: d' = d(x + 0.15) = i + 1.3 inside, and
-        // the last cell clamps to the edge value 6.
-        let closed = Grid1::new(6, 0.5, 0.0, Boundary::Closed).unwrap();
-        let u = Array1::from_elem(6, -0.15);
-        let out = semi_lagrangian_1d(&closed, 1.0, d.view(), u.view()).unwrap();
-        for i in 0..5 {
-            assert!((out[i] - (i as f64 + 1.3)).abs() < 1e-14, "{out}");
-        }
-        assert_eq!(out[5], 6.0);
-        // Zero Dirichlet reads 0 beyond the edge: cell 0 samples between the ghost
-        // (0) and cell 0 with weight 0.3 on the ghost: 0.7·1.
-        let zero = Grid1::new(6, 0.5, 0.0, Boundary::ZeroDirichlet).unwrap();
-        let u = Array1::from_elem(6, 0.15);
-        let out = semi_lagrangian_1d(&zero, 1.0, d.view(), u.view()).unwrap();
-        assert!((out[0] - 0.7).abs() < 1e-14);
-    }
-
-    #[test]
-    fn field_adjoint_passes_the_dot_product_test() {
-        for b in KINDS {
-            let grid = Grid2::new(6, 5, 0.2, 0.1, b).unwrap();
-            let u = velocity(&[2, 6, 5], 3, 1.0)
-                .into_dimensionality::<Ix3>()
-                .unwrap();
-            let dt = 0.2; // displacements k + φ cells along x, twice that along y
-            let apply = |x: ArrayViewD<'_, f64>| {
-                semi_lagrangian_2d(&grid, dt, x.into_dimensionality().unwrap(), u.view())
-                    .unwrap()
-                    .into_dyn()
-            };
-            let transpose = |y: ArrayViewD<'_, f64>| {
-                let z = Array2::zeros((6, 5));
-                let wants = Wants {
-                    field: true,
-                    velocity: false,
-                };
-                let y = y.into_dimensionality().unwrap();
-                semi_lagrangian_2d_vjp(&grid, dt, z.view(), u.view(), y, wants)
-                    .unwrap()
-                    .field
-                    .unwrap()
-                    .into_dyn()
-            };
-            let x = test_array::<f64>(&[6, 5], 1);
-            let y = test_array::<f64>(&[6, 5], 2);
-            let r = check_adjoint(apply, transpose, x.view(), y.view()).unwrap();
-            assert!(r.passes(1e-14), "{b:?}: {r:?}");
-        }
-    }
-
-    #[test]
-    fn gradients_1d_match_finite_differences() {
-        let n = 8;
-        for b in KINDS {
-            let grid = Grid1::new(n, 0.25, 0.0, b).unwrap();
-            let dt = 0.5; // displacement u·dt/dx = 2u cells
-            for seed in [1, 2, 3] {
-                let u = velocity(&[n], seed, 2.0);
-                let d = test_array::<f64>(&[n], 10 + seed);
-                let report = check_gradient(
-                    |_, v| {
-                        let d1 = semi_lagrangian_1d_tape(&grid, dt, v[0], v[1])?;
-                        Ok(semi_lagrangian_1d_tape(&grid, dt, d1, v[1])?)
-                    },
-                    &[d, u],
-                    GradCheckOptions::for_type::<f64>(),
-                )
-                .unwrap();
-                assert!(report.passed, "{b:?} seed {seed}: {report:?}");
-            }
-        }
-    }
-
-    #[test]
-    fn gradients_2d_match_finite_differences() {
-        let (nx, ny) = (5, 4);
-        for bx in KINDS {
-            for by in KINDS {
-                let grid = Grid2::new(nx, ny, 0.5, 0.5, bx)
-                    .unwrap()
-                    .with_boundaries(bx, by);
-                let dt = 0.5; // u·dt/h = u cells
-                let u = velocity(&[2, nx, ny], 5, 1.0);
-                let d = test_array::<f64>(&[nx, ny], 6);
-                let report = check_gradient(
-                    |_, v| {
-                        let d1 = semi_lagrangian_2d_tape(&grid, dt, v[0], v[1])?;
-                        Ok(semi_lagrangian_2d_tape(&grid, dt, d1, v[1])?)
-                    },
-                    &[d, u],
-                    GradCheckOptions::for_type::<f64>(),
-                )
-                .unwrap();
-                assert!(report.passed, "{bx:?}/{by:?}: {report:?}");
-            }
-        }
-    }
-
-    #[test]
-    fn self_advection_gradient_sums_both_roles() {
-        // One Burgers-like step u' = SL(u, u): the field is its own velocity.
-        let n = 8;
-        let grid = Grid1::new(n, 0.25, 0.0, Boundary::Periodic).unwrap();
-        let u = velocity(&[n], 7, 2.0);
-        let report = check_gradient(
-            |_, v| Ok(semi_lagrangian_1d_tape(&grid, 0.5, v[0], v[0])?),
-            &[u],
-            GradCheckOptions::for_type::<f64>(),
-        )
-        .unwrap();
-        assert!(report.passed, "{report:?}");
-    }
-
-    #[test]
-    fn no_cfl_limit_but_non_finite_velocity_is_an_error() {
-        let grid = Grid1::new(5, 0.1, 0.0, Boundary::Periodic).unwrap();
-        let d = test_array::<f64>(&[5], 1)
-            .into_dimensionality::<Ix1>()
-            .unwrap();
-        // 37 cells: 7 periods and 2 cells
-        let u = Array1::from_elem(5, 3.7);
-        let out = semi_lagrangian_1d(&grid, 1.0, d.view(), u.view()).unwrap();
-        for i in 0..5 {
-            assert!((out[i] - d[(i + 3) % 5]).abs() < 1e-12);
-        }
-        let bad = ndarray::arr1(&[0.0, f64::INFINITY, 0.0, 0.0, 0.0]);
-        assert!(semi_lagrangian_1d(&grid, 1.0, d.view(), bad.view()).is_err());
+        semi_lagrangian2_vjp(&self.grid, self.dt, d, u, grad_out, wants)
     }
 }

@@ -222,6 +222,7 @@ pub(super) fn axpy<T: Real>(alpha: T, p: &[T], x: &mut [T]) {
     });
 }
 
+// Stays here: the kernels are private to the solver.
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -62,9 +62,14 @@ use crate::LinearOperator;
 
 mod kernels;
 mod params;
+mod preconditioner;
 mod solver;
 
-pub use params::{CgError, CgInfo, CgParams, NullSpace, Preconditioner};
+pub use crate::linear::NullSpace;
+pub use params::{CgError, CgInfo, CgParams};
+pub use preconditioner::{
+    Identity, Jacobi, Preconditioner, Preconditioning, SharedPreconditioner, Structure,
+};
 use solver::Solver;
 
 /// Solves `A x = b` for a symmetric positive definite (or, with a
@@ -167,45 +172,4 @@ fn validate<T: Real, A: LinearOperator<T> + ?Sized>(
         }
     }
     Ok(shape)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn f32_fixed_iterations_far_past_convergence_stop_at_the_rounding_floor() {
-        // Without the stagnation stop the recurrence shrank until the curvature
-        // <p, A p> underflowed (a non-finite error at iteration 1026 here).
-        use crate::stencil::Laplacian2;
-        use crate::{Boundary, Grid2};
-        let grid = Grid2::square(32, 32, 1.0 / 32.0, Boundary::ZeroDirichlet).unwrap();
-        let a = Laplacian2::negative(grid);
-        let b = diffphys_tape::test_array::<f32>(&[32, 32], 11);
-        let params = CgParams::default().fixed_iterations(3000);
-        let (x, info) = cg_solve(&a, b.view(), &params).unwrap();
-        assert!(info.iterations < 3000, "{}", info.iterations);
-        assert!(info.relative_residual < 1e-4, "{}", info.relative_residual);
-        assert!(x.iter().all(|v| v.is_finite()));
-        // f64 on the same system runs far longer before its floor stops it.
-        let b64 = b.mapv(f64::from);
-        let (_, info64) = cg_solve(&a, b64.view(), &params).unwrap();
-        assert!(info64.iterations > info.iterations);
-    }
-
-    #[test]
-    fn errors_display_their_context() {
-        let e = CgError::NotPositiveDefinite {
-            iteration: 3,
-            curvature: -2.0,
-        };
-        assert!(e.to_string().contains("at iteration 3"));
-        assert!(e.to_string().contains("null_space"));
-        let e = CgError::ShapeMismatch {
-            what: "right-hand side b".into(),
-            expected: vec![2, 3],
-            found: vec![3, 2],
-        };
-        assert!(e.to_string().contains("[3, 2]"));
-    }
 }

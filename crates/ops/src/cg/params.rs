@@ -1,62 +1,9 @@
-//! The solver's params / info / error triad and the choices it takes
-//! (preconditioner, null space).
+//! The solver's params / info / error triad.
 
 use thiserror::Error;
 
-use crate::CellMask;
-
-/// The preconditioner `M ≈ A` that CG applies as `z = M⁻¹ r`.
-#[derive(Debug, Clone, Default)]
-#[non_exhaustive]
-pub enum Preconditioner {
-    /// None (`M = I`).
-    #[default]
-    None,
-    /// Jacobi: `M = diag(A)`, from [`LinearOperator::diagonal`](crate::LinearOperator::diagonal).
-    Jacobi,
-    /// One geometric multigrid V-cycle per iteration, `M⁻¹ = B`
-    /// ([`crate::multigrid::Multigrid`], built for the operator's grid): a
-    /// symmetric positive definite cycle, so the iteration count hardly grows
-    /// with the grid.
-    Multigrid(std::sync::Arc<crate::multigrid::Multigrid>),
-}
-
-impl PartialEq for Preconditioner {
-    /// Equal kinds; two multigrid preconditioners are equal if they are the
-    /// same cycle (the same `Arc`).
-    fn eq(&self, other: &Self) -> bool {
-        match (self, other) {
-            (Preconditioner::None, Preconditioner::None)
-            | (Preconditioner::Jacobi, Preconditioner::Jacobi) => true,
-            (Preconditioner::Multigrid(a), Preconditioner::Multigrid(b)) => {
-                std::sync::Arc::ptr_eq(a, b)
-            }
-            _ => false,
-        }
-    }
-}
-
-/// The null space of a singular symmetric positive semidefinite operator, which
-/// CG projects out of the right-hand side, the preconditioned residuals and the
-/// solution.
-///
-/// For an operator with `A k = 0` (all-Neumann or periodic Laplacians: `k` the
-/// constants), `A x = b` is solvable only for `b ⟂ k`; CG solves
-/// `A x = Π b` with `Π = I − k kᵀ / (kᵀ k)` and returns the solution with
-/// `kᵀ x = 0` (for constants, zero mean).
-#[derive(Debug, Clone, PartialEq, Eq, Default)]
-#[non_exhaustive]
-pub enum NullSpace {
-    /// `A` is positive definite.
-    #[default]
-    None,
-    /// The constants: the mean is removed.
-    Constant,
-    /// The constants on the active cells of a mask (zero on the others, where
-    /// the operator is typically the identity): the mean over the active cells
-    /// is removed from them.
-    ConstantOn(CellMask),
-}
+use super::Preconditioning;
+use crate::linear::NullSpace;
 
 /// How [`conjugate_gradient`](super::conjugate_gradient) runs.
 ///
@@ -72,7 +19,7 @@ pub struct CgParams {
     /// plus 10 (CG is exact after `n` steps in exact arithmetic).
     pub max_iters: Option<usize>,
     /// The preconditioner (default none).
-    pub preconditioner: Preconditioner,
+    pub preconditioner: Preconditioning,
     /// The operator's null space (default none: `A` is positive definite).
     pub null_space: NullSpace,
     /// Keep the residual norm of every iteration in [`CgInfo::history`].
@@ -94,7 +41,7 @@ impl Default for CgParams {
             rel_tol: 1e-8,
             abs_tol: 0.0,
             max_iters: None,
-            preconditioner: Preconditioner::None,
+            preconditioner: Preconditioning::None,
             null_space: NullSpace::None,
             record_history: false,
             require_convergence: true,
@@ -122,9 +69,10 @@ impl CgParams {
         self
     }
 
-    /// With a preconditioner.
-    pub fn with_preconditioner(mut self, preconditioner: Preconditioner) -> Self {
-        self.preconditioner = preconditioner;
+    /// With a preconditioner: a [`Preconditioning`], or an
+    /// `Arc` of a shared one (`Arc<Multigrid>`).
+    pub fn with_preconditioner(mut self, preconditioner: impl Into<Preconditioning>) -> Self {
+        self.preconditioner = preconditioner.into();
         self
     }
 

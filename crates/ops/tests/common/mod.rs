@@ -17,6 +17,10 @@ pub use diffphys_tape::{
     Tape, TapeError, Var,
 };
 
+use diffphys_ops::LinearOperator;
+use diffphys_tape::test_array;
+use ndarray::{Array2, ArrayView1, IxDyn};
+
 /// The single precision test type.
 pub type F32 = f32;
 /// The double precision test type, the one gradient checks run in.
@@ -144,5 +148,69 @@ pub fn assert_close<T: Real>(actual: &ArrayD<T>, expected: &ArrayD<T>, what: &st
         diff <= limit,
         "{what} in {}: max abs diff {diff:.3e} > {limit:.3e}",
         T::NAME
+    );
+}
+
+/// The dense matrix of an operator, built column by column.
+pub fn dense_of(a: &dyn LinearOperator<f64>) -> Array2<f64> {
+    let n_in: usize = a.input_shape().iter().product();
+    let n_out: usize = a.output_shape().iter().product();
+    let mut m = Array2::zeros((n_out, n_in));
+    for k in 0..n_in {
+        let mut e = ArrayD::zeros(IxDyn(a.input_shape()));
+        e.as_slice_mut().unwrap()[k] = 1.0;
+        let col = a.apply(e.view()).unwrap();
+        m.column_mut(k)
+            .assign(&ArrayView1::from(col.as_slice().unwrap()));
+    }
+    m
+}
+
+/// The dot-product test `<A x, y> = <x, Aᵀ y>` on pseudo-random vectors, to
+/// 1e-14 relative to `‖A‖·‖x‖·‖y‖` (with `‖A‖` bounded by the largest absolute
+/// row or column sum, so an operator that is zero up to rounding passes), and
+/// the check that the triplets assemble the matrix the operator applies.
+pub fn check_operator(a: &dyn LinearOperator<f64>, seed: u64) {
+    check_operator_with_scale(a, seed, 0.0);
+}
+
+/// [`check_operator`] for a stencil whose coefficients, of magnitude up to
+/// `coef`, may cancel to a matrix that is zero up to rounding (a periodic
+/// Laplacian on one cell): the tolerance is relative to `max(‖A‖, coef)`.
+pub fn check_operator_with_scale(a: &dyn LinearOperator<f64>, seed: u64, coef: f64) {
+    let x = test_array::<f64>(a.input_shape(), seed);
+    let y = test_array::<f64>(a.output_shape(), seed + 1);
+    let rep = check_adjoint(
+        |v| a.apply(v).unwrap(),
+        |v| a.apply_transpose(v).unwrap(),
+        x.view(),
+        y.view(),
+    )
+    .unwrap();
+    let dense = dense_of(a);
+    let abs = dense.mapv(f64::abs);
+    let norm_bound = abs
+        .sum_axis(ndarray::Axis(0))
+        .iter()
+        .chain(abs.sum_axis(ndarray::Axis(1)).iter())
+        .fold(coef, |m, &v| m.max(v));
+    let norm = |v: &ArrayD<f64>| v.iter().map(|p| p * p).sum::<f64>().sqrt();
+    let tol = 1e-14 * norm_bound * norm(&x) * norm(&y);
+    assert!(
+        (rep.forward_dot - rep.adjoint_dot).abs() <= tol,
+        "{}: {rep:?}, tolerance {tol:e}",
+        a.name()
+    );
+    let mut from_triplets = Array2::zeros(dense.raw_dim());
+    for (r, c, v) in a.triplets().unwrap() {
+        from_triplets[[r, c]] += v;
+    }
+    let diff = (&from_triplets - &dense)
+        .mapv(f64::abs)
+        .fold(0.0f64, |m, &v| m.max(v));
+    assert!(
+        diff <= 1e-12 * norm_bound.max(1.0),
+        "{}: triplets off by {diff}",
+        a.name()
     );
 }

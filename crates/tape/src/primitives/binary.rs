@@ -286,7 +286,7 @@ impl<'t, T: Real> Var<'t, T> {
     /// [`crate::TapeError::ShapeMismatch`] if the shapes do not broadcast;
     /// [`crate::TapeError::ForeignVar`] if `rhs` is on another tape.
     pub fn add(self, rhs: Var<'t, T>) -> Result<Var<'t, T>> {
-        self.apply1(Binary(Add), &[rhs])
+        self.tape.apply(Binary(Add), &[self, rhs])
     }
 
     /// `self − rhs`, broadcasting. Adjoint: `(grad, −grad)`, summed to shape.
@@ -294,7 +294,7 @@ impl<'t, T: Real> Var<'t, T> {
     /// # Errors
     /// As [`Var::add`].
     pub fn sub(self, rhs: Var<'t, T>) -> Result<Var<'t, T>> {
-        self.apply1(Binary(Sub), &[rhs])
+        self.tape.apply(Binary(Sub), &[self, rhs])
     }
 
     /// `self · rhs` elementwise, broadcasting. Adjoint: `(grad·rhs, grad·self)`.
@@ -302,7 +302,7 @@ impl<'t, T: Real> Var<'t, T> {
     /// # Errors
     /// As [`Var::add`].
     pub fn mul(self, rhs: Var<'t, T>) -> Result<Var<'t, T>> {
-        self.apply1(Binary(Mul), &[rhs])
+        self.tape.apply(Binary(Mul), &[self, rhs])
     }
 
     /// `self / rhs` elementwise, broadcasting. Adjoint: `(grad/rhs, −grad·y/rhs)`.
@@ -310,7 +310,7 @@ impl<'t, T: Real> Var<'t, T> {
     /// # Errors
     /// As [`Var::add`]; [`crate::TapeError::NonFinite`] on division by zero.
     pub fn div(self, rhs: Var<'t, T>) -> Result<Var<'t, T>> {
-        self.apply1(Binary(Div), &[rhs])
+        self.tape.apply(Binary(Div), &[self, rhs])
     }
 
     /// Elementwise `min(self, rhs)`, broadcasting. Adjoint: `grad` to the smaller
@@ -319,7 +319,7 @@ impl<'t, T: Real> Var<'t, T> {
     /// # Errors
     /// As [`Var::add`].
     pub fn minimum(self, rhs: Var<'t, T>) -> Result<Var<'t, T>> {
-        self.apply1(Binary(Minimum), &[rhs])
+        self.tape.apply(Binary(Minimum), &[self, rhs])
     }
 
     /// Elementwise `max(self, rhs)`, broadcasting. Adjoint: `grad` to the larger
@@ -328,6 +328,6 @@ impl<'t, T: Real> Var<'t, T> {
     /// # Errors
     /// As [`Var::add`].
     pub fn maximum(self, rhs: Var<'t, T>) -> Result<Var<'t, T>> {
-        self.apply1(Binary(Maximum), &[rhs])
+        self.tape.apply(Binary(Maximum), &[self, rhs])
     }
 }

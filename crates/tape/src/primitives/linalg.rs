@@ -67,7 +67,7 @@ impl<'t, T: Real> Var<'t, T> {
     /// [`TapeError::ShapeMismatch`] if the inner dimensions differ;
     /// [`TapeError::ForeignVar`] if `other` is on another tape.
     pub fn matmul(self, other: Var<'t, T>) -> Result<Var<'t, T>> {
-        self.apply1(Matmul, &[other])
+        self.tape.apply(Matmul, &[self, other])
     }
 
     /// The transpose `y = xᵀ` of a 2-D value (`y[j, i] = x[i, j]`). Adjoint:
@@ -76,7 +76,7 @@ impl<'t, T: Real> Var<'t, T> {
     /// # Errors
     /// [`TapeError::InvalidArgument`] naming `transpose` if the value is not 2-D.
     pub fn transpose(self) -> Result<Var<'t, T>> {
-        self.apply1(Linear(Transpose), &[])
+        self.tape.apply(Linear(Transpose), &[self])
     }
 }
 

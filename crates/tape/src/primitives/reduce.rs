@@ -139,7 +139,7 @@ impl<'t, T: Real> Var<'t, T> {
     /// # Errors
     /// Only [`crate::TapeError::NonFinite`] if the sum overflows.
     pub fn sum(self) -> Result<Var<'t, T>> {
-        self.apply1(Linear(Sum), &[])
+        self.tape.apply(Linear(Sum), &[self])
     }
 
     /// The sum along `axis`, which is removed from the shape:
@@ -150,7 +150,7 @@ impl<'t, T: Real> Var<'t, T> {
     /// [`crate::TapeError::InvalidArgument`] naming `sum_axis` if `axis` is not an
     /// axis of the value.
     pub fn sum_axis(self, axis: usize) -> Result<Var<'t, T>> {
-        self.apply1(Linear(SumAxis { axis }), &[])
+        self.tape.apply(Linear(SumAxis { axis }), &[self])
     }
 
     /// The mean of all elements, a 0-d value: `y = Σᵢ xᵢ / n`. Adjoint:
@@ -159,7 +159,7 @@ impl<'t, T: Real> Var<'t, T> {
     /// # Errors
     /// [`crate::TapeError::InvalidArgument`] naming `mean` for an empty value.
     pub fn mean(self) -> Result<Var<'t, T>> {
-        self.apply1(Linear(Mean), &[])
+        self.tape.apply(Linear(Mean), &[self])
     }
 
     /// The full contraction of two values of the same shape, a 0-d value:
@@ -169,7 +169,7 @@ impl<'t, T: Real> Var<'t, T> {
     /// [`crate::TapeError::ShapeMismatch`] naming `dot` if the shapes differ (no
     /// broadcasting); [`crate::TapeError::ForeignVar`] if `other` is on another tape.
     pub fn dot(self, other: Var<'t, T>) -> Result<Var<'t, T>> {
-        self.apply1(Dot, &[other])
+        self.tape.apply(Dot, &[self, other])
     }
 }
 

@@ -65,6 +65,8 @@ impl<'t, T: Real> Var<'t, T> {
         on_true: Var<'t, T>,
         on_false: Var<'t, T>,
     ) -> Result<Var<'t, T>> {
-        on_true.apply1(Select { mask: mask.clone() }, &[on_false])
+        on_true
+            .tape
+            .apply(Select { mask: mask.clone() }, &[on_true, on_false])
     }
 }

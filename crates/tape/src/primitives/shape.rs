@@ -251,7 +251,7 @@ impl<'t, T: Real> Var<'t, T> {
     /// [`TapeError::ShapeMismatch`] naming `reshape` if the sizes differ.
     pub fn reshape(self, shape: &[usize]) -> Result<Var<'t, T>> {
         let shape = shape.to_vec();
-        self.apply1(Linear(Reshape { shape }), &[])
+        self.tape.apply(Linear(Reshape { shape }), &[self])
     }
 
     /// The value broadcast to `shape` by NumPy rules (trailing axes aligned, axes
@@ -263,7 +263,7 @@ impl<'t, T: Real> Var<'t, T> {
     /// broadcast to `shape`.
     pub fn broadcast_to(self, shape: &[usize]) -> Result<Var<'t, T>> {
         let shape = shape.to_vec();
-        self.apply1(Linear(BroadcastTo { shape }), &[])
+        self.tape.apply(Linear(BroadcastTo { shape }), &[self])
     }
 
     /// The entries `start..end` along `axis`: `y[.., j, ..] = x[.., start + j, ..]`.
@@ -273,7 +273,8 @@ impl<'t, T: Real> Var<'t, T> {
     /// [`TapeError::InvalidArgument`] naming `slice` if `axis` is not an axis or
     /// the range is not within it.
     pub fn slice(self, axis: usize, start: usize, end: usize) -> Result<Var<'t, T>> {
-        self.apply1(Linear(SliceAxis { axis, start, end }), &[])
+        self.tape
+            .apply(Linear(SliceAxis { axis, start, end }), &[self])
     }
 
     /// The periodic shift along `axis` (NumPy `roll`): `y[i] = x[(i − shift) mod n]`,
@@ -283,7 +284,7 @@ impl<'t, T: Real> Var<'t, T> {
     /// # Errors
     /// [`TapeError::InvalidArgument`] naming `roll` if `axis` is not an axis.
     pub fn roll(self, shift: isize, axis: usize) -> Result<Var<'t, T>> {
-        self.apply1(Linear(Roll { shift, axis }), &[])
+        self.tape.apply(Linear(Roll { shift, axis }), &[self])
     }
 
     /// `before` zeros prepended and `after` zeros appended along `axis`:
@@ -293,13 +294,13 @@ impl<'t, T: Real> Var<'t, T> {
     /// # Errors
     /// [`TapeError::InvalidArgument`] naming `pad` if `axis` is not an axis.
     pub fn pad(self, axis: usize, before: usize, after: usize) -> Result<Var<'t, T>> {
-        self.apply1(
+        self.tape.apply(
             Linear(Pad {
                 axis,
                 before,
                 after,
             }),
-            &[],
+            &[self],
         )
     }
 
@@ -315,7 +316,7 @@ impl<'t, T: Real> Var<'t, T> {
         let Some(first) = vars.first() else {
             return Err(TapeError::invalid("concat", "needs at least one value"));
         };
-        first.tape.apply1(Concat { axis }, vars)
+        first.tape.apply(Concat { axis }, vars)
     }
 }
 

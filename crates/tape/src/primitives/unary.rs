@@ -154,7 +154,7 @@ impl<T: Real> UnaryKernel<T> for Powi {
 #[allow(clippy::should_implement_trait)]
 impl<'t, T: Real> Var<'t, T> {
     fn unary<K: UnaryKernel<T>>(self, kernel: K) -> Result<Var<'t, T>> {
-        self.apply1(Unary(kernel), &[])
+        self.tape.apply(Unary(kernel), &[self])
     }
 
     /// `y = −x`. Adjoint: `grad_x = −grad_y`.

@@ -32,3 +32,6 @@ pub struct Performance;
 
 #[doc = include_str!("../docs/09-from-another-engine.md")]
 pub struct FromAnotherEngine;
+
+#[doc = include_str!("../docs/11-wake-flow.md")]
+pub struct WakeFlow;

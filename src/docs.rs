@@ -35,3 +35,6 @@ pub struct FromAnotherEngine;
 
 #[doc = include_str!("../docs/10-flow.md")]
 pub struct Flow;
+
+#[doc = include_str!("../docs/11-wake-flow.md")]
+pub struct WakeFlow;

@@ -13,6 +13,7 @@
 //! | [`diffusion`] | explicit and implicit viscosity |
 //! | [`pressure`] | projection with the obstacle, implicit adjoint, warm start |
 //! | [`forcing`] | Boussinesq buoyancy |
+//! | [`packed`] | batches of states as one array, restriction by face averages |
 //! | [`diagnostics`] | divergence, vorticity, drag and lift |
 //! | [`step`] | the [`Scene`] and the step composed of the above |
 //! | [`validation`] | the Taylor–Green vortex |
@@ -57,6 +58,7 @@ pub mod diffusion;
 mod error;
 pub mod forcing;
 pub mod grid;
+pub mod packed;
 pub mod pressure;
 mod sparse;
 pub mod step;
@@ -68,6 +70,7 @@ pub use diffusion::ViscosityMode;
 pub use error::{FlowError, Result};
 pub use forcing::Buoyancy;
 pub use grid::{FlowGrid, Lattice};
+pub use packed::{batch_of_packed, restrict_velocity};
 pub use pressure::PressureSolver;
 pub use step::{
     Exec, FlowParams, FlowState, FlowVars, ParamVars, Scene, SceneBuilder, Settings, Splitting,

@@ -4,6 +4,7 @@ use std::rc::Rc;
 
 use diffphys_nn::{Bound, Params};
 use diffphys_tape::{checkpointed_steps, ArrayD, Schedule, StepFn, Tape, TapeError, Var};
+use rand::rngs::StdRng;
 
 use crate::{LearnError, Result};
 
@@ -27,6 +28,15 @@ pub trait Simulator {
     fn step_plain(&self, state: &ArrayD<f64>) -> diffphys_tape::Result<ArrayD<f64>> {
         let tape = Tape::new();
         Ok(self.step(tape.constant(state.clone()))?.to_array())
+    }
+
+    /// Adds the input noise of [`crate::Strategy::Noise`] to the batch `state`:
+    /// by default `sigma · N(0, 1)` to every entry, in order. A simulator
+    /// whose state also holds entries that are not physics (a parameter such
+    /// as the viscosity, padding, fixed boundary values) overrides it to
+    /// perturb only the physical ones.
+    fn perturb(&self, state: &mut ArrayD<f64>, sigma: f64, rng: &mut StdRng) {
+        state.mapv_inplace(|x| x + sigma * crate::standard_normal(rng));
     }
 }
 

@@ -62,7 +62,9 @@ pub struct Trainer {
 
 impl Trainer {
     /// Draws one batch for `strategy` from `train` (windows uniform over
-    /// trajectories and start steps; noise added for [`Strategy::Noise`]).
+    /// trajectories and start steps; for [`Strategy::Noise`], `sigma · N(0, 1)`
+    /// added to every entry of the start states, as the default
+    /// [`Simulator::perturb`]; [`Trainer::train`] uses its simulator's).
     ///
     /// # Errors
     /// As [`Budget::windows`]; [`LearnError::EmptySplit`] without training
@@ -73,6 +75,19 @@ impl Trainer {
         strategy: &Strategy,
         train: &[Trajectory],
         rng: &mut StdRng,
+    ) -> Result<Batch> {
+        self.draw(strategy, train, rng, &|start, sigma, rng| {
+            start.mapv_inplace(|x| x + sigma * standard_normal(rng));
+        })
+    }
+
+    /// [`Trainer::draw_batch`] with the noise added by `perturb`.
+    fn draw(
+        &self,
+        strategy: &Strategy,
+        train: &[Trajectory],
+        rng: &mut StdRng,
+        perturb: &dyn Fn(&mut ArrayD<f64>, f64, &mut StdRng),
     ) -> Result<Batch> {
         let windows = self.budget.windows(strategy)?;
         if train.is_empty() {
@@ -102,7 +117,7 @@ impl Trainer {
         let mut start = at(0)?;
         let sigma = strategy.sigma();
         if sigma > 0.0 {
-            start.mapv_inplace(|x| x + sigma * standard_normal(rng));
+            perturb(&mut start, sigma, rng);
         }
         let targets = (1..=k).map(at).collect::<Result<Vec<_>>>()?;
         Ok(Batch {
@@ -168,7 +183,11 @@ impl Trainer {
             });
         }
         let mut rng = seed.sampling_rng();
-        let probe = self.draw_batch(&strategy, train, &mut rng.clone())?;
+        let simulator = hybrid.simulator();
+        let perturb = |start: &mut ArrayD<f64>, sigma: f64, rng: &mut StdRng| {
+            simulator.perturb(start, sigma, rng);
+        };
+        let probe = self.draw(&strategy, train, &mut rng.clone(), &perturb)?;
         hybrid.check_shapes(&params, &probe.start)?;
 
         let mut adam = Adam::new(self.learning_rate);
@@ -179,7 +198,7 @@ impl Trainer {
         // the same shapes), freed when training ends.
         let pool = BufferPool::new();
         for it in 0..iterations {
-            let batch = self.draw_batch(&strategy, train, &mut rng)?;
+            let batch = self.draw(&strategy, train, &mut rng, &perturb)?;
             let tape = Tape::with_pool(&pool);
             let p = params.bind(&tape);
             let loss = Self::batch_loss(hybrid, &tape, &p, &strategy, &batch)?;

@@ -389,3 +389,92 @@ fn the_held_out_split_is_read_once_per_model_after_selection() {
         Err(LearnError::HeldOutReused { .. })
     ));
 }
+
+/// A step whose state holds a parameter in entry 0 that must stay 1 (as a
+/// packed flow state holds its viscosity): anything else is refused.
+struct Pinned {
+    protect: bool,
+}
+
+impl Simulator for Pinned {
+    fn step<'t>(&self, u: Var<'t, f64>) -> diffphys_tape::Result<Var<'t, f64>> {
+        let values = u.to_array();
+        if values.iter().step_by(CELLS).any(|&p| p != 1.0) {
+            return Err(diffphys_tape::TapeError::invalid(
+                "pinned step",
+                "the parameter entry was perturbed",
+            ));
+        }
+        u.mul(u.tape().constant(pin_mask(&u.shape(), 0.9)))
+    }
+
+    fn perturb(&self, state: &mut ArrayD<f64>, sigma: f64, rng: &mut rand::rngs::StdRng) {
+        for (i, x) in state.iter_mut().enumerate() {
+            let noise = sigma * standard_normal(rng);
+            if !self.protect || i % CELLS != 0 {
+                *x += noise;
+            }
+        }
+    }
+}
+
+/// `factor` everywhere but 1 at entry 0 of every sample.
+fn pin_mask(shape: &[usize], factor: f64) -> ArrayD<f64> {
+    let last = shape.len() - 1;
+    ArrayD::from_shape_fn(shape.to_vec(), |i| if i[last] == 0 { 1.0 } else { factor })
+}
+
+/// The test's network with its output zero at entry 0.
+struct PinnedNet(Net);
+
+impl Corrector for PinnedNet {
+    fn correction<'t>(
+        &self,
+        p: &Bound<'t, f64>,
+        u: Var<'t, f64>,
+    ) -> diffphys_tape::Result<Var<'t, f64>> {
+        let mask = pin_mask(&u.shape(), 1.0) - pin_mask(&u.shape(), 0.0);
+        let mask = u.tape().constant(mask);
+        self.0.correction(p, u)?.mul(mask)
+    }
+}
+
+#[test]
+fn noise_goes_through_the_simulators_perturbation() {
+    let data = Splits::generate(DataSeed(9), [2, 1, 1], |_, n, rng| {
+        Ok((0..n)
+            .map(|_| {
+                let mut u = ArrayD::from_shape_fn(vec![1, CELLS], |i| {
+                    if i[1] == 0 {
+                        1.0
+                    } else {
+                        rng.random_range(-1.0..1.0)
+                    }
+                });
+                let mut tr = vec![u.clone()];
+                for _ in 0..8 {
+                    u = &u * &pin_mask(&[1, CELLS], 0.92);
+                    tr.push(u.clone());
+                }
+                tr
+            })
+            .collect::<Vec<Trajectory>>())
+    })
+    .unwrap();
+    let t = trainer(3, 4);
+    let strategy = Strategy::Noise { sigma: 0.5 };
+    for protect in [true, false] {
+        let (corrector, params) = net(8, 1);
+        let hybrid = Hybrid::new(Pinned { protect }, PinnedNet(corrector));
+        let result = t.train(
+            &hybrid,
+            params,
+            strategy,
+            &data.train,
+            &data.validation,
+            TrainSeed(1),
+            &|| {},
+        );
+        assert_eq!(result.is_ok(), protect, "protect {protect}: {result:?}");
+    }
+}

@@ -1,0 +1,762 @@
+//! The hybrid wake-flow solver: a coarse flow solver (32 × 64 cells) with a
+//! corrector network trained through it against a 4× finer reference, tested
+//! at Reynolds numbers it never saw, and set against simply running a finer
+//! grid.
+//!
+//! Scene (physics in `wake_flow_scene`): a cylinder wake in a 2 × 1 channel,
+//! uniform inflow, outflow, free-slip side walls; the coarse solver is
+//! semi-Lagrangian with plain splitting, the reference 128 × 256 with
+//! MacCormack and incremental splitting, restricted by face averages.
+//!
+//! Variants, each trained with the same budget of corrector evaluations:
+//! `src` (uncorrected), `non` (one-step pairs), `noise` (`non` with input
+//! noise), `sol_4` and `sol_16` (through 4 and 16 coarse steps, gradients
+//! through the pressure solve; `sol_16` checkpointed every 4 steps). The
+//! learning rate (pilot runs), the unroll and the stopping iteration are chosen
+//! on the validation Reynolds numbers; each trained model is evaluated once on
+//! the held-out ones. A capacity sweep trains `non` and `sol_4` at three
+//! corrector sizes. The speed study rolls out the uncorrected solver at 1×, 2×
+//! and 4× the resolution and the corrected coarse one, timed.
+//!
+//! Options: `--data-seed N`, `--train-seeds a,b,c`, `--held-out-re LIST` (any
+//! Re in [50, 3200]; its reference is generated and cached), `--train-re`,
+//! `--validation-re`, `--variants src,non,noise,sol4,sol16`, `--lrs LIST`,
+//! `--iterations N`, `--no-capacity`, `--no-speed`, `--small` (CI: 16 × 32),
+//! `--out DIR`, `--npy`. Tutorial: docs/11-wake-flow.md. Run:
+//! `cargo run --release --example wake_flow` (`-- --small` for CI).
+
+mod common;
+mod wake_flow_scene;
+
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use diffphys::flow::PressureSolver;
+use diffphys::learn::{
+    rollout, select_best, Budget, Candidate, DataSeed, Hybrid, LrSchedule, Report, Schedule,
+    Simulator, Split, Splits, Strategy, TrainSeed, Trained, TrainedCorrector, Trainer, Trajectory,
+};
+use diffphys::nn::Params;
+use diffphys_compare::harness::progress_bar;
+use ndarray::Array3;
+use serde_json::{json, Value};
+
+use wake_flow_scene::data::{base_state, reference, Bump, Cache, Reference};
+use wake_flow_scene::study::{self, HeldOutRun};
+use wake_flow_scene::{
+    free_faces, reference_scene, uncorrected, Coarse, Net, NetSize, Options, Sizes, Variant,
+    WakeError, MAIN_SIZE, SIZES,
+};
+
+type BoxError = Box<dyn std::error::Error>;
+type Wake = Hybrid<Coarse, Net>;
+
+/// Network evaluations per optimizer step (divisible by every unroll).
+const EVALUATIONS: usize = 16;
+
+fn strategy(variant: Variant, sigma: f64) -> Option<Strategy> {
+    match variant {
+        Variant::Src => None,
+        Variant::Non => Some(Strategy::NonInteracting),
+        Variant::Noise => Some(Strategy::Noise { sigma }),
+        Variant::Sol(unroll) => Some(Strategy::SolverInTheLoop {
+            unroll,
+            schedule: if unroll > 4 {
+                Schedule::Every(4)
+            } else {
+                Schedule::Full
+            },
+        }),
+    }
+}
+
+/// `count` states from `start` of a reference, as a trajectory.
+fn window(r: &Reference, start: usize, count: usize) -> Trajectory {
+    r.states[start..start + count]
+        .iter()
+        .map(|s| s.clone().into_dyn())
+        .collect()
+}
+
+/// The root mean square one-step error of the coarse solver over the free
+/// faces of the training trajectories (every 10th state): the noise scale.
+fn one_step_rms(coarse: &Coarse, train: &[Trajectory]) -> Result<f64, BoxError> {
+    let free = free_faces(&coarse.scene);
+    let (mut sum, mut count) = (0.0, 0.0);
+    for tr in train {
+        for t in (0..tr.len() - 1).step_by(10) {
+            let batch = tr[t].clone().insert_axis(ndarray::Axis(0));
+            let next = coarse.step_plain(&batch)?;
+            let d = (&next.index_axis(ndarray::Axis(0), 0) - &tr[t + 1]) * &free;
+            sum += d.mapv(|e| e * e).sum();
+            count += free.sum();
+        }
+    }
+    Ok((sum / count).sqrt())
+}
+
+struct Model {
+    variant: Variant,
+    size: NetSize,
+    seed: u64,
+    trained: Trained<TrainedCorrector>,
+    seconds: f64,
+}
+
+#[allow(clippy::too_many_arguments)]
+fn train_one(
+    trainer: &Trainer,
+    coarse: &Coarse,
+    variant: Variant,
+    size: NetSize,
+    sigma: f64,
+    seed: u64,
+    splits: &Splits<Vec<Reference>>,
+    train: &[Trajectory],
+    validation: &[Trajectory],
+) -> Result<Model, BoxError> {
+    let strategy = strategy(variant, sigma).ok_or("src is not trained")?;
+    let (net, params) = Net::new(&coarse.scene, size, &mut TrainSeed(seed).init_rng())?;
+    let hybrid = Hybrid::new(coarse.clone(), net);
+    let bar = progress_bar(
+        trainer.budget.iterations,
+        &format!(
+            "data {} {:>6} {} seed {seed} (lr {:.0e})",
+            splits.seed.0,
+            variant.name(),
+            size.label(),
+            trainer.learning_rate
+        ),
+    );
+    let start = Instant::now();
+    let trained = trainer.train(
+        &hybrid,
+        params,
+        strategy,
+        train,
+        validation,
+        TrainSeed(seed),
+        &|| bar.inc(1),
+    )?;
+    bar.finish_and_clear();
+    let seconds = start.elapsed().as_secs_f64();
+    println!(
+        "  {:>6} {} seed {seed}: {:.1} s, validation {:.5} (kept iteration {} of {})",
+        variant.name(),
+        size.label(),
+        seconds,
+        trained.model.validation,
+        trained.model.best_iteration,
+        trainer.budget.iterations
+    );
+    Ok(Model {
+        variant,
+        size,
+        seed,
+        trained,
+        seconds,
+    })
+}
+
+fn main() -> Result<(), BoxError> {
+    let run_start = Instant::now();
+    let mut raw: Vec<String> = std::env::args().skip(1).collect();
+    let small = raw.iter().any(|a| a == "--small");
+    let options = Options::take(&mut raw, small)?;
+    let seeds = common::Seeds::take(&mut raw, small)?;
+    let args = common::ExampleArgs::parse_from("wake_flow", raw.into_iter())?;
+    let seeds = common::Seeds {
+        data: seeds.data,
+        train: if small && seeds.train == [1] {
+            vec![1]
+        } else {
+            seeds.train
+        },
+    };
+    let sizes = if small { Sizes::small() } else { Sizes::full() };
+    let coarse_scene = uncorrected(&sizes, 1, PressureSolver::Cholesky)?;
+    let fine = reference_scene(&sizes)?;
+    let coarse = Coarse::new(coarse_scene.clone());
+    let cache = Cache::new(&args.out, &sizes)?;
+    let iterations = args.iterations.unwrap_or(args.pick(400, 4));
+    let trainer = Trainer {
+        budget: Budget {
+            iterations,
+            evaluations_per_iteration: EVALUATIONS,
+        },
+        learning_rate: options.learning_rates[0],
+        schedule: LrSchedule::Cosine {
+            final_fraction: 0.1,
+        },
+        validate_every: args.pick(50, 2),
+        validation_steps: sizes.rollout,
+    };
+    println!(
+        "wake flow: coarse {} x {} (dt {}), reference {} x {} (dt {}); train Re {:?}, validation Re {:?}, held-out Re {:?}; {} iterations x {} corrector evaluations",
+        sizes.ny, sizes.nx, sizes.dt, fine.grid().ny, fine.grid().nx, fine.dt(),
+        options.train_re, options.validation_re, options.held_out_re, iterations, EVALUATIONS
+    );
+
+    let mut results = Results::default();
+    let mut validation_report = Report::new();
+    let mut selected_k = serde_json::Map::new();
+    let mut chosen_lr = serde_json::Map::new();
+    let mut capacity_runs: Vec<(NetSize, Variant, u64, f64, f64, usize)> = Vec::new();
+    let mut train_seconds: BTreeMap<String, Vec<f64>> = BTreeMap::new();
+    let mut speed_inputs = None;
+    let mut sigma_used = 0.0;
+    let mut params_count = serde_json::Map::new();
+    for size in SIZES {
+        let (_, p) = Net::new(&coarse.scene, size, &mut TrainSeed(0).init_rng())?;
+        params_count.insert(size.label(), json!(p.count()));
+    }
+
+    for &ds in &seeds.data {
+        // Phase 1: the reference (cached).
+        let total = 3 * sizes.warm_base
+            + (options.train_re.len() + options.validation_re.len() + options.held_out_re.len())
+                * (sizes.warm + sizes.record);
+        let bar = progress_bar(total, &format!("data {ds}: reference"));
+        let t0 = Instant::now();
+        let splits = Splits::generate(
+            DataSeed(ds),
+            [
+                options.train_re.len(),
+                options.validation_re.len(),
+                options.held_out_re.len(),
+            ],
+            |split, _, rng| {
+                let list = match split {
+                    Split::Train => &options.train_re,
+                    Split::Validation => &options.validation_re,
+                    Split::HeldOut => &options.held_out_re,
+                };
+                let mut run = || -> Result<Vec<Reference>, WakeError> {
+                    let bump = Bump::draw(rng);
+                    let base = base_state(&cache, &sizes, &fine, bump, &|n| bar.inc(n))?;
+                    list.iter()
+                        .map(|&re| {
+                            reference(
+                                &cache,
+                                &sizes,
+                                &coarse.scene,
+                                &fine,
+                                (&base, bump),
+                                re,
+                                &|n| bar.inc(n),
+                            )
+                        })
+                        .collect()
+                };
+                run().map_err(|e| diffphys::learn::LearnError::Invalid {
+                    what: "reference",
+                    message: e.to_string(),
+                })
+            },
+        )?;
+        bar.finish_and_clear();
+        mem("reference");
+        println!(
+            "data seed {ds}: reference ready in {:.1} s (cached under {})",
+            t0.elapsed().as_secs_f64(),
+            cache.dir.display()
+        );
+        let train: Vec<Trajectory> = splits
+            .train
+            .iter()
+            .map(|r| window(r, 0, r.states.len()))
+            .collect();
+        let validation: Vec<Trajectory> = splits
+            .validation
+            .iter()
+            .flat_map(|r| {
+                [0, sizes.record - sizes.rollout]
+                    .into_iter()
+                    .map(|s| window(r, s, sizes.rollout + 1))
+            })
+            .collect();
+        let sigma = one_step_rms(&coarse, &train)?;
+        sigma_used = sigma;
+        let (net0, _) = Net::new(&coarse.scene, MAIN_SIZE, &mut TrainSeed(0).init_rng())?;
+        let hybrid: Wake = Hybrid::new(coarse.clone(), net0);
+        let src_val = rollout(&hybrid, None, &validation, sizes.rollout)?.mean();
+        validation_report.add("src", ds, None, src_val);
+        println!("  noise sigma (one-step RMS error of the coarse solver) {sigma:.2e}; src validation {src_val:.4}");
+
+        mem("src");
+        // Phase 2: the learning rate, on validation (pilot runs at a quarter
+        // of the budget, first training seed).
+        let mut lr_of: BTreeMap<&str, f64> = BTreeMap::new();
+        let families: Vec<(&str, Variant)> = [
+            ("non", Variant::Non),
+            (
+                "sol",
+                Variant::Sol(options.unrolls().first().copied().unwrap_or(4)),
+            ),
+        ]
+        .into_iter()
+        .filter(|(f, _)| {
+            if *f == "non" {
+                options
+                    .variants
+                    .iter()
+                    .any(|v| matches!(v, Variant::Non | Variant::Noise))
+            } else {
+                !options.unrolls().is_empty()
+            }
+        })
+        .collect();
+        for (family, variant) in &families {
+            if options.learning_rates.len() == 1 {
+                lr_of.insert(family, options.learning_rates[0]);
+                continue;
+            }
+            let mut best = (f64::INFINITY, options.learning_rates[0]);
+            let mut scores = Vec::new();
+            for &lr in &options.learning_rates {
+                let pilot = Trainer {
+                    learning_rate: lr,
+                    budget: Budget {
+                        iterations: (iterations / 4).max(1),
+                        ..trainer.budget
+                    },
+                    ..trainer
+                };
+                let m = train_one(
+                    &pilot,
+                    &coarse,
+                    *variant,
+                    MAIN_SIZE,
+                    sigma,
+                    seeds.train[0],
+                    &splits,
+                    &train,
+                    &validation,
+                )?;
+                let v = m.trained.model.validation;
+                scores.push(json!({"lr": lr, "validation": v}));
+                if v < best.0 {
+                    best = (v, lr);
+                }
+            }
+            println!(
+                "  learning rate for {family}: {:.0e} (pilot validation {scores:?})",
+                best.1
+            );
+            lr_of.insert(family, best.1);
+            chosen_lr.insert(format!("{family}_pilots_data_{ds}"), json!(scores));
+        }
+        for (f, lr) in &lr_of {
+            chosen_lr.insert(format!("{f}_data_{ds}"), json!(lr));
+        }
+        let trainer_for = |v: Variant| Trainer {
+            learning_rate: match v {
+                Variant::Sol(_) => lr_of.get("sol"),
+                _ => lr_of.get("non"),
+            }
+            .copied()
+            .unwrap_or(options.learning_rates[0]),
+            ..trainer
+        };
+
+        // Phase 3: every variant at the main size, every training seed.
+        let mut groups: Vec<(Variant, Vec<Model>)> = Vec::new();
+        for &variant in options.variants.iter().filter(|v| **v != Variant::Src) {
+            let mut group = Vec::new();
+            for &ts in &seeds.train {
+                let m = train_one(
+                    &trainer_for(variant),
+                    &coarse,
+                    variant,
+                    MAIN_SIZE,
+                    sigma,
+                    ts,
+                    &splits,
+                    &train,
+                    &validation,
+                )?;
+                validation_report.add(&variant.name(), ds, Some(ts), m.trained.model.validation);
+                train_seconds
+                    .entry(variant.name())
+                    .or_default()
+                    .push(m.seconds);
+                group.push(m);
+            }
+            groups.push((variant, group));
+        }
+        // Capacity sweep: non and the first SOL at the other sizes.
+        let mut capacity_groups: Vec<(Variant, Vec<Model>)> = Vec::new();
+        if options.capacity {
+            let sol = options.unrolls().first().copied().map(Variant::Sol);
+            for size in SIZES.into_iter().filter(|s| *s != MAIN_SIZE) {
+                for variant in [Some(Variant::Non), sol].into_iter().flatten() {
+                    let mut group = Vec::new();
+                    for &ts in &seeds.train {
+                        let m = train_one(
+                            &trainer_for(variant),
+                            &coarse,
+                            variant,
+                            size,
+                            sigma,
+                            ts,
+                            &splits,
+                            &train,
+                            &validation,
+                        )?;
+                        train_seconds
+                            .entry(format!("{}_{}", variant.name(), size.label()))
+                            .or_default()
+                            .push(m.seconds);
+                        group.push(m);
+                    }
+                    capacity_groups.push((variant, group));
+                }
+            }
+        }
+
+        mem("training");
+        // Phase 4: selection on validation only.
+        let candidate = |(v, g): (Variant, Vec<Model>)| {
+            let score = g.iter().map(|m| m.trained.model.validation).sum::<f64>() / g.len() as f64;
+            Candidate::new(
+                format!("{}@{}", v.name(), g[0].size.label()),
+                Trained::new(g),
+                score,
+            )
+        };
+        let (sols, others): (Vec<_>, Vec<_>) = groups
+            .into_iter()
+            .partition(|(v, _)| matches!(v, Variant::Sol(_)));
+        let mut selections = Vec::new();
+        if !sols.is_empty() {
+            let s = select_best(sols.into_iter().map(candidate).collect())?;
+            let k: usize = s
+                .chosen_label()
+                .trim_start_matches("sol_")
+                .split('@')
+                .next()
+                .unwrap_or("0")
+                .parse()?;
+            println!("  selected by validation: sol_{k}");
+            selected_k.insert(ds.to_string(), json!(k));
+            selections.push(s);
+        }
+        for g in others.into_iter().chain(capacity_groups) {
+            selections.push(select_best(vec![candidate(g)])?);
+        }
+
+        // Phase 5: held-out, each trained model once.
+        let bar = progress_bar(
+            options.held_out_re.len()
+                * (1 + selections.iter().map(|s| s.models.len()).sum::<usize>()),
+            &format!("data {ds}: held-out"),
+        );
+        let src = splits.held_out().evaluate_baseline(|refs| {
+            study::held_out_run(&hybrid, None, refs, &sizes, &|| bar.inc(1)).map_err(|e| {
+                diffphys::learn::LearnError::Invalid {
+                    what: "held-out",
+                    message: e.to_string(),
+                }
+            })
+        })?;
+        results.record("src", ds, None, &src);
+        let reference_last = splits
+            .held_out()
+            .evaluate_baseline(|refs| Ok(refs[0].states[sizes.long].clone()))?;
+        results
+            .last
+            .entry("reference".into())
+            .or_insert(reference_last);
+        let mut probe: Option<Params<f64>> = None;
+        let mut non_probe: Option<Params<f64>> = None;
+        for selection in selections {
+            for model in selection.models {
+                let e = splits.held_out().evaluate(model, |group, refs| {
+                    group
+                        .iter()
+                        .map(|m| {
+                            let h = Hybrid::new(
+                                coarse.clone(),
+                                Net::new(&coarse.scene, m.size, &mut TrainSeed(m.seed).init_rng())
+                                    .map_err(|e| diffphys::learn::LearnError::Invalid {
+                                        what: "net",
+                                        message: e.to_string(),
+                                    })?
+                                    .0,
+                            );
+                            study::held_out_run(
+                                &h,
+                                Some(&m.trained.model.params),
+                                refs,
+                                &sizes,
+                                &|| bar.inc(1),
+                            )
+                            .map_err(|e| {
+                                diffphys::learn::LearnError::Invalid {
+                                    what: "held-out",
+                                    message: e.to_string(),
+                                }
+                            })
+                        })
+                        .collect::<Result<Vec<_>, _>>()
+                })?;
+                for (run, m) in e.result.iter().zip(&e.model) {
+                    let params = m.trained.model.params.count();
+                    if m.size != MAIN_SIZE || matches!(m.variant, Variant::Non | Variant::Sol(_)) {
+                        let first_sol = options.unrolls().first().copied();
+                        let in_sweep = m.variant == Variant::Non
+                            || Some(m.variant) == first_sol.map(Variant::Sol);
+                        if in_sweep {
+                            capacity_runs.push((
+                                m.size,
+                                m.variant,
+                                m.seed,
+                                run.mean(),
+                                run.long_mean(),
+                                params,
+                            ));
+                        }
+                    }
+                    if m.size != MAIN_SIZE {
+                        continue;
+                    }
+                    let mut names = vec![m.variant.name()];
+                    if matches!(m.variant, Variant::Sol(_)) && e.chosen {
+                        names.push("sol_selected".into());
+                        if probe.is_none() {
+                            probe = Some(m.trained.model.params.clone());
+                        }
+                    }
+                    if m.variant == Variant::Non && non_probe.is_none() {
+                        non_probe = Some(m.trained.model.params.clone());
+                    }
+                    for name in names {
+                        results.record(&name, ds, Some(m.seed), run);
+                    }
+                }
+            }
+        }
+        bar.finish_and_clear();
+        mem("held-out");
+        if speed_inputs.is_none() {
+            speed_inputs = Some((splits, probe, non_probe));
+        }
+    }
+
+    // Phase 6: speed against accuracy, pressure solves.
+    let mut speed = Value::Null;
+    let mut pressure = Value::Null;
+    if let (true, Some((splits, probe, _non))) = (options.speed, &speed_inputs) {
+        let (net0, _) = Net::new(&coarse.scene, MAIN_SIZE, &mut TrainSeed(0).init_rng())?;
+        let hybrid: Wake = Hybrid::new(coarse.clone(), net0);
+        let result = splits.held_out().evaluate_baseline(|refs| {
+            study::speed(&hybrid, probe.as_ref(), refs, &sizes, &coarse.scene).map_err(|e| {
+                diffphys::learn::LearnError::Invalid {
+                    what: "speed",
+                    message: e.to_string(),
+                }
+            })
+        })?;
+        speed = result;
+        mem("speed");
+        pressure = study::pressure_solves(&sizes, options.validation_re[0])?;
+    }
+
+    // Report.
+    let summary = |r: &Report| -> serde_json::Map<String, Value> {
+        r.methods()
+            .filter_map(|m| {
+                r.summary(m).map(|s| {
+                    (
+                        m.to_string(),
+                        json!({"mean": s.mean, "min": s.min, "max": s.max, "runs": s.runs}),
+                    )
+                })
+            })
+            .collect()
+    };
+    println!(
+        "\nheld-out mean relative L2 error over {} steps (data seeds {:?} x train seeds {:?}):",
+        sizes.rollout, seeds.data, seeds.train
+    );
+    print!("{}", results.held_out.table(Some("src")));
+    println!("long rollout ({} steps):", sizes.long);
+    print!("{}", results.long.table(Some("src")));
+    let per_re_json: serde_json::Map<String, Value> = results.per_re.iter()
+        .map(|(re, m)| {
+            let v: serde_json::Map<String, Value> = m
+                .iter()
+                .map(|(name, runs)| {
+                    let n = runs.len() as f64;
+                    let mean = runs.iter().map(|r| r.0).sum::<f64>() / n;
+                    let long = runs.iter().map(|r| r.1).sum::<f64>() / n;
+                    let min = runs.iter().map(|r| r.0).fold(f64::INFINITY, f64::min);
+                    let max = runs.iter().map(|r| r.0).fold(f64::NEG_INFINITY, f64::max);
+                    (name.clone(), json!({"mean": mean, "min": min, "max": max, "long_mean": long, "runs": runs.len()}))
+                })
+                .collect();
+            (re.clone(), Value::Object(v))
+        })
+        .collect();
+    // Floors.
+    let ratio_at = |re: &str, a: &str, b: &str| -> Option<f64> {
+        let m = results.per_re.get(re)?;
+        let mean = |k: &str| {
+            m.get(k)
+                .map(|r| r.iter().map(|x| x.0).sum::<f64>() / r.len() as f64)
+        };
+        Some(mean(a)? / mean(b)?)
+    };
+    let sol_src: BTreeMap<String, Option<f64>> = results
+        .per_re
+        .keys()
+        .map(|re| (re.clone(), ratio_at(re, "sol_selected", "src")))
+        .collect();
+    let floor_sol_src = if sol_src.values().any(Option::is_none) || sol_src.is_empty() {
+        json!("not measured")
+    } else {
+        json!(sol_src.values().all(|r| r.unwrap_or(f64::INFINITY) <= 0.3))
+    };
+    let capacity = study::capacity_json(&capacity_runs, &options);
+    let smallest = study::ratio_at_size(
+        &capacity_runs,
+        SIZES[0],
+        options.unrolls().first().copied(),
+        false,
+    );
+    let smallest_long = study::ratio_at_size(
+        &capacity_runs,
+        SIZES[0],
+        options.unrolls().first().copied(),
+        true,
+    );
+    let floor_small = match smallest {
+        Some(r) => json!(r <= 0.8),
+        None => json!("not measured"),
+    };
+    study::charts(
+        &args.out,
+        &results.curves,
+        &capacity_runs,
+        &speed,
+        &results.last,
+        &coarse.scene,
+        options.unrolls().first().copied(),
+    )?;
+    let npy: Vec<(String, ndarray::ArrayViewD<'_, f64>)> = results
+        .last
+        .iter()
+        .map(|(name, a)| (format!("last_{name}"), a.view().into_dyn()))
+        .collect();
+    args.write_npy(
+        &npy.iter()
+            .map(|(n, a)| {
+                (
+                    n.as_str(),
+                    a.view(),
+                    "packed [2, nx + 1, ny + 1] velocity (u_x, u_y; viscosity in the corner) after the long rollout at the first held-out Re",
+                )
+            })
+            .collect::<Vec<_>>(),
+    )?;
+    let floors = json!({
+        "sol_selected_at_most_0.3x_src_every_held_out_re": floor_sol_src,
+        "sol_selected_over_src_per_re": sol_src,
+        "goal_sol_selected_at_most_0.1x_src": if sol_src.is_empty() || sol_src.values().any(Option::is_none) { json!("not measured") } else { json!(sol_src.values().all(|r| r.unwrap_or(f64::INFINITY) <= 0.1)) },
+        "smallest_size_sol_at_most_0.8x_non_100_steps": floor_small,
+        "smallest_size_sol_over_non_100_steps": smallest,
+        "smallest_size_sol_over_non_long": smallest_long,
+        "peak_rss_under_2_gib": common::peak_rss_bytes().map(|b| b < 2 << 30),
+    });
+    println!("floors: {floors}");
+    let held_split: (Vec<f64>, Vec<f64>) = options
+        .held_out_re
+        .iter()
+        .partition(|&&r| options.inside(r));
+    common::print_json_line(&json!({
+        "example": "wake_flow",
+        "small": args.small,
+        "grid_coarse": [sizes.ny, sizes.nx],
+        "grid_reference": [fine.grid().ny, fine.grid().nx],
+        "dt_coarse": sizes.dt,
+        "dt_reference": fine.dt(),
+        "skipped_transient_steps": {"base": sizes.warm_base, "per_re": sizes.warm, "base_re": sizes.base_re},
+        "recorded_steps": sizes.record,
+        "rollout_steps": sizes.rollout,
+        "rollout_starts": sizes.starts,
+        "long_rollout_steps": sizes.long,
+        "re_definition": "U D / nu, U = 1 inflow speed, D = 0.2 cylinder diameter",
+        "re_range": wake_flow_scene::RE_RANGE,
+        "data_seeds": seeds.data,
+        "train_seeds": seeds.train,
+        "train_re": options.train_re,
+        "validation_re": options.validation_re,
+        "held_out_re": {"inside": held_split.0, "outside": held_split.1},
+        "training_iterations": iterations,
+        "corrector_evaluations_per_training": iterations * EVALUATIONS,
+        "noise_sigma": sigma_used,
+        "learning_rate": chosen_lr,
+        "params": params_count,
+        "main_size": MAIN_SIZE.label(),
+        "mean_rel_error": summary(&results.held_out),
+        "long_rel_error": summary(&results.long),
+        "validation_rel_error": summary(&validation_report),
+        "per_re": per_re_json,
+        "capacity": capacity,
+        "selected_k": selected_k,
+        "selected_by": "validation",
+        "train_seconds": train_seconds,
+        "speed": speed,
+        "pressure": pressure,
+        "floors_met": floors,
+        "peak_rss_bytes": common::peak_rss_bytes(),
+        "wall_s": run_start.elapsed().as_secs_f64(),
+    }));
+    Ok(())
+}
+
+/// Per Reynolds number, per method: `(100-step error, long error)` of every run.
+type PerRe = BTreeMap<String, BTreeMap<String, Vec<(f64, f64)>>>;
+
+/// The held-out figures of every run.
+#[derive(Default)]
+struct Results {
+    held_out: Report,
+    long: Report,
+    per_re: PerRe,
+    curves: BTreeMap<String, Vec<Vec<f64>>>,
+    last: BTreeMap<String, Array3<f64>>,
+}
+
+impl Results {
+    fn record(&mut self, name: &str, ds: u64, ts: Option<u64>, run: &HeldOutRun) {
+        self.held_out.add(name, ds, ts, run.mean());
+        self.long.add(name, ds, ts, run.long_mean());
+        for r in &run.per_re {
+            self.per_re
+                .entry(format!("{}", r.re))
+                .or_default()
+                .entry(name.to_string())
+                .or_default()
+                .push((r.mean, r.long));
+        }
+        self.curves
+            .entry(name.to_string())
+            .or_default()
+            .push(run.curve());
+        if let Some(r) = run.per_re.first() {
+            self.last
+                .entry(name.to_string())
+                .or_insert_with(|| r.last.clone());
+        }
+    }
+}
+
+/// Prints the peak resident memory so far (the tapes' buffer pools are freed
+/// with the training runs that made them).
+fn mem(phase: &str) {
+    println!(
+        "  memory after {phase}: peak RSS {:.0} MB",
+        common::peak_rss_bytes().unwrap_or(0) as f64 / 1e6
+    );
+}

@@ -1,0 +1,688 @@
+//! The physics and the network of `wake_flow`: the coarse wake solver as a
+//! batched simulator, the reference solver, the corrector, the options and the
+//! scene's typed errors.
+//!
+//! Geometry (units: inflow speed U = 1, cylinder diameter D = 0.2): a channel
+//! 2 long (x, streamwise) and 1 wide (y), uniform inflow 1 on the left, outflow
+//! on the right, free-slip side walls, a cylinder of radius 0.1 centred at
+//! (0.5, 0.5). `Re = U D / ν`.
+//!
+//! - coarse: `ny × nx` = 32 × 64 cells (16 × 32 with `--small`),
+//!   semi-Lagrangian self-advection, explicit viscosity, plain (first-order)
+//!   splitting, sparse Cholesky pressure solve, `dt` = 0.01 (Courant 0.32 at
+//!   the inflow speed);
+//! - reference: 4× finer in space and time (128 × 256, `dt / 4`), MacCormack
+//!   advection with the limiter and incremental (second-order) splitting,
+//!   restricted to the coarse grid by face averages
+//!   ([`diffphys::flow::restrict_velocity`]);
+//! - uncorrected finer solvers for the speed study: the coarse scheme at 2×
+//!   and 4× the resolution (`dt / 2`, `dt / 4`).
+//!
+//! A coarse state is packed as `[2, nx + 1, ny + 1]` with its viscosity in a
+//! corner ([`diffphys::flow::packed`]), so one batch mixes Reynolds numbers.
+
+pub mod data;
+pub mod study;
+
+use diffphys::flow::{
+    Advection, Boundary, FlowError, Obstacle, PressureSolver, Scene, Sides, Splitting,
+};
+use diffphys::learn::{standard_normal, Corrector, LearnError, Simulator, Split};
+use diffphys::nn::{Bound, Conv2, ConvConfig, Init, Layer, NnError, Padding, Params};
+use diffphys::tape::{ArrayD, TapeError, Var};
+use rand::rngs::StdRng;
+use rand::Rng;
+
+/// The domain's length along the flow.
+pub const LX: f64 = 2.0;
+/// Its width.
+pub const LY: f64 = 1.0;
+/// The cylinder's centre.
+pub const CENTRE: [f64; 2] = [0.5, 0.5];
+/// The cylinder's diameter (the length of `Re`).
+pub const DIAMETER: f64 = 0.2;
+/// The inflow speed.
+pub const U_IN: f64 = 1.0;
+/// The reference's refinement in space and time.
+pub const FACTOR: usize = 4;
+/// The Reynolds numbers a user may ask for (`--held-out-re`).
+pub const RE_RANGE: [f64; 2] = [50.0, 3200.0];
+/// The Reynolds number the network's Re channel is centred on.
+pub const RE_CENTRE: f64 = 400.0;
+
+/// Everything that can go wrong in the scene.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum WakeError {
+    /// A variant name that is not one of `src, non, noise, solK`.
+    #[error("unknown variant {name:?}: choose from src, non, noise, sol4, sol16")]
+    UnknownVariant {
+        /// What was asked for.
+        name: String,
+    },
+    /// A Reynolds number outside [`RE_RANGE`] (or not finite).
+    #[error("Reynolds number {re} is outside the scene's range [50, 3200]")]
+    ReOutOfRange {
+        /// What was asked for.
+        re: f64,
+    },
+    /// A bad command-line argument.
+    #[error("{option}: {message}")]
+    Argument {
+        /// The option.
+        option: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// The reference cache could not be read or written.
+    #[error("reference cache {path}: {message}")]
+    Cache {
+        /// The file.
+        path: String,
+        /// What went wrong.
+        message: String,
+    },
+    /// The learning library refused (empty split, unroll 0, corrector shape, …).
+    #[error(transparent)]
+    Learn(#[from] LearnError),
+    /// The flow solver refused.
+    #[error(transparent)]
+    Flow(#[from] FlowError),
+    /// A network layer refused.
+    #[error(transparent)]
+    Nn(#[from] NnError),
+    /// A tape op refused.
+    #[error(transparent)]
+    Tape(#[from] TapeError),
+    /// Writing a chart or a file failed.
+    #[error("output: {0}")]
+    Output(String),
+}
+
+/// The scene's result type.
+pub type Result<T> = std::result::Result<T, WakeError>;
+
+/// The viscosity of `re`.
+pub fn viscosity(re: f64) -> f64 {
+    U_IN * DIAMETER / re
+}
+
+/// `re` if it lies in [`RE_RANGE`].
+///
+/// # Errors
+/// [`WakeError::ReOutOfRange`].
+pub fn checked_re(re: f64) -> Result<f64> {
+    if re.is_finite() && (RE_RANGE[0]..=RE_RANGE[1]).contains(&re) {
+        Ok(re)
+    } else {
+        Err(WakeError::ReOutOfRange { re })
+    }
+}
+
+/// The network's Re input: `ln(Re / RE_CENTRE) / ln 4`, about −1.5 to 1.5 over
+/// [`RE_RANGE`].
+pub fn re_code(nu: f64) -> f64 {
+    let re = U_IN * DIAMETER / nu;
+    (re / RE_CENTRE).ln() / 4f64.ln()
+}
+
+/// One of the trained or untrained solvers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Variant {
+    /// The coarse solver alone.
+    Src,
+    /// Supervised on one-step pairs.
+    Non,
+    /// As `Non`, with input noise.
+    Noise,
+    /// Solver in the loop over `k` steps.
+    Sol(usize),
+}
+
+impl Variant {
+    /// Parses `src`, `non`, `noise`, `solK` (`sol4`, `sol16`, …).
+    ///
+    /// # Errors
+    /// [`WakeError::UnknownVariant`]; [`WakeError::Learn`] with
+    /// [`LearnError::ZeroUnroll`] for `sol0`.
+    pub fn parse(name: &str) -> Result<Self> {
+        let unknown = || WakeError::UnknownVariant {
+            name: name.to_string(),
+        };
+        match name.trim() {
+            "src" => Ok(Variant::Src),
+            "non" => Ok(Variant::Non),
+            "noise" => Ok(Variant::Noise),
+            s => {
+                let k: usize = s
+                    .strip_prefix("sol")
+                    .map(|k| k.trim_start_matches(['-', '_']))
+                    .and_then(|k| k.parse().ok())
+                    .ok_or_else(unknown)?;
+                if k == 0 {
+                    return Err(LearnError::ZeroUnroll {
+                        what: "solver in the loop",
+                    }
+                    .into());
+                }
+                Ok(Variant::Sol(k))
+            }
+        }
+    }
+
+    /// `src`, `non`, `noise`, `sol_k`.
+    pub fn name(&self) -> String {
+        match self {
+            Variant::Src => "src".into(),
+            Variant::Non => "non".into(),
+            Variant::Noise => "noise".into(),
+            Variant::Sol(k) => format!("sol_{k}"),
+        }
+    }
+}
+
+/// A comma-separated list of Reynolds numbers, each checked.
+///
+/// # Errors
+/// [`WakeError::Argument`] for text that is not a number;
+/// [`WakeError::ReOutOfRange`]; [`LearnError::EmptySplit`] for an empty list.
+pub fn parse_re_list(option: &str, text: &str, split: Split) -> Result<Vec<f64>> {
+    let list = text
+        .split(',')
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .map(|s| {
+            s.parse::<f64>().map_err(|_| WakeError::Argument {
+                option: option.into(),
+                message: format!("not a number: {s:?}"),
+            })
+        })
+        .map(|r| r.and_then(checked_re))
+        .collect::<Result<Vec<_>>>()?;
+    if list.is_empty() {
+        return Err(LearnError::EmptySplit {
+            split,
+            context: format!("{option} lists no Reynolds number"),
+        }
+        .into());
+    }
+    Ok(list)
+}
+
+/// The scene's sizes and schedule of one run (full or `--small`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Sizes {
+    /// Coarse cells along x (streamwise).
+    pub nx: usize,
+    /// Coarse cells along y.
+    pub ny: usize,
+    /// The coarse time step.
+    pub dt: f64,
+    /// Coarse steps from the start state to the split's base state.
+    pub warm_base: usize,
+    /// Coarse steps from the base state at each Re before recording (the
+    /// skipped transient).
+    pub warm: usize,
+    /// Coarse steps recorded per Re.
+    pub record: usize,
+    /// The base state's Reynolds number.
+    pub base_re: f64,
+    /// Rollout length of the headline figure.
+    pub rollout: usize,
+    /// Its start steps in the recorded trajectory.
+    pub starts: Vec<usize>,
+    /// The long rollout (from step 0).
+    pub long: usize,
+}
+
+impl Sizes {
+    /// The full scene.
+    pub fn full() -> Self {
+        Sizes {
+            nx: 64,
+            ny: 32,
+            dt: 0.01,
+            warm_base: 600,
+            warm: 200,
+            record: 250,
+            base_re: 400.0,
+            rollout: 100,
+            starts: vec![0, 50, 100, 150],
+            long: 240,
+        }
+    }
+
+    /// CI: 16 × 32 cells, short trajectories.
+    pub fn small() -> Self {
+        Sizes {
+            nx: 32,
+            ny: 16,
+            dt: 0.02,
+            warm_base: 60,
+            warm: 20,
+            record: 40,
+            base_re: 400.0,
+            rollout: 16,
+            starts: vec![0, 16],
+            long: 36,
+        }
+    }
+}
+
+/// The wake channel at `nx × ny` cells with time step `dt`, the given
+/// advection, splitting and pressure solver.
+pub fn wake_scene(
+    nx: usize,
+    ny: usize,
+    dt: f64,
+    advection: Advection,
+    splitting: Splitting,
+    pressure: PressureSolver,
+) -> Result<Scene> {
+    Ok(Scene::builder(nx, ny, [LX, LY])
+        .sides(Sides {
+            left: Boundary::Inflow,
+            right: Boundary::Outflow,
+            bottom: Boundary::FreeSlip,
+            top: Boundary::FreeSlip,
+        })
+        .obstacle(Obstacle::cylinder(CENTRE, DIAMETER / 2.0))
+        .uniform_inflow(U_IN)
+        .viscosity(viscosity(RE_CENTRE))
+        .dt(dt)
+        .advection(advection)
+        .splitting(splitting)
+        .pressure_solver(pressure)
+        .build()?)
+}
+
+/// The coarse solver's scheme at `level` times the coarse resolution
+/// (`dt / level`): semi-Lagrangian, plain splitting.
+pub fn uncorrected(sizes: &Sizes, level: usize, pressure: PressureSolver) -> Result<Scene> {
+    wake_scene(
+        level * sizes.nx,
+        level * sizes.ny,
+        sizes.dt / level as f64,
+        Advection::SemiLagrangian,
+        Splitting::Plain,
+        pressure,
+    )
+}
+
+/// The reference solver: [`FACTOR`]× finer, MacCormack with the limiter,
+/// incremental splitting.
+pub fn reference_scene(sizes: &Sizes) -> Result<Scene> {
+    wake_scene(
+        FACTOR * sizes.nx,
+        FACTOR * sizes.ny,
+        sizes.dt / FACTOR as f64,
+        Advection::MacCormack { limiter: true },
+        Splitting::Incremental,
+        PressureSolver::Cholesky,
+    )
+}
+
+/// The coarse solver as the learning library's simulator: one packed step of
+/// a batch `[batch, 2, nx + 1, ny + 1]`; input noise only on the
+/// [`free_faces`].
+#[derive(Debug, Clone)]
+pub struct Coarse {
+    /// The coarse scene.
+    pub scene: Scene,
+    free: ArrayD<f64>,
+}
+
+impl Coarse {
+    /// The simulator of `scene`.
+    pub fn new(scene: Scene) -> Self {
+        let free = free_faces(&scene);
+        Coarse { scene, free }
+    }
+}
+
+impl Simulator for Coarse {
+    fn step<'t>(&self, state: Var<'t, f64>) -> diffphys::tape::Result<Var<'t, f64>> {
+        Ok(self.scene.step_packed(state)?)
+    }
+
+    fn step_plain(&self, state: &ArrayD<f64>) -> diffphys::tape::Result<ArrayD<f64>> {
+        Ok(self.scene.forward_packed(state.view())?)
+    }
+
+    fn perturb(&self, state: &mut ArrayD<f64>, sigma: f64, rng: &mut StdRng) {
+        for mut sample in state.outer_iter_mut() {
+            for (x, &m) in sample.iter_mut().zip(self.free.iter()) {
+                let noise = sigma * standard_normal(rng);
+                *x += m * noise;
+            }
+        }
+    }
+}
+
+/// The faces a correction may change, packed (`[2, nx + 1, ny + 1]`): not the
+/// padding, not the inflow face, not the side walls' normal faces, not the
+/// faces of solid cells, not the viscosity corner.
+pub fn free_faces(scene: &Scene) -> ArrayD<f64> {
+    let g = scene.grid();
+    let solid = scene.solid();
+    let (nx, ny) = (g.nx, g.ny);
+    let is_solid = |i: Option<usize>, j: Option<usize>| match (i, j) {
+        (Some(i), Some(j)) if i < nx && j < ny => solid[[i, j]],
+        _ => false,
+    };
+    let mut m = ArrayD::zeros(vec![2, nx + 1, ny + 1]);
+    for a in 1..=nx {
+        for b in 0..ny {
+            let fixed = is_solid(a.checked_sub(1), Some(b)) || is_solid(Some(a), Some(b));
+            m[[0, a, b]] = f64::from(u8::from(!fixed));
+        }
+    }
+    for a in 0..nx {
+        for b in 1..ny {
+            let fixed = is_solid(Some(a), b.checked_sub(1)) || is_solid(Some(a), Some(b));
+            m[[1, a, b]] = f64::from(u8::from(!fixed));
+        }
+    }
+    m
+}
+
+/// The corrector's size: a ResNet of `width` channels and `blocks` residual
+/// blocks (two 3 × 3 convolutions each).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct NetSize {
+    /// Channels of the hidden layers.
+    pub width: usize,
+    /// Residual blocks.
+    pub blocks: usize,
+}
+
+impl NetSize {
+    /// A short label, `w16b2`.
+    pub fn label(&self) -> String {
+        format!("w{}b{}", self.width, self.blocks)
+    }
+}
+
+/// The corrector: a ResNet on (`u_x`, `u_y`, Re code) over the packed lattice,
+/// ReLU, its last layer starting at zero (the hybrid starts as the coarse
+/// solver); its output is masked to the [`free_faces`].
+pub struct Net {
+    stem: Conv2,
+    blocks: Vec<(Conv2, Conv2)>,
+    head: Conv2,
+    free: ArrayD<f64>,
+    c_out: usize,
+}
+
+impl Net {
+    /// A corrector of `size` for `scene` with parameters drawn by `rng`.
+    ///
+    /// # Errors
+    /// [`WakeError::Nn`] for a bad size.
+    pub fn new(scene: &Scene, size: NetSize, rng: &mut impl Rng) -> Result<(Self, Params<f64>)> {
+        Self::with_outputs(scene, size, 2, rng)
+    }
+
+    /// As [`Net::new`] with `c_out` output channels (2 fit the state; another
+    /// count is how a test provokes the shape error).
+    ///
+    /// # Errors
+    /// As [`Net::new`].
+    pub fn with_outputs(
+        scene: &Scene,
+        size: NetSize,
+        c_out: usize,
+        rng: &mut impl Rng,
+    ) -> Result<(Self, Params<f64>)> {
+        let mut params = Params::new();
+        let conv = |c_in, c_out, init| ConvConfig {
+            c_in,
+            c_out,
+            kernel: 3,
+            padding: Padding::Zero,
+            init,
+        };
+        let w = size.width;
+        let stem = Conv2::new(&mut params, "stem", conv(3, w, Init::He), rng)?;
+        let blocks = (0..size.blocks)
+            .map(|b| {
+                Ok((
+                    Conv2::new(
+                        &mut params,
+                        &format!("block{b}.a"),
+                        conv(w, w, Init::He),
+                        rng,
+                    )?,
+                    Conv2::new(
+                        &mut params,
+                        &format!("block{b}.b"),
+                        conv(w, w, Init::He),
+                        rng,
+                    )?,
+                ))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let head = Conv2::new(&mut params, "head", conv(w, c_out, Init::Zeros), rng)?;
+        Ok((
+            Net {
+                stem,
+                blocks,
+                head,
+                free: free_faces(scene),
+                c_out,
+            },
+            params,
+        ))
+    }
+}
+
+/// `a` repeated along a new leading axis `n` times.
+fn repeat(a: &ArrayD<f64>, n: usize) -> ArrayD<f64> {
+    let views: Vec<_> = (0..n).map(|_| a.view()).collect();
+    ndarray::stack(ndarray::Axis(0), &views).expect("same shapes")
+}
+
+impl Corrector for Net {
+    fn correction<'t>(
+        &self,
+        p: &Bound<'t, f64>,
+        state: Var<'t, f64>,
+    ) -> diffphys::tape::Result<Var<'t, f64>> {
+        let tape = state.tape();
+        let shape = state.shape();
+        let (n, a, b) = (shape[0], shape[2], shape[3]);
+        if shape[1..] != self.free.shape()[..] {
+            return Err(TapeError::shape(
+                "wake corrector input",
+                self.free.shape(),
+                &shape[1..],
+            ));
+        }
+        let free = tape.constant(repeat(&self.free, n));
+        // The Re channel is data: read from each sample's viscosity corner.
+        let values = state.to_array();
+        let mut code = ArrayD::zeros(vec![n, 1, a, b]);
+        for k in 0..n {
+            let c = re_code(values[[k, 1, a - 1, b - 1]]);
+            code.index_axis_mut(ndarray::Axis(0), k).fill(c);
+        }
+        let x = Var::concat(&[state.mul(free)?, tape.constant(code)], 1)?;
+        let mut h = self.stem.forward(p, x)?.relu()?;
+        for (c1, c2) in &self.blocks {
+            let r = c1.forward(p, h)?.relu()?;
+            h = h.add(c2.forward(p, r)?)?.relu()?;
+        }
+        let out = self.head.forward(p, h)?;
+        if self.c_out != 2 {
+            return Ok(out);
+        }
+        out.mul(free)
+    }
+}
+
+/// The scene's own command-line options (the seeds, `--small`, `--out`,
+/// `--iterations` and `--npy` are the examples' common ones).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Options {
+    /// The variants to train (`src` always runs).
+    pub variants: Vec<Variant>,
+    /// Training Reynolds numbers.
+    pub train_re: Vec<f64>,
+    /// Validation Reynolds numbers.
+    pub validation_re: Vec<f64>,
+    /// Held-out Reynolds numbers.
+    pub held_out_re: Vec<f64>,
+    /// Learning rates to choose from on validation.
+    pub learning_rates: Vec<f64>,
+    /// Run the capacity sweep.
+    pub capacity: bool,
+    /// Run the speed study.
+    pub speed: bool,
+}
+
+impl Options {
+    /// The defaults (full or small).
+    pub fn defaults(small: bool) -> Self {
+        let list = |v: &[f64]| v.to_vec();
+        Options {
+            variants: vec![
+                Variant::Src,
+                Variant::Non,
+                Variant::Noise,
+                Variant::Sol(4),
+                Variant::Sol(16),
+            ],
+            train_re: if small {
+                list(&[200.0, 400.0, 800.0])
+            } else {
+                list(&[100.0, 200.0, 400.0, 800.0, 1600.0])
+            },
+            validation_re: if small {
+                list(&[566.0])
+            } else {
+                list(&[141.0, 566.0])
+            },
+            held_out_re: if small {
+                list(&[283.0, 2263.0])
+            } else {
+                list(&[71.0, 283.0, 1131.0, 2263.0])
+            },
+            learning_rates: if small { vec![1e-3] } else { vec![1e-3, 3e-3] },
+            capacity: true,
+            speed: true,
+        }
+    }
+
+    /// Takes `--variants LIST`, `--train-re LIST`, `--validation-re LIST`,
+    /// `--held-out-re LIST`, `--lrs LIST`, `--no-capacity`, `--no-speed` out of
+    /// `args`, the rest left for the common options.
+    ///
+    /// # Errors
+    /// [`WakeError::UnknownVariant`]; [`LearnError::ZeroUnroll`] for `sol0`;
+    /// [`WakeError::ReOutOfRange`]; [`LearnError::EmptySplit`] for an empty Re
+    /// list; [`WakeError::Argument`] for a missing value, an unparsable number
+    /// or a learning rate that is not positive.
+    pub fn take(args: &mut Vec<String>, small: bool) -> Result<Self> {
+        let mut o = Self::defaults(small);
+        let mut i = 0;
+        while i < args.len() {
+            let flag = args[i].clone();
+            let value = |args: &Vec<String>| {
+                args.get(i + 1).cloned().ok_or_else(|| WakeError::Argument {
+                    option: flag.clone(),
+                    message: "needs a value".into(),
+                })
+            };
+            let mut took = 2;
+            match flag.as_str() {
+                "--variants" => {
+                    let v = value(args)?;
+                    let mut variants = vec![Variant::Src];
+                    for name in v.split(',').filter(|s| !s.trim().is_empty()) {
+                        let variant = Variant::parse(name)?;
+                        if !variants.contains(&variant) {
+                            variants.push(variant);
+                        }
+                    }
+                    o.variants = variants;
+                }
+                "--train-re" => o.train_re = parse_re_list(&flag, &value(args)?, Split::Train)?,
+                "--validation-re" => {
+                    o.validation_re = parse_re_list(&flag, &value(args)?, Split::Validation)?
+                }
+                "--held-out-re" => {
+                    o.held_out_re = parse_re_list(&flag, &value(args)?, Split::HeldOut)?
+                }
+                "--lrs" => {
+                    let v = value(args)?;
+                    o.learning_rates = v
+                        .split(',')
+                        .map(|s| match s.trim().parse::<f64>() {
+                            Ok(x) if x.is_finite() && x > 0.0 => Ok(x),
+                            _ => Err(WakeError::Argument {
+                                option: flag.clone(),
+                                message: format!("not a positive learning rate: {s:?}"),
+                            }),
+                        })
+                        .collect::<Result<_>>()?;
+                }
+                "--no-capacity" => {
+                    o.capacity = false;
+                    took = 1;
+                }
+                "--no-speed" => {
+                    o.speed = false;
+                    took = 1;
+                }
+                _ => {
+                    i += 1;
+                    continue;
+                }
+            }
+            args.drain(i..i + took);
+        }
+        Ok(o)
+    }
+
+    /// The unrolls of the SOL variants, in order.
+    pub fn unrolls(&self) -> Vec<usize> {
+        self.variants
+            .iter()
+            .filter_map(|v| match v {
+                Variant::Sol(k) => Some(*k),
+                _ => None,
+            })
+            .collect()
+    }
+
+    /// Whether `re` lies inside the training range.
+    pub fn inside(&self, re: f64) -> bool {
+        let lo = self.train_re.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = self
+            .train_re
+            .iter()
+            .copied()
+            .fold(f64::NEG_INFINITY, f64::max);
+        (lo..=hi).contains(&re)
+    }
+}
+
+/// The corrector sizes of the capacity sweep (about 1.5k, 10k and 22k
+/// parameters); the middle one is the main variants' size.
+pub const SIZES: [NetSize; 3] = [
+    NetSize {
+        width: 8,
+        blocks: 1,
+    },
+    NetSize {
+        width: 16,
+        blocks: 2,
+    },
+    NetSize {
+        width: 24,
+        blocks: 2,
+    },
+];
+
+/// The main variants' corrector size.
+pub const MAIN_SIZE: NetSize = SIZES[1];

@@ -1,0 +1,530 @@
+//! The measurements of `wake_flow` beyond training: held-out rollouts, the
+//! speed-against-accuracy study, the pressure solves, the capacity table and
+//! the charts.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::time::Instant;
+
+use diffphys::flow::diagnostics::vorticity;
+use diffphys::flow::{restrict_velocity, FlowParams, FlowState, PressureSolver, Scene};
+use diffphys::learn::{relative_l2, rollout, Corrector, Hybrid, Simulator, Trajectory};
+use diffphys::nn::Params;
+use diffphys_compare::chart::{line_chart_svg, LineChart, Series};
+use ndarray::{Array2, Array3, Axis};
+use serde_json::{json, Value};
+
+use super::data::Reference;
+use super::{uncorrected, viscosity, NetSize, Options, Result, Sizes, Variant, WakeError, FACTOR};
+
+/// One model's held-out rollouts at one Reynolds number.
+#[derive(Debug, Clone)]
+pub struct ReRun {
+    /// The Reynolds number.
+    pub re: f64,
+    /// The mean relative L2 error over the rollout's steps and its starts.
+    pub mean: f64,
+    /// The error after each step, mean over the starts.
+    pub curve: Vec<f64>,
+    /// The mean relative L2 error of the long rollout.
+    pub long: f64,
+    /// The long rollout's last state (packed).
+    pub last: Array3<f64>,
+}
+
+/// One model's held-out rollouts at every held-out Reynolds number.
+#[derive(Debug, Clone)]
+pub struct HeldOutRun {
+    /// Per Reynolds number.
+    pub per_re: Vec<ReRun>,
+}
+
+impl HeldOutRun {
+    /// The mean over the Reynolds numbers of the rollout error.
+    pub fn mean(&self) -> f64 {
+        self.per_re.iter().map(|r| r.mean).sum::<f64>() / self.per_re.len().max(1) as f64
+    }
+
+    /// The same for the long rollout.
+    pub fn long_mean(&self) -> f64 {
+        self.per_re.iter().map(|r| r.long).sum::<f64>() / self.per_re.len().max(1) as f64
+    }
+
+    /// The per-step error, mean over the Reynolds numbers.
+    pub fn curve(&self) -> Vec<f64> {
+        let n = self.per_re.len().max(1) as f64;
+        let steps = self.per_re.first().map_or(0, |r| r.curve.len());
+        (0..steps)
+            .map(|t| self.per_re.iter().map(|r| r.curve[t]).sum::<f64>() / n)
+            .collect()
+    }
+}
+
+fn window(r: &Reference, start: usize, count: usize) -> Result<Trajectory> {
+    if start + count > r.states.len() {
+        return Err(WakeError::Argument {
+            option: "rollout".into(),
+            message: format!(
+                "a window of {count} states from step {start} needs more than the {} recorded",
+                r.states.len()
+            ),
+        });
+    }
+    Ok(r.states[start..start + count]
+        .iter()
+        .map(|s| s.clone().into_dyn())
+        .collect())
+}
+
+/// The rollouts of the hybrid (`params = None`: the coarse solver alone) on
+/// every held-out reference: `rollout` steps from each start, and the long
+/// rollout from step 0; `tick` after each Reynolds number.
+///
+/// # Errors
+/// Whatever the rollouts return.
+pub fn held_out_run<S: Simulator + 'static, C: Corrector + 'static>(
+    hybrid: &Hybrid<S, C>,
+    params: Option<&Params<f64>>,
+    refs: &[Reference],
+    sizes: &Sizes,
+    tick: &dyn Fn(),
+) -> Result<HeldOutRun> {
+    let mut per_re = Vec::new();
+    for r in refs {
+        let windows = sizes
+            .starts
+            .iter()
+            .map(|&s| window(r, s, sizes.rollout + 1))
+            .collect::<Result<Vec<_>>>()?;
+        let short = rollout(hybrid, params, &windows, sizes.rollout)?;
+        let long = rollout(hybrid, params, &[window(r, 0, sizes.long + 1)?], sizes.long)?;
+        let last = long
+            .last
+            .index_axis(Axis(0), 0)
+            .to_owned()
+            .into_dimensionality()
+            .map_err(|e| WakeError::Output(e.to_string()))?;
+        per_re.push(ReRun {
+            re: r.re,
+            mean: short.mean(),
+            curve: short.per_step,
+            long: long.mean(),
+            last,
+        });
+        tick();
+    }
+    Ok(HeldOutRun { per_re })
+}
+
+/// Rolls an uncorrected solver at `level` × the coarse resolution out from
+/// the fine start states, restricted to the coarse grid after every coarse
+/// step: the mean relative error against the reference and the seconds per
+/// coarse step and sample.
+fn finer_rollout(
+    sizes: &Sizes,
+    coarse: &Scene,
+    level: usize,
+    refs: &[Reference],
+) -> Result<(f64, f64)> {
+    let scene = uncorrected(sizes, level, PressureSolver::Cholesky)?;
+    let (mut err, mut count, mut seconds, mut steps) = (0.0, 0.0, 0.0, 0.0);
+    for r in refs {
+        let nu = viscosity(r.re);
+        let p = FlowParams {
+            viscosity: nu,
+            ..scene.params()
+        };
+        for (k, &start) in sizes.starts.iter().enumerate() {
+            let (fx, fy) = &r.fine_starts[k];
+            let (ux, uy) = restrict_velocity(scene.grid(), FACTOR / level, fx.view(), fy.view())?;
+            let mut s = FlowState::from_velocity(&scene, ux, uy);
+            for t in 1..=sizes.rollout {
+                let t0 = Instant::now();
+                for _ in 0..level {
+                    s = scene.forward(&s, &p)?.0;
+                }
+                seconds += t0.elapsed().as_secs_f64();
+                steps += 1.0;
+                let (cx, cy) = restrict_velocity(coarse.grid(), level, s.ux.view(), s.uy.view())?;
+                let packed = coarse.pack(&FlowState::from_velocity(coarse, cx, cy), nu)?;
+                let a = packed.insert_axis(Axis(0)).into_dyn();
+                let b = r.states[start + t].clone().insert_axis(Axis(0)).into_dyn();
+                err += relative_l2(&a, &b);
+                count += 1.0;
+            }
+        }
+    }
+    Ok((err / count, seconds / steps))
+}
+
+/// The coarse hybrid's rollouts timed: mean error and seconds per step and
+/// sample (network included).
+fn coarse_rollout<S: Simulator + 'static, C: Corrector + 'static>(
+    hybrid: &Hybrid<S, C>,
+    params: Option<&Params<f64>>,
+    refs: &[Reference],
+    sizes: &Sizes,
+) -> Result<(f64, f64)> {
+    let (mut err, mut seconds, mut samples) = (0.0, 0.0, 0.0);
+    for r in refs {
+        for &start in &sizes.starts {
+            let mut u = r.states[start].clone().insert_axis(Axis(0)).into_dyn();
+            for t in 1..=sizes.rollout {
+                let t0 = Instant::now();
+                u = hybrid.step_plain(params, &u)?;
+                seconds += t0.elapsed().as_secs_f64();
+                let b = r.states[start + t].clone().insert_axis(Axis(0)).into_dyn();
+                err += relative_l2(&u, &b);
+                samples += 1.0;
+            }
+        }
+    }
+    Ok((err / samples, seconds / samples))
+}
+
+/// Speed against accuracy on the held-out references: the uncorrected solver
+/// at 1×, 2× and 4× the coarse resolution and the corrected coarse solver
+/// (the selected SOL corrector of the first training seed).
+///
+/// # Errors
+/// Whatever the solvers return.
+pub fn speed<S: Simulator + 'static, C: Corrector + 'static>(
+    hybrid: &Hybrid<S, C>,
+    corrector: Option<&Params<f64>>,
+    refs: &[Reference],
+    sizes: &Sizes,
+    coarse: &Scene,
+) -> Result<Value> {
+    let mut rows = Vec::new();
+    let (e, s) = coarse_rollout(hybrid, None, refs, sizes)?;
+    rows.push(json!({"solver": format!("uncorrected {} x {}", sizes.ny, sizes.nx), "level": 1, "rel_error": e, "ms_per_step": s * 1e3}));
+    for level in [2, 4] {
+        let (e, s) = finer_rollout(sizes, coarse, level, refs)?;
+        rows.push(json!({"solver": format!("uncorrected {} x {}", level * sizes.ny, level * sizes.nx), "level": level, "rel_error": e, "ms_per_step": s * 1e3}));
+    }
+    if let Some(p) = corrector {
+        let (e, s) = coarse_rollout(hybrid, Some(p), refs, sizes)?;
+        rows.push(json!({"solver": format!("corrected {} x {} (selected SOL)", sizes.ny, sizes.nx), "level": 1, "rel_error": e, "ms_per_step": s * 1e3}));
+    }
+    for r in &rows {
+        println!(
+            "  speed: {:<40} error {:.4}, {:.2} ms per step",
+            r["solver"].as_str().unwrap_or(""),
+            r["rel_error"].as_f64().unwrap_or(f64::NAN),
+            r["ms_per_step"].as_f64().unwrap_or(f64::NAN)
+        );
+    }
+    let corrected = corrector.map(|_| rows[rows.len() - 1].clone());
+    let verdict = corrected.as_ref().map(|c| {
+        let (ce, ct) = (
+            c["rel_error"].as_f64().unwrap_or(f64::NAN),
+            c["ms_per_step"].as_f64().unwrap_or(f64::NAN),
+        );
+        let two = &rows[1];
+        let (te, tt) = (
+            two["rel_error"].as_f64().unwrap_or(f64::NAN),
+            two["ms_per_step"].as_f64().unwrap_or(f64::NAN),
+        );
+        let matched = rows[..3]
+            .iter()
+            .find(|r| r["rel_error"].as_f64().unwrap_or(f64::INFINITY) <= ce)
+            .map(|r| r["solver"].clone());
+        json!({
+            "corrected_beats_2x_in_error": ce < te,
+            "corrected_beats_2x_in_time": ct < tt,
+            "first_uncorrected_resolution_at_or_below_corrected_error": matched,
+        })
+    });
+    Ok(json!({
+        "rows": rows,
+        "verdict": verdict,
+        "rollout_steps": sizes.rollout,
+        "starts": sizes.starts,
+        "note": "wall time per coarse step and sample on this machine (2 cores shared); finer solvers take 2 and 4 substeps per coarse step and start from the reference's fine state restricted to their grid",
+    }))
+}
+
+/// Pressure-solve iterations and time per step inside a rollout: CG with
+/// Jacobi from a zero guess and warm-started from the previous step's
+/// pressure, and MG-PCG warm-started, at the coarse and the 4× resolution;
+/// sparse Cholesky for comparison.
+///
+/// # Errors
+/// Whatever the solvers return.
+pub fn pressure_solves(sizes: &Sizes, re: f64) -> Result<Value> {
+    let steps = 20;
+    let tol = 1e-8;
+    let mut out = Vec::new();
+    for level in [1, FACTOR] {
+        let develop = uncorrected(sizes, level, PressureSolver::Cholesky)?;
+        let p = FlowParams {
+            viscosity: viscosity(re),
+            ..develop.params()
+        };
+        let g = develop.grid();
+        let mut start = FlowState::from_velocity(
+            &develop,
+            Array2::from_elem(g.shape_x(), 1.0),
+            Array2::from_elem(g.shape_y(), 0.0),
+        );
+        for _ in 0..(40 * level) {
+            start = develop.forward(&start, &p)?.0;
+        }
+        let solvers = [
+            ("cholesky", PressureSolver::Cholesky, true),
+            (
+                "cg_jacobi_zero_guess",
+                PressureSolver::Cg {
+                    rel_tol: tol,
+                    max_iters: 20_000,
+                },
+                false,
+            ),
+            (
+                "cg_jacobi_warm_start",
+                PressureSolver::Cg {
+                    rel_tol: tol,
+                    max_iters: 20_000,
+                },
+                true,
+            ),
+            (
+                "mg_pcg_zero_guess",
+                PressureSolver::MultigridCg {
+                    rel_tol: tol,
+                    max_iters: 500,
+                    sweeps: 2,
+                },
+                false,
+            ),
+            (
+                "mg_pcg_warm_start",
+                PressureSolver::MultigridCg {
+                    rel_tol: tol,
+                    max_iters: 500,
+                    sweeps: 2,
+                },
+                true,
+            ),
+        ];
+        for (name, solver, warm) in solvers {
+            let scene = uncorrected(sizes, level, solver)?;
+            let mut s = start.clone();
+            let (mut iters, mut seconds) = (0usize, 0.0);
+            for _ in 0..steps {
+                if !warm {
+                    s.pressure.fill(0.0);
+                }
+                let t0 = Instant::now();
+                let (next, info) = scene.forward(&s, &p)?;
+                seconds += t0.elapsed().as_secs_f64();
+                iters += info.pressure_iterations.iter().sum::<usize>();
+                s = next;
+            }
+            out.push(json!({
+                "grid": [level * sizes.ny, level * sizes.nx],
+                "solver": name,
+                "iterations_per_step": iters as f64 / steps as f64,
+                "ms_per_step": seconds / steps as f64 * 1e3,
+            }));
+            println!(
+                "  pressure {} x {} {name}: {:.1} iterations, {:.2} ms per step",
+                level * sizes.ny,
+                level * sizes.nx,
+                iters as f64 / steps as f64,
+                seconds / steps as f64 * 1e3
+            );
+        }
+    }
+    Ok(json!({"re": re, "rel_tol": tol, "steps": steps, "rows": out}))
+}
+
+/// One capacity run: size, variant, training seed, held-out errors (100
+/// steps, long) and the parameter count.
+pub type CapacityRun = (NetSize, Variant, u64, f64, f64, usize);
+
+fn stats(v: &[f64]) -> Value {
+    if v.is_empty() {
+        return Value::Null;
+    }
+    let n = v.len() as f64;
+    json!({
+        "mean": v.iter().sum::<f64>() / n,
+        "min": v.iter().copied().fold(f64::INFINITY, f64::min),
+        "max": v.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+        "runs": v.len(),
+    })
+}
+
+/// The capacity table: per size, the parameter count and the held-out errors
+/// of `non` and the first SOL variant (mean, min, max over the runs).
+pub fn capacity_json(runs: &[CapacityRun], options: &Options) -> Value {
+    let sol = options.unrolls().first().copied().map(Variant::Sol);
+    let mut sizes: Vec<NetSize> = runs.iter().map(|r| r.0).collect();
+    sizes.sort_by_key(|s| (s.width, s.blocks));
+    sizes.dedup();
+    let rows: Vec<Value> = sizes
+        .iter()
+        .map(|&size| {
+            let of = |v: Option<Variant>, long: bool| {
+                let vals: Vec<f64> = runs
+                    .iter()
+                    .filter(|r| r.0 == size && Some(r.1) == v)
+                    .map(|r| if long { r.4 } else { r.3 })
+                    .collect();
+                stats(&vals)
+            };
+            let params = runs.iter().find(|r| r.0 == size).map_or(0, |r| r.5);
+            json!({
+                "size": size.label(),
+                "params": params,
+                "sol": of(sol, false),
+                "non": of(Some(Variant::Non), false),
+                "sol_long": of(sol, true),
+                "non_long": of(Some(Variant::Non), true),
+            })
+        })
+        .collect();
+    json!({"variant_sol": sol.map(|v| v.name()), "rows": rows})
+}
+
+/// `mean SOL / mean NON` over 100 steps at `size`, if both were run.
+pub fn ratio_at_size(
+    runs: &[CapacityRun],
+    size: NetSize,
+    sol: Option<usize>,
+    long: bool,
+) -> Option<f64> {
+    let mean = |v: Variant| {
+        let vals: Vec<f64> = runs
+            .iter()
+            .filter(|r| r.0 == size && r.1 == v)
+            .map(|r| if long { r.4 } else { r.3 })
+            .collect();
+        (!vals.is_empty()).then(|| vals.iter().sum::<f64>() / vals.len() as f64)
+    };
+    Some(mean(Variant::Sol(sol?))? / mean(Variant::Non)?)
+}
+
+/// The charts: `relative_error.svg` (held-out error per step), `capacity.svg`
+/// (error against corrector size, 100 steps and long), `speed_accuracy.svg`,
+/// and `vorticity_{name}.svg` of the long rollouts' last states at the first
+/// held-out Re.
+pub fn charts(
+    out: &Path,
+    curves: &BTreeMap<String, Vec<Vec<f64>>>,
+    runs: &[CapacityRun],
+    speed: &Value,
+    last: &BTreeMap<String, Array3<f64>>,
+    coarse: &Scene,
+    sol: Option<usize>,
+) -> Result<()> {
+    let e = |e: diffphys_compare::CompareError| WakeError::Output(e.to_string());
+    let series: Vec<Series> = curves
+        .iter()
+        .filter(|(_, c)| !c.is_empty() && !c[0].is_empty())
+        .map(|(name, c)| {
+            let n = c.len() as f64;
+            let points = (0..c[0].len())
+                .map(|t| ((t + 1) as f64, c.iter().map(|v| v[t]).sum::<f64>() / n))
+                .collect();
+            Series::new(name.clone(), points)
+        })
+        .collect();
+    line_chart_svg(
+        &out.join("relative_error.svg"),
+        &LineChart {
+            title: "Held-out rollouts: relative L2 error per step (mean over Re, starts, seeds)",
+            x_label: "step",
+            y_label: "|u - u_ref| / |u_ref|",
+            log_x: false,
+            log_y: true,
+            series: &series,
+        },
+    )
+    .map_err(e)?;
+    let mut cap = Vec::new();
+    for (variant, long, label) in [
+        (Variant::Non, false, "non, 100 steps"),
+        (Variant::Non, true, "non, long"),
+    ]
+    .into_iter()
+    .chain(sol.map(|k| (Variant::Sol(k), false, "sol, 100 steps")))
+    .chain(sol.map(|k| (Variant::Sol(k), true, "sol, long")))
+    {
+        let mut by_size: BTreeMap<usize, Vec<f64>> = BTreeMap::new();
+        for r in runs.iter().filter(|r| r.1 == variant) {
+            by_size
+                .entry(r.5)
+                .or_default()
+                .push(if long { r.4 } else { r.3 });
+        }
+        let points: Vec<(f64, f64)> = by_size
+            .iter()
+            .map(|(p, v)| (*p as f64, v.iter().sum::<f64>() / v.len() as f64))
+            .collect();
+        if !points.is_empty() {
+            cap.push(Series::new(label, points));
+        }
+    }
+    if !cap.is_empty() {
+        line_chart_svg(
+            &out.join("capacity.svg"),
+            &LineChart {
+                title: "Held-out error against corrector size (mean over Re and seeds)",
+                x_label: "parameters",
+                y_label: "mean relative L2 error",
+                log_x: true,
+                log_y: true,
+                series: &cap,
+            },
+        )
+        .map_err(e)?;
+    }
+    if let Some(rows) = speed["rows"].as_array() {
+        let series: Vec<Series> = rows
+            .iter()
+            .map(|r| {
+                Series::new(
+                    r["solver"].as_str().unwrap_or("?").to_string(),
+                    vec![(
+                        r["ms_per_step"].as_f64().unwrap_or(f64::NAN),
+                        r["rel_error"].as_f64().unwrap_or(f64::NAN),
+                    )],
+                )
+            })
+            .collect();
+        if !series.is_empty() {
+            line_chart_svg(
+                &out.join("speed_accuracy.svg"),
+                &LineChart {
+                    title: "Held-out error against wall time per step",
+                    x_label: "ms per step (network included)",
+                    y_label: "mean relative L2 error over the rollout",
+                    log_x: true,
+                    log_y: true,
+                    series: &series,
+                },
+            )
+            .map_err(e)?;
+        }
+    }
+    for (name, state) in last {
+        let (s, _) = coarse.unpack(state.view())?;
+        let w = vorticity(coarse, s.ux.view(), s.uy.view())?;
+        let path = out.join(format!("vorticity_{name}.svg"));
+        write_vorticity(&path, &format!("vorticity, {name}"), &w).map_err(e)?;
+    }
+    Ok(())
+}
+
+fn write_vorticity(
+    path: &Path,
+    title: &str,
+    w: &Array2<f64>,
+) -> std::result::Result<(), diffphys_compare::CompareError> {
+    // The chart's rows run down the page: put y (axis 1) down, x across.
+    let field = w.t().to_owned();
+    let flipped = field.slice(ndarray::s![..;-1, ..]).to_owned();
+    diffphys_compare::chart::heatmap_svg(path, title, flipped.view())
+}

@@ -1,0 +1,151 @@
+//! The wake-flow scene (examples/wake_flow.rs) refuses bad input with typed
+//! errors: an unknown variant, an unroll of 0, a Reynolds number outside the
+//! stated range, an empty split, a corrector whose output does not match the
+//! state; and its noise leaves the state's viscosity and fixed faces alone.
+
+#[allow(dead_code)]
+#[path = "../examples/wake_flow_scene/mod.rs"]
+mod wake_flow_scene;
+
+use diffphys::flow::{FlowState, PressureSolver};
+use diffphys::learn::{Hybrid, LearnError, Simulator, Split, TrainSeed};
+use ndarray::Array2;
+use wake_flow_scene::{
+    free_faces, uncorrected, viscosity, Coarse, Net, NetSize, Options, Sizes, Variant, WakeError,
+};
+
+fn options(args: &[&str]) -> Result<Options, WakeError> {
+    let mut v: Vec<String> = args.iter().map(|s| s.to_string()).collect();
+    Options::take(&mut v, true)
+}
+
+#[test]
+fn options_parse_and_leave_the_common_ones() {
+    let mut v: Vec<String> = [
+        "--small",
+        "--variants",
+        "non,sol8",
+        "--held-out-re",
+        "300,3000",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
+    let o = Options::take(&mut v, true).unwrap();
+    assert_eq!(
+        o.variants,
+        vec![Variant::Src, Variant::Non, Variant::Sol(8)]
+    );
+    assert_eq!(o.held_out_re, vec![300.0, 3000.0]);
+    assert_eq!(v, vec!["--small".to_string()]);
+    assert!(!o.inside(3000.0));
+}
+
+#[test]
+fn an_unknown_variant_is_refused() {
+    match options(&["--variants", "non,magic"]) {
+        Err(WakeError::UnknownVariant { name }) => assert_eq!(name, "magic"),
+        other => panic!("expected an unknown variant, got {other:?}"),
+    }
+}
+
+#[test]
+fn an_unroll_of_zero_is_refused() {
+    assert!(matches!(
+        options(&["--variants", "sol0"]),
+        Err(WakeError::Learn(LearnError::ZeroUnroll { .. }))
+    ));
+}
+
+#[test]
+fn a_reynolds_number_outside_the_range_is_refused() {
+    for re in ["10", "5000", "nan"] {
+        match options(&["--held-out-re", re]) {
+            Err(WakeError::ReOutOfRange { .. }) => {}
+            other => panic!("Re {re}: expected out of range, got {other:?}"),
+        }
+    }
+    assert!(matches!(
+        options(&["--held-out-re", "abc"]),
+        Err(WakeError::Argument { .. })
+    ));
+}
+
+#[test]
+fn an_empty_split_is_refused() {
+    for (flag, split) in [
+        ("--train-re", Split::Train),
+        ("--validation-re", Split::Validation),
+        ("--held-out-re", Split::HeldOut),
+    ] {
+        match options(&[flag, ","]) {
+            Err(WakeError::Learn(LearnError::EmptySplit { split: s, .. })) => assert_eq!(s, split),
+            other => panic!("{flag}: expected an empty split, got {other:?}"),
+        }
+    }
+}
+
+fn coarse() -> Coarse {
+    Coarse::new(uncorrected(&Sizes::small(), 1, PressureSolver::Cholesky).unwrap())
+}
+
+fn probe(c: &Coarse) -> ndarray::ArrayD<f64> {
+    let g = c.scene.grid();
+    let s = FlowState::from_velocity(
+        &c.scene,
+        Array2::from_elem(g.shape_x(), 1.0),
+        Array2::zeros(g.shape_y()),
+    );
+    c.scene
+        .pack(&s, viscosity(400.0))
+        .unwrap()
+        .insert_axis(ndarray::Axis(0))
+        .into_dyn()
+}
+
+#[test]
+fn a_corrector_of_the_wrong_shape_is_refused() {
+    let c = coarse();
+    let size = NetSize {
+        width: 4,
+        blocks: 1,
+    };
+    let (net, params) = Net::with_outputs(&c.scene, size, 3, &mut TrainSeed(1).init_rng()).unwrap();
+    let hybrid = Hybrid::new(c.clone(), net);
+    match hybrid.check_shapes(&params, &probe(&c)) {
+        Err(LearnError::CorrectorShape { state, correction }) => {
+            assert_eq!(state[1], 2);
+            assert_eq!(correction[1], 3);
+        }
+        other => panic!("expected a corrector shape error, got {other:?}"),
+    }
+    let (net, params) = Net::new(&c.scene, size, &mut TrainSeed(1).init_rng()).unwrap();
+    Hybrid::new(c.clone(), net)
+        .check_shapes(&params, &probe(&c))
+        .unwrap();
+}
+
+#[test]
+fn noise_leaves_the_viscosity_and_the_fixed_faces_alone() {
+    let c = coarse();
+    let clean = probe(&c);
+    let mut noisy = clean.clone();
+    c.perturb(&mut noisy, 0.1, &mut TrainSeed(2).sampling_rng());
+    let free = free_faces(&c.scene);
+    let [_, a, b] = c.scene.packed_shape();
+    assert_eq!(free[[1, a - 1, b - 1]], 0.0);
+    assert_eq!(noisy[[0, 1, a - 1, b - 1]], viscosity(400.0));
+    let mut moved = 0;
+    for ((i, &x), &m) in noisy.indexed_iter().zip(clean.iter()) {
+        let f = free[[i[1], i[2], i[3]]];
+        if f == 0.0 {
+            assert_eq!(x, m, "fixed entry {i:?} moved");
+        } else if x != m {
+            moved += 1;
+        }
+    }
+    assert!(moved as f64 > 0.9 * free.sum());
+    // The inflow face and the padding are fixed.
+    assert_eq!(free[[0, 0, 3]], 0.0);
+    assert_eq!(free[[0, 3, b - 1]], 0.0);
+}

@@ -37,7 +37,7 @@
 //!         u.mul(u)?.sum()
 //!     },
 //!     &[b],
-//!     GradCheckOptions::default(),
+//!     GradCheckOptions::for_type::<f64>(),
 //! )?;
 //! assert!(report.passed, "{report:?}");
 //! # Ok::<(), Box<dyn std::error::Error>>(())

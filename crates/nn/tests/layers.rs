@@ -248,7 +248,10 @@ fn resampling_adjoints_refuse_gradients_of_the_wrong_shape() {
         for wrong in [vec![1, 2, 4, 6], vec![1, 2, 2], vec![2, 2, 2, 3], vec![]] {
             let g = test_array::<f64>(&wrong, 2);
             let e = resample_adjoint("r", direction, g.view(), &x_shape).unwrap_err();
-            assert!(e.to_string().contains("r adjoint"), "{direction:?} {wrong:?}: {e}");
+            assert!(
+                e.to_string().contains("r adjoint"),
+                "{direction:?} {wrong:?}: {e}"
+            );
         }
     }
     let g = test_array::<f64>(&[1, 1, 2, 2], 3);

@@ -78,7 +78,13 @@ fn array(rng: &mut Rng, shape: &[usize], scale: f64) -> ArrayD<f64> {
 }
 
 fn grid(rng: &mut Rng) -> Option<Grid2> {
-    let b = |rng: &mut Rng| [Boundary::ZeroDirichlet, Boundary::Closed, Boundary::Periodic][rng.below(3)];
+    let b = |rng: &mut Rng| {
+        [
+            Boundary::ZeroDirichlet,
+            Boundary::Closed,
+            Boundary::Periodic,
+        ][rng.below(3)]
+    };
     let (nx, ny) = (1 + rng.below(9), 1 + rng.below(9));
     let mut g = Grid2::new(nx, ny, 1.0 / nx as f64, 1.0 / ny as f64, b(rng)).ok()?;
     g.boundary_y = b(rng);
@@ -98,7 +104,10 @@ fn run_op<O: Op<f64> + 'static>(op: O, inputs: &[ArrayD<f64>]) -> Result<bool, S
     let mut loss = tape.scalar(0.0);
     for out in &outs {
         if !out.value().iter().all(|v| v.is_finite()) {
-            return Err(format!("a non-finite output got through: {:?}", out.shape()));
+            return Err(format!(
+                "a non-finite output got through: {:?}",
+                out.shape()
+            ));
         }
         loss = match out.sum().and_then(|s| loss.add(s)) {
             Ok(l) => l,
@@ -149,7 +158,10 @@ fn fuzz(name: &str, family: impl Fn(&mut Rng) -> Option<Result<bool, String>>) -
 }
 
 fn both_paths(name: &str, (ran, refused): (usize, usize)) {
-    assert!(ran > 0 && refused > 0, "{name}: {ran} ran, {refused} refused");
+    assert!(
+        ran > 0 && refused > 0,
+        "{name}: {ran} ran, {refused} refused"
+    );
 }
 
 #[test]
@@ -164,7 +176,11 @@ fn advection_gives_a_typed_error_or_a_finite_result() {
     both_paths("upwind2", counts);
     let counts = fuzz("semi_lagrangian2", |rng| {
         let g = grid(rng)?;
-        let dt = if rng.chance(0.1) { -0.1 } else { 0.05 + rng.unit() };
+        let dt = if rng.chance(0.1) {
+            -0.1
+        } else {
+            0.05 + rng.unit()
+        };
         let d = array(rng, &maybe_wrong(rng, &[g.nx, g.ny]), 1.0);
         let u = array(rng, &maybe_wrong(rng, &[2, g.nx, g.ny]), 3.0);
         Some(run_op(SemiLagrangian2::new(g, dt), &[d, u]))
@@ -177,7 +193,10 @@ fn stencils_and_solves_give_a_typed_error_or_a_finite_result() {
     let counts = fuzz("laplacian2", |rng| {
         let g = grid(rng)?;
         let x = array(rng, &maybe_wrong(rng, &[g.nx, g.ny]), 1.0);
-        Some(run_op(LinearOp::new(Arc::new(Laplacian2::negative(g))), &[x]))
+        Some(run_op(
+            LinearOp::new(Arc::new(Laplacian2::negative(g))),
+            &[x],
+        ))
     });
     both_paths("laplacian2", counts);
     let counts = fuzz("poisson_solve", |rng| {
@@ -209,7 +228,8 @@ fn projection_gives_a_typed_error_or_a_finite_result() {
         let g = grid(rng)?;
         let mac = if rng.chance(0.5) {
             let r = 0.1 + 0.3 * rng.unit();
-            let mask = CellMask::from_fn2(&g, |[x, y]| (x - 0.5).powi(2) + (y - 0.5).powi(2) > r * r);
+            let mask =
+                CellMask::from_fn2(&g, |[x, y]| (x - 0.5).powi(2) + (y - 0.5).powi(2) > r * r);
             MacGrid::with_mask(g, mask).ok()?
         } else {
             MacGrid::new(g)

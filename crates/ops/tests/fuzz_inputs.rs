@@ -77,6 +77,12 @@ fn array(rng: &mut Rng, shape: &[usize], scale: f64) -> ArrayD<f64> {
     a
 }
 
+/// [`array`] of [`maybe_wrong`]`(shape)`.
+fn field(rng: &mut Rng, shape: &[usize], scale: f64) -> ArrayD<f64> {
+    let shape = maybe_wrong(rng, shape);
+    array(rng, &shape, scale)
+}
+
 fn grid(rng: &mut Rng) -> Option<Grid2> {
     let b = |rng: &mut Rng| {
         [
@@ -169,8 +175,9 @@ fn advection_gives_a_typed_error_or_a_finite_result() {
     let counts = fuzz("upwind2", |rng| {
         let g = grid(rng)?;
         let params = AdvectionParams::new(0.5 * g.dx.min(g.dy) * (0.5 + rng.unit()));
-        let d = array(rng, &maybe_wrong(rng, &[g.nx, g.ny]), 1.0);
-        let u = array(rng, &maybe_wrong(rng, &[2, g.nx, g.ny]), 2.0 * rng.unit());
+        let d = field(rng, &[g.nx, g.ny], 1.0);
+        let speed = 2.0 * rng.unit();
+        let u = field(rng, &[2, g.nx, g.ny], speed);
         Some(run_op(Upwind2::new(g, params), &[d, u]))
     });
     both_paths("upwind2", counts);
@@ -181,8 +188,8 @@ fn advection_gives_a_typed_error_or_a_finite_result() {
         } else {
             0.05 + rng.unit()
         };
-        let d = array(rng, &maybe_wrong(rng, &[g.nx, g.ny]), 1.0);
-        let u = array(rng, &maybe_wrong(rng, &[2, g.nx, g.ny]), 3.0);
+        let d = field(rng, &[g.nx, g.ny], 1.0);
+        let u = field(rng, &[2, g.nx, g.ny], 3.0);
         Some(run_op(SemiLagrangian2::new(g, dt), &[d, u]))
     });
     both_paths("semi_lagrangian2", counts);
@@ -192,7 +199,7 @@ fn advection_gives_a_typed_error_or_a_finite_result() {
 fn stencils_and_solves_give_a_typed_error_or_a_finite_result() {
     let counts = fuzz("laplacian2", |rng| {
         let g = grid(rng)?;
-        let x = array(rng, &maybe_wrong(rng, &[g.nx, g.ny]), 1.0);
+        let x = field(rng, &[g.nx, g.ny], 1.0);
         Some(run_op(
             LinearOp::new(Arc::new(Laplacian2::negative(g))),
             &[x],
@@ -211,7 +218,7 @@ fn stencils_and_solves_give_a_typed_error_or_a_finite_result() {
         if rng.chance(0.15) {
             params = params.fixed_iterations(rng.below(3));
         }
-        let mut b = array(rng, &maybe_wrong(rng, &[g.nx, g.ny]), 1.0);
+        let mut b = field(rng, &[g.nx, g.ny], 1.0);
         if singular && b.iter().all(|v| v.is_finite()) && !b.is_empty() {
             let mean = b.mean().unwrap_or(0.0);
             b.mapv_inplace(|v| v - mean);
@@ -235,8 +242,8 @@ fn projection_gives_a_typed_error_or_a_finite_result() {
             MacGrid::new(g)
         };
         let (sx, sy) = (mac.shape_x(), mac.shape_y());
-        let ux = array(rng, &maybe_wrong(rng, &sx), 1.0);
-        let uy = array(rng, &maybe_wrong(rng, &sy), 1.0);
+        let ux = field(rng, &sx, 1.0);
+        let uy = field(rng, &sy, 1.0);
         let projection = PressureProjection::new(mac, CgParams::default().with_rel_tol(1e-10));
         Some(run_op(ProjectionOp::new(Arc::new(projection)), &[ux, uy]))
     });

@@ -135,3 +135,21 @@ pub(crate) fn grid2(
     let grid = check(Grid2::new(shape[0], shape[1], spacing.0, spacing.1, bx))?;
     Ok(grid.with_boundaries(bx, by))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn boundaries_by_name_and_per_axis() {
+        let (x, y) = BoundaryArg::PerAxis("dirichlet".into(), "periodic".into())
+            .parse()
+            .unwrap();
+        assert_eq!((x, y), (Boundary::ZeroDirichlet, Boundary::Periodic));
+        let (x, y) = BoundaryArg::both("closed").parse().unwrap();
+        assert_eq!((x, y), (Boundary::Closed, Boundary::Closed));
+        assert!(BoundaryArg::both("sticky").parse().is_err());
+        let g = grid2([4, 3], (0.5, 0.25), &BoundaryArg::both("periodic")).unwrap();
+        assert_eq!((g.nx, g.ny, g.dx, g.dy), (4, 3, 0.5, 0.25));
+    }
+}

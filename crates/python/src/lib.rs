@@ -11,6 +11,7 @@
 //! | `Poisson(shape, …).solve(b)` / `.vjp(g)` | `p = A⁻¹ b`, `A = −∇²`, MG-PCG or CG | `A⁻¹ g` (one solve) |
 //! | `Projection(shape, obstacle=…).project(ux, uy)` / `.vjp(…)` | `u' = W u − G S(−D u)` on a MAC grid | `W g_u − G S(−D g_u − g_p)` |
 //! | `semi_lagrangian2`, `upwind2` and their `_vjp` | one advection step of `d` by `u` | through the interpolation weights / the upwind differences |
+//! | `FlowStep(shape, size, …).forward(ux, uy, steps=…)` / `.vjp(…)` | `steps` incompressible flow steps and the force on the obstacle | the steps recorded on a tape, one reverse sweep |
 //!
 //! The arrays are read in place (no copy for any layout numpy hands over; the
 //! operators copy a non-C-order array once where they need contiguous data),
@@ -26,6 +27,7 @@
 mod advection;
 mod arrays;
 mod errors;
+mod flow;
 mod poisson;
 mod projection;
 mod solver;
@@ -36,6 +38,7 @@ pub use errors::{
     DiffphysError, InvalidArgumentError, NonFiniteError, NotConvergedError, ShapeError,
     UnstableError,
 };
+pub use flow::FlowStep;
 pub use poisson::Poisson;
 pub use projection::Projection;
 
@@ -55,6 +58,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("UnstableError", py.get_type::<UnstableError>())?;
     m.add_class::<Poisson>()?;
     m.add_class::<Projection>()?;
+    m.add_class::<FlowStep>()?;
     m.add_function(wrap_pyfunction!(advection::semi_lagrangian2, m)?)?;
     m.add_function(wrap_pyfunction!(advection::semi_lagrangian2_vjp, m)?)?;
     m.add_function(wrap_pyfunction!(advection::upwind2, m)?)?;

@@ -134,3 +134,40 @@ pub(crate) fn info_dict<'py>(py: Python<'py>, info: &CgInfo) -> PyResult<Bound<'
     d.set_item("converged", info.converged)?;
     Ok(d)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn options(rel_tol: Option<f64>) -> Options {
+        Options {
+            preconditioner: Kind::Jacobi,
+            rel_tol,
+            abs_tol: 0.0,
+            max_iters: Some(7),
+            sweeps: 2,
+            adjoint_rel_tol: Some(1e-6),
+        }
+    }
+
+    #[test]
+    fn default_tolerances_follow_the_precision() {
+        let no_mg = |_| unreachable!("Jacobi builds no cycle");
+        let p = options(None).params(no_mg).unwrap();
+        assert_eq!(p.of::<f32>().0.rel_tol, DEFAULT_REL_TOL_F32);
+        assert_eq!(p.of::<f64>().0.rel_tol, DEFAULT_REL_TOL_F64);
+        assert_eq!(p.of::<f64>().1.rel_tol, 1e-6); // the adjoint's own
+        assert_eq!(p.of::<f64>().0.max_iters, Some(7));
+        let given = options(Some(1e-3)).params(no_mg).unwrap();
+        assert_eq!(given.of::<f32>().0.rel_tol, 1e-3);
+    }
+
+    #[test]
+    fn bad_names_and_tolerances_are_rejected() {
+        assert!(Kind::parse("ilu").is_err());
+        assert_eq!(Kind::parse("MG").unwrap(), Kind::Multigrid);
+        let no_mg = |_| unreachable!("rejected before");
+        assert!(options(Some(-1.0)).params(no_mg).is_err());
+        assert!(options(Some(f64::NAN)).params(no_mg).is_err());
+    }
+}

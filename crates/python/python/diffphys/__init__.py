@@ -11,6 +11,9 @@ Classes (solver set up once, reused by every call):
 
 - ``Poisson(shape, ...)``: ``solve(b)`` and ``vjp(grad_p)``.
 - ``Projection(shape, obstacle=..., ...)``: ``project(ux, uy)`` and ``vjp(...)``.
+- ``FlowStep(shape, size, sides=..., obstacle=..., ...)``: ``forward(ux, uy,
+  steps=...)`` (velocity, pressure and the force on the obstacle after
+  ``steps`` steps) and ``vjp(...)``.
 
 Functions: ``poisson_solve``, ``poisson_solve_vjp``, ``project``,
 ``project_vjp`` (cached solvers keyed by their arguments),
@@ -25,6 +28,7 @@ import numpy as np
 
 from ._native import (
     DiffphysError,
+    FlowStep,
     InvalidArgumentError,
     NonFiniteError,
     NotConvergedError,
@@ -45,6 +49,7 @@ __all__ = [
     "NotConvergedError",
     "ShapeError",
     "UnstableError",
+    "FlowStep",
     "Poisson",
     "Projection",
     "poisson",

@@ -22,7 +22,7 @@ import numpy as np
 
 import diffphys as _dp
 
-__all__ = ["poisson_solve", "project", "semi_lagrangian2", "upwind2"]
+__all__ = ["flow_step", "poisson_solve", "project", "semi_lagrangian2", "upwind2"]
 
 
 def _like(x):
@@ -141,3 +141,55 @@ def upwind2(d, u, *, dt, **kwargs):
     upwind differences for ``u``.
     """
     return _upwind2(_options(dict(kwargs, dt=dt)), d, u)
+
+
+# --- the flow step -------------------------------------------------------------
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(0, 1))
+def _flow(scene, steps, ux, uy, pressure, viscosity):
+    out = (_like(ux), _like(uy), _like(pressure), jax.ShapeDtypeStruct((2,), jnp.result_type(ux)))
+
+    def fn(a, b, p, nu):
+        return tuple(
+            scene.forward(np.asarray(a), np.asarray(b), steps=steps, pressure=np.asarray(p),
+                          viscosity=float(nu))
+        )
+
+    return _call(fn, out, ux, uy, pressure, viscosity)
+
+
+def _flow_fwd(scene, steps, ux, uy, pressure, viscosity):
+    return _flow(scene, steps, ux, uy, pressure, viscosity), (ux, uy, pressure, viscosity)
+
+
+def _flow_bwd(scene, steps, res, grads):
+    ux, uy, pressure, viscosity = res
+
+    def fn(a, b, p, nu, ga, gb, gp, gf):
+        g = scene.vjp(np.asarray(a), np.asarray(b), np.asarray(ga), np.asarray(gb), np.asarray(gp),
+                      np.asarray(gf), steps=steps, pressure=np.asarray(p), viscosity=float(nu))
+        return g[0], g[1], g[2], np.asarray(g[3], dtype=g[0].dtype)
+
+    out = (_like(ux), _like(uy), _like(pressure), _like(viscosity))
+    return _call(fn, out, ux, uy, pressure, viscosity, *grads)
+
+
+_flow.defvjp(_flow_fwd, _flow_bwd)
+
+
+def flow_step(scene, ux, uy, *, steps=1, pressure=None, viscosity=None):
+    """``(ux', uy', P', force)`` after ``steps`` steps of the flow ``scene``
+    (a ``diffphys.FlowStep``) from the face velocities ``ux``, ``uy`` and
+    the pressure (zero if None), with the viscosity ``viscosity`` (the
+    scene's if None; differentiable). ``force`` is ``[drag, lift]`` on the
+    obstacle at the end. Gradient: the steps recorded on diffphys' tape, one
+    reverse sweep (every piece's adjoint hand-written; the projection's is
+    one more pressure solve).
+    """
+    dtype = jnp.result_type(ux)
+    if pressure is None:
+        pressure = jnp.zeros(scene.shape, dtype)
+    if viscosity is None:
+        viscosity = scene.viscosity
+    return _flow(scene, steps, ux, uy, pressure, jnp.asarray(viscosity, dtype))

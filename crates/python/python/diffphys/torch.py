@@ -17,7 +17,7 @@ import torch
 
 import diffphys as _dp
 
-__all__ = ["poisson_solve", "project", "semi_lagrangian2", "upwind2"]
+__all__ = ["flow_step", "poisson_solve", "project", "semi_lagrangian2", "upwind2"]
 
 
 def _np(t):
@@ -98,3 +98,35 @@ def upwind2(d, u, *, dt, **kwargs):
     """One first-order upwind step of ``d`` by ``u`` (``[2, nx, ny]``);
     backward: the transposed stencil and the upwind differences."""
     return _Upwind2.apply(d, u, dict(kwargs, dt=dt))
+
+
+class _Flow(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, ux, uy, pressure, viscosity, scene, steps):
+        ctx.scene, ctx.steps = scene, steps
+        ctx.save_for_backward(ux, uy, pressure, viscosity)
+        out = scene.forward(_np(ux), _np(uy), steps=steps, pressure=_np(pressure),
+                            viscosity=float(viscosity))
+        return tuple(_t(a, ux) for a in out)
+
+    @staticmethod
+    def backward(ctx, gx, gy, gp, gf):
+        ux, uy, pressure, viscosity = ctx.saved_tensors
+        g = ctx.scene.vjp(_np(ux), _np(uy), _np(gx), _np(gy), _np(gp), _np(gf), steps=ctx.steps,
+                          pressure=_np(pressure), viscosity=float(viscosity))
+        gnu = torch.tensor(g[3], dtype=viscosity.dtype, device=viscosity.device)
+        return _t(g[0], gx), _t(g[1], gx), _t(g[2], gx), gnu, None, None
+
+
+def flow_step(scene, ux, uy, *, steps=1, pressure=None, viscosity=None):
+    """``(ux', uy', P', force)`` after ``steps`` steps of the flow ``scene``
+    (a ``diffphys.FlowStep``); differentiable in ``ux``, ``uy``, the
+    pressure and the viscosity (a tensor; the scene's if None). Backward:
+    the steps recorded on diffphys' tape, one reverse sweep."""
+    if pressure is None:
+        pressure = torch.zeros(scene.shape, dtype=ux.dtype, device=ux.device)
+    if viscosity is None:
+        viscosity = scene.viscosity
+    if not torch.is_tensor(viscosity):
+        viscosity = torch.tensor(viscosity, dtype=ux.dtype, device=ux.device)
+    return _Flow.apply(ux, uy, pressure, viscosity, scene, steps)

@@ -76,7 +76,7 @@ def _obstacle_mask(obstacle: dict | None, n: int) -> np.ndarray | None:
 @functools.lru_cache(maxsize=8)
 def _scene(n: int, extent: float, dt: float, nu: float, obstacle_key: bytes | None):
     solid = None if obstacle_key is None else np.frombuffer(obstacle_key, bool).reshape(n, n)
-    solver = "cholesky" if n <= 64 else "multigrid"
+    solver = "cholesky" if n <= 128 else "multigrid"
     return dp.FlowStep((n, n), (extent, extent), sides="periodic", obstacle=solid,
                        viscosity=nu, dt=dt, pressure_solver=solver, substepping=True)
 

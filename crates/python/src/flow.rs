@@ -1,0 +1,507 @@
+//! The 2D incompressible flow step of `diffphys_flow` (MAC velocity,
+//! advection, viscosity, projection with an obstacle, per-side boundaries) on
+//! numpy arrays, with its vector–Jacobian product through `steps` steps.
+
+use diffphys_flow::diagnostics::{obstacle_force, ObstacleForce};
+use diffphys_flow::{
+    Advection, Boundary, FlowParams, FlowState, FlowVars, Obstacle, ParamVars, PressureSolver,
+    Scene, Sides, Splitting, ViscosityMode,
+};
+use diffphys_tape::{ArrayD, Real, Schedule, Tape, Var};
+use ndarray::{Array2, Ix1, Ix2, IxDyn};
+use numpy::{Element, PyReadonlyArrayDyn, PyUntypedArrayMethods};
+use pyo3::exceptions::PyTypeError;
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyTuple};
+
+use crate::arrays::{dtype_of, to_numpy, view, Dtype};
+use crate::errors::{check, InvalidArgumentError, ShapeError};
+
+/// A flow scene and its step: `(u, P) ↦ (u', P')`, `steps` times, and the
+/// force `[drag, lift]` of the flow on the obstacle at the end.
+///
+/// One step (`diffphys_flow::step`): self-advection of the MAC velocity
+/// (semi-Lagrangian or MacCormack), viscosity (explicit or implicit), the
+/// boundaries of each side, and the pressure projection with the obstacle
+/// (the incremental splitting by default). Its VJP records the steps on a
+/// tape (checkpointed every `⌈√steps⌉` steps) and runs the reverse sweep:
+/// every piece has a hand-written adjoint, the projection's is one more
+/// pressure solve.
+#[pyclass(module = "diffphys._native", frozen)]
+pub struct FlowStep {
+    scene: Scene,
+}
+
+/// One side's condition by name: `"no_slip"`, `"free_slip"`, `"periodic"`,
+/// `"inflow"`, `"outflow"`, or `("moving", speed)`.
+fn side(obj: &Bound<'_, PyAny>) -> PyResult<Boundary> {
+    if let Ok((name, speed)) = obj.extract::<(String, f64)>() {
+        return match name.as_str() {
+            "moving" | "moving_wall" => Ok(Boundary::MovingWall { speed }),
+            other => Err(InvalidArgumentError::new_err(format!(
+                "a side given as (name, speed) must be (\"moving\", speed), got {other:?}"
+            ))),
+        };
+    }
+    let name: String = obj
+        .extract()
+        .map_err(|_| PyTypeError::new_err("a side is a name or (\"moving\", speed)"))?;
+    match name.as_str() {
+        "no_slip" | "wall" => Ok(Boundary::NoSlip),
+        "free_slip" => Ok(Boundary::FreeSlip),
+        "periodic" => Ok(Boundary::Periodic),
+        "inflow" => Ok(Boundary::Inflow),
+        "outflow" => Ok(Boundary::Outflow),
+        other => Err(InvalidArgumentError::new_err(format!(
+            "unknown side condition {other:?}: use \"no_slip\", \"free_slip\", \"periodic\", \
+             \"inflow\", \"outflow\" or (\"moving\", speed)"
+        ))),
+    }
+}
+
+/// `sides=`: a preset (`"periodic"`, `"channel"`, `"cavity"`, or any side
+/// condition on all four sides) or a dict `{"left": …, "right": …,
+/// "bottom": …, "top": …}` (missing sides no-slip).
+fn sides(obj: &Bound<'_, PyAny>) -> PyResult<Sides> {
+    if let Ok(d) = obj.cast::<PyDict>() {
+        let mut s = Sides::all(Boundary::NoSlip);
+        for (k, v) in d.iter() {
+            let b = side(&v)?;
+            match k.extract::<String>()?.as_str() {
+                "left" => s.left = b,
+                "right" => s.right = b,
+                "bottom" => s.bottom = b,
+                "top" => s.top = b,
+                other => {
+                    return Err(InvalidArgumentError::new_err(format!(
+                        "unknown side {other:?}: use left, right, bottom, top"
+                    )))
+                }
+            }
+        }
+        return Ok(s);
+    }
+    match obj.extract::<String>().ok().as_deref() {
+        Some("channel") => Ok(Sides::channel()),
+        Some("cavity") => Ok(Sides::cavity(1.0)),
+        _ => Ok(Sides::all(side(obj)?)),
+    }
+}
+
+#[pymethods]
+impl FlowStep {
+    /// `FlowStep(shape, size, *, sides="periodic", obstacle=None,
+    /// viscosity=0.01, dt=0.01, inflow=None, advection="semi_lagrangian",
+    /// viscosity_mode="explicit", pressure_solver="cholesky",
+    /// pressure_rel_tol=1e-10, splitting="incremental", substepping=False,
+    /// max_courant=1.0)`. `shape` is the cells `(nx, ny)`, `size` the domain
+    /// `(lx, ly)`; `obstacle` a bool array of the cell shape (true: solid);
+    /// `inflow` a speed (uniform) or a profile along the inflow side;
+    /// `pressure_solver` `"cholesky"`, `"cg"` or `"multigrid"`.
+    #[new]
+    #[pyo3(signature = (
+        shape, size, *, sides = None, obstacle = None, viscosity = 0.01, dt = 0.01,
+        inflow = None, advection = "semi_lagrangian", viscosity_mode = "explicit",
+        pressure_solver = "cholesky", pressure_rel_tol = 1e-10, splitting = "incremental",
+        substepping = false, max_courant = 1.0
+    ))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        shape: (usize, usize),
+        size: (f64, f64),
+        sides: Option<&Bound<'_, PyAny>>,
+        obstacle: Option<&Bound<'_, PyAny>>,
+        viscosity: f64,
+        dt: f64,
+        inflow: Option<&Bound<'_, PyAny>>,
+        advection: &str,
+        viscosity_mode: &str,
+        pressure_solver: &str,
+        pressure_rel_tol: f64,
+        splitting: &str,
+        substepping: bool,
+        max_courant: f64,
+    ) -> PyResult<Self> {
+        let sides = match sides {
+            Some(s) => self::sides(s)?,
+            None => Sides::periodic(),
+        };
+        let mut b = Scene::builder(shape.0, shape.1, [size.0, size.1])
+            .sides(sides)
+            .viscosity(viscosity)
+            .dt(dt)
+            .substepping(substepping)
+            .max_courant(max_courant)
+            .advection(match advection {
+                "semi_lagrangian" => Advection::SemiLagrangian,
+                "maccormack" => Advection::MacCormack { limiter: true },
+                other => return Err(unknown("advection", other, "semi_lagrangian, maccormack")),
+            })
+            .viscosity_mode(match viscosity_mode {
+                "explicit" => ViscosityMode::Explicit,
+                "implicit" => ViscosityMode::Implicit,
+                other => return Err(unknown("viscosity_mode", other, "explicit, implicit")),
+            })
+            .pressure_solver(match pressure_solver {
+                "cholesky" => PressureSolver::Cholesky,
+                "cg" => PressureSolver::Cg {
+                    rel_tol: pressure_rel_tol,
+                    max_iters: 100_000,
+                },
+                "multigrid" => PressureSolver::MultigridCg {
+                    rel_tol: pressure_rel_tol,
+                    max_iters: 10_000,
+                    sweeps: 2,
+                },
+                other => return Err(unknown("pressure_solver", other, "cholesky, cg, multigrid")),
+            })
+            .splitting(match splitting {
+                "incremental" => Splitting::Incremental,
+                "plain" => Splitting::Plain,
+                other => return Err(unknown("splitting", other, "incremental, plain")),
+            });
+        if let Some(solid) = obstacle {
+            let solid = solid
+                .extract::<PyReadonlyArrayDyn<'_, bool>>()
+                .map_err(|_| PyTypeError::new_err("obstacle must be a numpy array of bool"))?;
+            let mask = solid
+                .as_array()
+                .to_owned()
+                .into_dimensionality::<Ix2>()
+                .map_err(|_| ShapeError::new_err("obstacle must be a 2D array"))?;
+            b = b.obstacle(Obstacle::Mask(mask));
+        }
+        if let Some(inflow) = inflow {
+            b = match inflow.extract::<f64>() {
+                Ok(speed) => b.uniform_inflow(speed),
+                Err(_) => b.inflow(inflow.extract::<Vec<f64>>()?),
+            };
+        }
+        Ok(FlowStep {
+            scene: check(b.build())?,
+        })
+    }
+
+    /// The cells `(nx, ny)`.
+    #[getter]
+    fn shape(&self) -> (usize, usize) {
+        let [a, b] = self.scene.grid().cell_shape();
+        (a, b)
+    }
+
+    /// The shape of `ux` (x-faces).
+    #[getter]
+    fn shape_x(&self) -> (usize, usize) {
+        let [a, b] = self.scene.grid().shape_x();
+        (a, b)
+    }
+
+    /// The shape of `uy` (y-faces).
+    #[getter]
+    fn shape_y(&self) -> (usize, usize) {
+        let [a, b] = self.scene.grid().shape_y();
+        (a, b)
+    }
+
+    /// The time step.
+    #[getter]
+    fn dt(&self) -> f64 {
+        self.scene.dt()
+    }
+
+    /// The viscosity the scene was built with.
+    #[getter]
+    fn viscosity(&self) -> f64 {
+        self.scene.viscosity()
+    }
+
+    /// The length of the inflow profile (0 without an inflow side).
+    #[getter]
+    fn inflow_len(&self) -> usize {
+        self.scene.inflow_len()
+    }
+
+    /// The solid cells (bool, cell shape).
+    #[getter]
+    fn solid<'py>(&self, py: Python<'py>) -> Bound<'py, PyAny> {
+        to_numpy(py, self.scene.solid().clone())
+    }
+
+    /// `(ux', uy', P', force)` after `steps` steps from `(ux, uy)` and the
+    /// pressure `pressure` (zero if None); `viscosity`, `wall_speed` (4, in
+    /// the order left, right, bottom, top) and `inflow` default to the
+    /// scene's. `force` is `[drag, lift]` on the obstacle at the end.
+    #[pyo3(signature = (ux, uy, *, steps = 1, pressure = None, viscosity = None,
+                        wall_speed = None, inflow = None))]
+    #[allow(clippy::too_many_arguments)]
+    fn forward<'py>(
+        &self,
+        ux: &Bound<'py, PyAny>,
+        uy: &Bound<'py, PyAny>,
+        steps: usize,
+        pressure: Option<&Bound<'py, PyAny>>,
+        viscosity: Option<f64>,
+        wall_speed: Option<&Bound<'py, PyAny>>,
+        inflow: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyTuple>> {
+        let args = Args {
+            steps,
+            pressure,
+            viscosity,
+            wall_speed,
+            inflow,
+        };
+        match dtype_of(ux, "ux")? {
+            Dtype::F32 => self.forward_t::<f32>(ux, uy, &args),
+            Dtype::F64 => self.forward_t::<f64>(ux, uy, &args),
+        }
+    }
+
+    /// The VJP of `forward`: from the gradients of its outputs (`grad_ux`,
+    /// `grad_uy`, `grad_pressure`, `grad_force`; None is zero), `(∂L/∂ux,
+    /// ∂L/∂uy, ∂L/∂P, ∂L/∂viscosity, ∂L/∂wall_speed, ∂L/∂inflow)`, by
+    /// recording the steps on a tape and one reverse sweep.
+    #[pyo3(signature = (ux, uy, grad_ux = None, grad_uy = None, grad_pressure = None,
+                        grad_force = None, *, steps = 1, pressure = None, viscosity = None,
+                        wall_speed = None, inflow = None))]
+    #[allow(clippy::too_many_arguments)]
+    fn vjp<'py>(
+        &self,
+        ux: &Bound<'py, PyAny>,
+        uy: &Bound<'py, PyAny>,
+        grad_ux: Option<&Bound<'py, PyAny>>,
+        grad_uy: Option<&Bound<'py, PyAny>>,
+        grad_pressure: Option<&Bound<'py, PyAny>>,
+        grad_force: Option<&Bound<'py, PyAny>>,
+        steps: usize,
+        pressure: Option<&Bound<'py, PyAny>>,
+        viscosity: Option<f64>,
+        wall_speed: Option<&Bound<'py, PyAny>>,
+        inflow: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyTuple>> {
+        let args = Args {
+            steps,
+            pressure,
+            viscosity,
+            wall_speed,
+            inflow,
+        };
+        let seeds = [grad_ux, grad_uy, grad_pressure, grad_force];
+        match dtype_of(ux, "ux")? {
+            Dtype::F32 => self.vjp_t::<f32>(ux, uy, seeds, &args),
+            Dtype::F64 => self.vjp_t::<f64>(ux, uy, seeds, &args),
+        }
+    }
+}
+
+fn unknown(what: &str, found: &str, valid: &str) -> PyErr {
+    InvalidArgumentError::new_err(format!("unknown {what} {found:?}: use one of {valid}"))
+}
+
+/// The keyword arguments of `forward` and `vjp` past the velocity.
+struct Args<'a, 'py> {
+    steps: usize,
+    pressure: Option<&'a Bound<'py, PyAny>>,
+    viscosity: Option<f64>,
+    wall_speed: Option<&'a Bound<'py, PyAny>>,
+    inflow: Option<&'a Bound<'py, PyAny>>,
+}
+
+/// An array argument as an owned `Array<T, D>`, checked for its dimension.
+fn owned<T: Element + Real, D: ndarray::Dimension>(
+    a: &Bound<'_, PyAny>,
+    what: &str,
+) -> PyResult<ndarray::Array<T, D>> {
+    let v = view::<T>(a, what)?;
+    let shape = v.shape().to_vec();
+    v.as_array()
+        .to_owned()
+        .into_dimensionality::<D>()
+        .map_err(|_| {
+            ShapeError::new_err(format!(
+                "{what} has shape {shape:?}, not of the dimension the flow step needs"
+            ))
+        })
+}
+
+impl FlowStep {
+    /// The state and parameters of a call.
+    fn inputs<T: Element + Real>(
+        &self,
+        ux: &Bound<'_, PyAny>,
+        uy: &Bound<'_, PyAny>,
+        args: &Args<'_, '_>,
+    ) -> PyResult<(FlowState<T>, FlowParams<T>)> {
+        let g = self.scene.grid();
+        let cells = g.cell_shape();
+        let pressure = match args.pressure {
+            Some(p) => owned::<T, Ix2>(p, "pressure")?,
+            None => Array2::zeros((cells[0], cells[1])),
+        };
+        let state = FlowState {
+            ux: owned::<T, Ix2>(ux, "ux")?,
+            uy: owned::<T, Ix2>(uy, "uy")?,
+            pressure,
+            scalars: Vec::new(),
+        };
+        let mut params = self.scene.params::<T>();
+        if let Some(nu) = args.viscosity {
+            params.viscosity = T::from_f64(nu);
+        }
+        if let Some(w) = args.wall_speed {
+            params.wall_speed = owned::<T, Ix1>(w, "wall_speed")?;
+        }
+        if let Some(q) = args.inflow {
+            params.inflow = owned::<T, Ix1>(q, "inflow")?;
+        }
+        if args.steps == 0 {
+            return Err(InvalidArgumentError::new_err("steps must be at least 1"));
+        }
+        Ok((state, params))
+    }
+
+    fn forward_t<'py, T: Real + Element>(
+        &self,
+        ux: &Bound<'py, PyAny>,
+        uy: &Bound<'py, PyAny>,
+        args: &Args<'_, 'py>,
+    ) -> PyResult<Bound<'py, PyTuple>> {
+        let py = ux.py();
+        let (state, params) = self.inputs::<T>(ux, uy, args)?;
+        let scene = &self.scene;
+        let steps = args.steps;
+        let (end, force) = check(py.detach(|| {
+            let mut s = state;
+            for _ in 0..steps {
+                s = scene.forward(&s, &params)?.0;
+            }
+            let f = obstacle_force(
+                scene,
+                s.ux.view(),
+                s.uy.view(),
+                s.pressure.view(),
+                params.viscosity,
+            )?;
+            Ok::<_, diffphys_flow::FlowError>((s, f))
+        }))?;
+        PyTuple::new(
+            py,
+            [
+                to_numpy(py, end.ux),
+                to_numpy(py, end.uy),
+                to_numpy(py, end.pressure),
+                to_numpy(py, force),
+            ],
+        )
+    }
+
+    fn vjp_t<'py, T: Real + Element>(
+        &self,
+        ux: &Bound<'py, PyAny>,
+        uy: &Bound<'py, PyAny>,
+        seeds: [Option<&Bound<'py, PyAny>>; 4],
+        args: &Args<'_, 'py>,
+    ) -> PyResult<Bound<'py, PyTuple>> {
+        let py = ux.py();
+        let (state, params) = self.inputs::<T>(ux, uy, args)?;
+        let names = ["grad_ux", "grad_uy", "grad_pressure", "grad_force"];
+        let mut g: [Option<ArrayD<T>>; 4] = Default::default();
+        let grid = self.scene.grid();
+        let want = [
+            grid.shape_x().to_vec(),
+            grid.shape_y().to_vec(),
+            grid.cell_shape().to_vec(),
+            vec![2],
+        ];
+        for (k, seed) in seeds.iter().enumerate() {
+            if let Some(s) = seed {
+                let a = view::<T>(s, names[k])?.as_array().to_owned();
+                if a.shape() != want[k].as_slice() {
+                    return Err(ShapeError::new_err(format!(
+                        "shape mismatch in the flow step's vjp: {} has shape {:?}, the output has {:?}",
+                        names[k],
+                        a.shape(),
+                        want[k]
+                    )));
+                }
+                g[k] = Some(a);
+            }
+        }
+        let scene = &self.scene;
+        let steps = args.steps;
+        let grads = check(py.detach(|| vjp_on_tape(scene, state, params, g, steps)))?;
+        let [gux, guy, gp, gnu, gw, gq] = grads;
+        let nu = gnu.first().copied().unwrap_or_else(T::zero).as_f64();
+        let items = vec![
+            to_numpy(py, gux),
+            to_numpy(py, guy),
+            to_numpy(py, gp),
+            nu.into_pyobject(py)?.into_any(),
+            to_numpy(py, gw),
+            to_numpy(py, gq),
+        ];
+        PyTuple::new(py, items)
+    }
+}
+
+/// Records `steps` steps and the force on a tape, seeds `Σ g·outputs`, and
+/// returns the gradients with respect to `[ux, uy, P, ν, wall_speed, inflow]`
+/// (zeros where the loss does not reach).
+fn vjp_on_tape<T: Real>(
+    scene: &Scene,
+    state: FlowState<T>,
+    params: FlowParams<T>,
+    seeds: [Option<ArrayD<T>>; 4],
+    steps: usize,
+) -> Result<[ArrayD<T>; 6], diffphys_flow::FlowError> {
+    let tape = Tape::<T>::new();
+    let vars = FlowVars {
+        ux: tape.var(state.ux),
+        uy: tape.var(state.uy),
+        pressure: tape.var(state.pressure),
+        scalars: Vec::new(),
+    };
+    let pv = ParamVars {
+        viscosity: tape.var(ArrayD::from_elem(IxDyn(&[]), params.viscosity)),
+        wall_speed: tape.var(params.wall_speed),
+        inflow: tape.var(params.inflow),
+    };
+    let every = (steps as f64).sqrt().ceil() as usize;
+    let schedule = if steps <= 2 {
+        Schedule::Full
+    } else {
+        Schedule::Every(every)
+    };
+    let end = scene.rollout(&tape, schedule, steps, &vars, &pv)?;
+    let force = tape.apply(
+        ObstacleForce {
+            scene: scene.clone(),
+        },
+        &[end.ux, end.uy, end.pressure, pv.viscosity],
+    )?;
+    let outputs = [end.ux, end.uy, end.pressure, force];
+    let mut loss: Option<Var<'_, T>> = None;
+    for (seed, out) in seeds.into_iter().zip(outputs) {
+        if let Some(seed) = seed {
+            let term = tape.constant(seed).mul(out)?.sum()?;
+            loss = Some(match loss {
+                Some(l) => l.add(term)?,
+                None => term,
+            });
+        }
+    }
+    let wrt = [
+        vars.ux,
+        vars.uy,
+        vars.pressure,
+        pv.viscosity,
+        pv.wall_speed,
+        pv.inflow,
+    ];
+    let zeros = |v: &Var<'_, T>| ArrayD::zeros(IxDyn(&v.shape()));
+    let Some(loss) = loss else {
+        return Ok(wrt.map(|v| zeros(&v)));
+    };
+    let grads = tape.backward(loss, &wrt)?;
+    Ok(wrt.map(|v| grads.get(v).cloned().unwrap_or_else(|| zeros(&v))))
+}

@@ -29,6 +29,8 @@ mod common;
 mod wake_flow_scene;
 
 use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
 use std::time::Instant;
 
 use diffphys::flow::PressureSolver;
@@ -45,7 +47,7 @@ use wake_flow_scene::data::{base_state, reference, Bump, Cache, Reference};
 use wake_flow_scene::study::{self, HeldOutRun};
 use wake_flow_scene::{
     free_faces, reference_scene, uncorrected, Coarse, Net, NetSize, Options, Sizes, Variant,
-    WakeError, MAIN_SIZE, SIZES,
+    MAIN_SIZE, SIZES,
 };
 
 type BoxError = Box<dyn std::error::Error>;
@@ -103,29 +105,53 @@ struct Model {
     seconds: f64,
 }
 
-#[allow(clippy::too_many_arguments)]
-fn train_one(
-    trainer: &Trainer,
-    coarse: &Coarse,
+/// One training: a variant at a corrector size, a training seed, a learning
+/// rate and an iteration count.
+#[derive(Debug, Clone, Copy)]
+struct Job {
     variant: Variant,
     size: NetSize,
-    sigma: f64,
     seed: u64,
-    splits: &Splits<Vec<Reference>>,
-    train: &[Trajectory],
-    validation: &[Trajectory],
-) -> Result<Model, BoxError> {
-    let strategy = strategy(variant, sigma).ok_or("src is not trained")?;
-    let (net, params) = Net::new(&coarse.scene, size, &mut TrainSeed(seed).init_rng())?;
-    let hybrid = Hybrid::new(coarse.clone(), net);
+    lr: f64,
+    iterations: usize,
+}
+
+/// What every training shares.
+struct Setup<'a> {
+    trainer: Trainer,
+    coarse: &'a Coarse,
+    sigma: f64,
+    data_seed: u64,
+    train: &'a [Trajectory],
+    validation: &'a [Trajectory],
+}
+
+fn train_one(setup: &Setup<'_>, job: &Job) -> Result<Model, BoxError> {
+    let Job {
+        variant,
+        size,
+        seed,
+        lr,
+        iterations,
+    } = *job;
+    let trainer = Trainer {
+        learning_rate: lr,
+        budget: Budget {
+            iterations,
+            ..setup.trainer.budget
+        },
+        ..setup.trainer
+    };
+    let strategy = strategy(variant, setup.sigma).ok_or("src is not trained")?;
+    let (net, params) = Net::new(&setup.coarse.scene, size, &mut TrainSeed(seed).init_rng())?;
+    let hybrid = Hybrid::new(setup.coarse.clone(), net);
     let bar = progress_bar(
-        trainer.budget.iterations,
+        iterations,
         &format!(
-            "data {} {:>6} {} seed {seed} (lr {:.0e})",
-            splits.seed.0,
+            "data {} {:>6} {} seed {seed} (lr {lr:.0e})",
+            setup.data_seed,
             variant.name(),
             size.label(),
-            trainer.learning_rate
         ),
     );
     let start = Instant::now();
@@ -133,21 +159,20 @@ fn train_one(
         &hybrid,
         params,
         strategy,
-        train,
-        validation,
+        setup.train,
+        setup.validation,
         TrainSeed(seed),
         &|| bar.inc(1),
     )?;
     bar.finish_and_clear();
     let seconds = start.elapsed().as_secs_f64();
     println!(
-        "  {:>6} {} seed {seed}: {:.1} s, validation {:.5} (kept iteration {} of {})",
+        "  {:>6} {} seed {seed}, lr {lr:.0e}: {:.1} s, validation {:.5} (kept iteration {} of {iterations})",
         variant.name(),
         size.label(),
         seconds,
         trained.model.validation,
         trained.model.best_iteration,
-        trainer.budget.iterations
     );
     Ok(Model {
         variant,
@@ -156,6 +181,43 @@ fn train_one(
         trained,
         seconds,
     })
+}
+
+/// Runs `f` on every job on `threads` worker threads (each training is
+/// deterministic for its seed, so the results do not depend on the
+/// scheduling); the results in job order.
+fn parallel<J: Sync, R: Send>(
+    jobs: &[J],
+    threads: usize,
+    f: impl Fn(&J) -> Result<R, String> + Sync,
+) -> Result<Vec<R>, BoxError> {
+    let next = AtomicUsize::new(0);
+    let slots: Vec<Mutex<Option<Result<R, String>>>> =
+        jobs.iter().map(|_| Mutex::new(None)).collect();
+    std::thread::scope(|s| {
+        for _ in 0..threads.clamp(1, jobs.len().max(1)) {
+            s.spawn(|| loop {
+                let i = next.fetch_add(1, Ordering::Relaxed);
+                if i >= jobs.len() {
+                    break;
+                }
+                let r = f(&jobs[i]);
+                if let Ok(mut slot) = slots[i].lock() {
+                    *slot = Some(r);
+                }
+            });
+        }
+    });
+    slots
+        .into_iter()
+        .map(|m| {
+            m.into_inner()
+                .ok()
+                .flatten()
+                .unwrap_or_else(|| Err("a job was not run".into()))
+                .map_err(BoxError::from)
+        })
+        .collect()
 }
 
 fn main() -> Result<(), BoxError> {
@@ -174,11 +236,12 @@ fn main() -> Result<(), BoxError> {
         },
     };
     let sizes = if small { Sizes::small() } else { Sizes::full() };
+    let threads = options.threads;
     let coarse_scene = uncorrected(&sizes, 1, PressureSolver::Cholesky)?;
     let fine = reference_scene(&sizes)?;
     let coarse = Coarse::new(coarse_scene.clone());
     let cache = Cache::new(&args.out, &sizes)?;
-    let iterations = args.iterations.unwrap_or(args.pick(400, 4));
+    let iterations = args.iterations.unwrap_or(args.pick(300, 4));
     let trainer = Trainer {
         budget: Budget {
             iterations,
@@ -188,7 +251,7 @@ fn main() -> Result<(), BoxError> {
         schedule: LrSchedule::Cosine {
             final_fraction: 0.1,
         },
-        validate_every: args.pick(50, 2),
+        validate_every: args.pick(100, 2),
         validation_steps: sizes.rollout,
     };
     println!(
@@ -206,7 +269,7 @@ fn main() -> Result<(), BoxError> {
     let mut speed_inputs = None;
     let mut sigma_used = 0.0;
     let mut params_count = serde_json::Map::new();
-    for size in SIZES {
+    for size in std::iter::once(MAIN_SIZE).chain(options.capacity.iter().copied()) {
         let (_, p) = Net::new(&coarse.scene, size, &mut TrainSeed(0).init_rng())?;
         params_count.insert(size.label(), json!(p.count()));
     }
@@ -231,22 +294,23 @@ fn main() -> Result<(), BoxError> {
                     Split::Validation => &options.validation_re,
                     Split::HeldOut => &options.held_out_re,
                 };
-                let mut run = || -> Result<Vec<Reference>, WakeError> {
+                let mut run = || -> Result<Vec<Reference>, BoxError> {
                     let bump = Bump::draw(rng);
-                    let base = base_state(&cache, &sizes, &fine, bump, &|n| bar.inc(n))?;
-                    list.iter()
-                        .map(|&re| {
-                            reference(
-                                &cache,
-                                &sizes,
-                                &coarse.scene,
-                                &fine,
-                                (&base, bump),
-                                re,
-                                &|n| bar.inc(n),
-                            )
-                        })
-                        .collect()
+                    let tick = |n| bar.inc(n);
+                    let base = base_state(&cache, &sizes, &fine, bump, &tick)?;
+                    // The Reynolds numbers of a split share the workers.
+                    parallel(list, threads, |&re| {
+                        reference(
+                            &cache,
+                            &sizes,
+                            &coarse.scene,
+                            &fine,
+                            (&base, bump),
+                            re,
+                            &tick,
+                        )
+                        .map_err(|e| e.to_string())
+                    })
                 };
                 run().map_err(|e| diffphys::learn::LearnError::Invalid {
                     what: "reference",
@@ -269,11 +333,7 @@ fn main() -> Result<(), BoxError> {
         let validation: Vec<Trajectory> = splits
             .validation
             .iter()
-            .flat_map(|r| {
-                [0, sizes.record - sizes.rollout]
-                    .into_iter()
-                    .map(|s| window(r, s, sizes.rollout + 1))
-            })
+            .flat_map(|r| [0].into_iter().map(|s| window(r, s, sizes.rollout + 1)))
             .collect();
         let sigma = one_step_rms(&coarse, &train)?;
         sigma_used = sigma;
@@ -306,111 +366,131 @@ fn main() -> Result<(), BoxError> {
             }
         })
         .collect();
-        for (family, variant) in &families {
-            if options.learning_rates.len() == 1 {
-                lr_of.insert(family, options.learning_rates[0]);
-                continue;
-            }
-            let mut best = (f64::INFINITY, options.learning_rates[0]);
-            let mut scores = Vec::new();
-            for &lr in &options.learning_rates {
-                let pilot = Trainer {
-                    learning_rate: lr,
-                    budget: Budget {
+        let setup = Setup {
+            trainer,
+            coarse: &coarse,
+            sigma,
+            data_seed: ds,
+            train: &train,
+            validation: &validation,
+        };
+        let run = |jobs: &[Job]| {
+            parallel(jobs, threads, |job| {
+                train_one(&setup, job).map_err(|e| e.to_string())
+            })
+        };
+        if options.learning_rates.len() > 1 {
+            let first_seed = seeds.train[0];
+            let pilots: Vec<Job> = families
+                .iter()
+                .flat_map(|&(_, variant)| {
+                    options.learning_rates.iter().map(move |&lr| Job {
+                        variant,
+                        size: MAIN_SIZE,
+                        seed: first_seed,
+                        lr,
                         iterations: (iterations / 4).max(1),
-                        ..trainer.budget
-                    },
-                    ..trainer
-                };
-                let m = train_one(
-                    &pilot,
-                    &coarse,
-                    *variant,
-                    MAIN_SIZE,
-                    sigma,
-                    seeds.train[0],
-                    &splits,
-                    &train,
-                    &validation,
-                )?;
-                let v = m.trained.model.validation;
-                scores.push(json!({"lr": lr, "validation": v}));
-                if v < best.0 {
-                    best = (v, lr);
-                }
+                    })
+                })
+                .collect();
+            let models = run(&pilots)?;
+            for (family, variant) in &families {
+                let scores: Vec<(f64, f64)> = pilots
+                    .iter()
+                    .zip(&models)
+                    .filter(|(j, _)| j.variant == *variant)
+                    .map(|(j, m)| (j.lr, m.trained.model.validation))
+                    .collect();
+                let best = scores
+                    .iter()
+                    .copied()
+                    .min_by(|a, b| a.1.total_cmp(&b.1))
+                    .map_or(options.learning_rates[0], |b| b.0);
+                println!("  learning rate for {family}: {best:.0e} (pilot validation {scores:?})");
+                lr_of.insert(family, best);
+                chosen_lr.insert(
+                    format!("{family}_pilots_data_{ds}"),
+                    json!(scores
+                        .iter()
+                        .map(|(lr, v)| json!({"lr": lr, "validation": v}))
+                        .collect::<Vec<_>>()),
+                );
             }
-            println!(
-                "  learning rate for {family}: {:.0e} (pilot validation {scores:?})",
-                best.1
-            );
-            lr_of.insert(family, best.1);
-            chosen_lr.insert(format!("{family}_pilots_data_{ds}"), json!(scores));
+        } else {
+            for (family, _) in &families {
+                lr_of.insert(family, options.learning_rates[0]);
+            }
         }
         for (f, lr) in &lr_of {
             chosen_lr.insert(format!("{f}_data_{ds}"), json!(lr));
         }
-        let trainer_for = |v: Variant| Trainer {
-            learning_rate: match v {
+        let lr_for = |v: Variant| {
+            match v {
                 Variant::Sol(_) => lr_of.get("sol"),
                 _ => lr_of.get("non"),
             }
             .copied()
-            .unwrap_or(options.learning_rates[0]),
-            ..trainer
+            .unwrap_or(options.learning_rates[0])
         };
 
-        // Phase 3: every variant at the main size, every training seed.
-        let mut groups: Vec<(Variant, Vec<Model>)> = Vec::new();
-        for &variant in options.variants.iter().filter(|v| **v != Variant::Src) {
-            let mut group = Vec::new();
-            for &ts in &seeds.train {
-                let m = train_one(
-                    &trainer_for(variant),
-                    &coarse,
-                    variant,
-                    MAIN_SIZE,
-                    sigma,
-                    ts,
-                    &splits,
-                    &train,
-                    &validation,
-                )?;
-                validation_report.add(&variant.name(), ds, Some(ts), m.trained.model.validation);
-                train_seconds
-                    .entry(variant.name())
-                    .or_default()
-                    .push(m.seconds);
-                group.push(m);
+        // Phase 3: every variant at the main size and, for the capacity
+        // sweep, non and the first SOL at the other sizes; every training seed.
+        // The largest first, so the workers finish together.
+        let sol = options.unrolls().first().copied().map(Variant::Sol);
+        let mut plan: Vec<(Variant, NetSize)> = Vec::new();
+        let mut sweep = options.capacity.clone();
+        sweep.sort_by_key(|s| std::cmp::Reverse(s.width * s.width * (2 * s.blocks + 2)));
+        let (larger, smaller): (Vec<NetSize>, Vec<NetSize>) = sweep
+            .iter()
+            .partition(|s| s.width * s.width * (2 * s.blocks + 2) > 16 * 16 * 6);
+        for size in larger {
+            for variant in [Some(Variant::Non), sol].into_iter().flatten() {
+                plan.push((variant, size));
             }
-            groups.push((variant, group));
         }
-        // Capacity sweep: non and the first SOL at the other sizes.
+        for &variant in options.variants.iter().filter(|v| **v != Variant::Src) {
+            plan.push((variant, MAIN_SIZE));
+        }
+        for size in smaller {
+            for variant in [Some(Variant::Non), sol].into_iter().flatten() {
+                plan.push((variant, size));
+            }
+        }
+        let jobs: Vec<Job> = plan
+            .iter()
+            .flat_map(|&(variant, size)| {
+                seeds.train.iter().map(move |&seed| Job {
+                    variant,
+                    size,
+                    seed,
+                    lr: lr_for(variant),
+                    iterations,
+                })
+            })
+            .collect();
+        let mut models = run(&jobs)?.into_iter();
+        let mut groups: Vec<(Variant, Vec<Model>)> = Vec::new();
         let mut capacity_groups: Vec<(Variant, Vec<Model>)> = Vec::new();
-        if options.capacity {
-            let sol = options.unrolls().first().copied().map(Variant::Sol);
-            for size in SIZES.into_iter().filter(|s| *s != MAIN_SIZE) {
-                for variant in [Some(Variant::Non), sol].into_iter().flatten() {
-                    let mut group = Vec::new();
-                    for &ts in &seeds.train {
-                        let m = train_one(
-                            &trainer_for(variant),
-                            &coarse,
-                            variant,
-                            size,
-                            sigma,
-                            ts,
-                            &splits,
-                            &train,
-                            &validation,
-                        )?;
-                        train_seconds
-                            .entry(format!("{}_{}", variant.name(), size.label()))
-                            .or_default()
-                            .push(m.seconds);
-                        group.push(m);
-                    }
-                    capacity_groups.push((variant, group));
-                }
+        for &(variant, size) in &plan {
+            let group: Vec<Model> = models.by_ref().take(seeds.train.len()).collect();
+            for m in &group {
+                let key = if size == MAIN_SIZE {
+                    validation_report.add(
+                        &variant.name(),
+                        ds,
+                        Some(m.seed),
+                        m.trained.model.validation,
+                    );
+                    variant.name()
+                } else {
+                    format!("{}_{}", variant.name(), size.label())
+                };
+                train_seconds.entry(key).or_default().push(m.seconds);
+            }
+            if size == MAIN_SIZE {
+                groups.push((variant, group));
+            } else {
+                capacity_groups.push((variant, group));
             }
         }
 
@@ -451,14 +531,38 @@ fn main() -> Result<(), BoxError> {
                 * (1 + selections.iter().map(|s| s.models.len()).sum::<usize>()),
             &format!("data {ds}: held-out"),
         );
-        let src = splits.held_out().evaluate_baseline(|refs| {
-            study::held_out_run(&hybrid, None, refs, &sizes, &|| bar.inc(1)).map_err(|e| {
-                diffphys::learn::LearnError::Invalid {
-                    what: "held-out",
-                    message: e.to_string(),
-                }
-            })
-        })?;
+        let invalid = |e: BoxError| diffphys::learn::LearnError::Invalid {
+            what: "held-out",
+            message: e.to_string(),
+        };
+        // Each model at each held-out Re is one job; the workers share them.
+        let evaluate = |models: &[(Option<&Params<f64>>, NetSize, u64)], refs: &[Reference]| {
+            let jobs: Vec<(usize, usize)> = (0..models.len())
+                .flat_map(|m| (0..refs.len()).map(move |r| (m, r)))
+                .collect();
+            let runs = parallel(&jobs, threads, |&(m, r)| {
+                let (params, size, seed) = models[m];
+                let (net, _) = Net::new(&coarse.scene, size, &mut TrainSeed(seed).init_rng())
+                    .map_err(|e| e.to_string())?;
+                let h = Hybrid::new(coarse.clone(), net);
+                let run =
+                    study::held_out_re(&h, params, &refs[r], &sizes).map_err(|e| e.to_string());
+                bar.inc(1);
+                run
+            })?;
+            let mut runs = runs.into_iter();
+            Ok::<_, BoxError>(
+                (0..models.len())
+                    .map(|_| HeldOutRun {
+                        per_re: runs.by_ref().take(refs.len()).collect(),
+                    })
+                    .collect::<Vec<_>>(),
+            )
+        };
+        let src = splits
+            .held_out()
+            .evaluate_baseline(|refs| evaluate(&[(None, MAIN_SIZE, 0)], refs).map_err(invalid))?
+            .remove(0);
         results.record("src", ds, None, &src);
         let reference_last = splits
             .held_out()
@@ -472,33 +576,11 @@ fn main() -> Result<(), BoxError> {
         for selection in selections {
             for model in selection.models {
                 let e = splits.held_out().evaluate(model, |group, refs| {
-                    group
+                    let models: Vec<_> = group
                         .iter()
-                        .map(|m| {
-                            let h = Hybrid::new(
-                                coarse.clone(),
-                                Net::new(&coarse.scene, m.size, &mut TrainSeed(m.seed).init_rng())
-                                    .map_err(|e| diffphys::learn::LearnError::Invalid {
-                                        what: "net",
-                                        message: e.to_string(),
-                                    })?
-                                    .0,
-                            );
-                            study::held_out_run(
-                                &h,
-                                Some(&m.trained.model.params),
-                                refs,
-                                &sizes,
-                                &|| bar.inc(1),
-                            )
-                            .map_err(|e| {
-                                diffphys::learn::LearnError::Invalid {
-                                    what: "held-out",
-                                    message: e.to_string(),
-                                }
-                            })
-                        })
-                        .collect::<Result<Vec<_>, _>>()
+                        .map(|m| (Some(&m.trained.model.params), m.size, m.seed))
+                        .collect();
+                    evaluate(&models, refs).map_err(invalid)
                 })?;
                 for (run, m) in e.result.iter().zip(&e.model) {
                     let params = m.trained.model.params.count();

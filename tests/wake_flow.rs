@@ -149,3 +149,29 @@ fn noise_leaves_the_viscosity_and_the_fixed_faces_alone() {
     assert_eq!(free[[0, 0, 3]], 0.0);
     assert_eq!(free[[0, 3, b - 1]], 0.0);
 }
+
+#[test]
+fn capacity_sizes_parse_and_bad_ones_are_refused() {
+    let o = options(&["--capacity-sizes", "w8b1,w16b2,w32b3"]).unwrap();
+    // The main size is always trained; the sweep lists the others.
+    assert_eq!(
+        o.capacity,
+        vec![
+            NetSize {
+                width: 8,
+                blocks: 1
+            },
+            NetSize {
+                width: 32,
+                blocks: 3
+            }
+        ]
+    );
+    for bad in ["w0b1", "8b1", "wxb2"] {
+        assert!(matches!(
+            options(&["--capacity-sizes", bad]),
+            Err(WakeError::Argument { .. })
+        ));
+    }
+    assert!(options(&["--no-capacity"]).unwrap().capacity.is_empty());
+}

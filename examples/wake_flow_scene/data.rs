@@ -98,7 +98,18 @@ impl Cache {
         std::fs::create_dir_all(&dir).map_err(|e| cache_error(&dir, e))?;
         Ok(Cache {
             dir,
-            settings: format!("v{VERSION} {sizes:?} factor {FACTOR}"),
+            settings: format!(
+                "v{VERSION} coarse {}x{} dt {} factor {FACTOR} warm_base {} warm {} record {} \
+                 base_re {} fine states at {:?}",
+                sizes.nx,
+                sizes.ny,
+                sizes.dt,
+                sizes.warm_base,
+                sizes.warm,
+                sizes.record,
+                sizes.base_re,
+                sizes.starts
+            ),
         })
     }
 
@@ -151,7 +162,7 @@ fn advance(
     mut s: FlowState<f64>,
     re: f64,
     coarse_steps: usize,
-    tick: &dyn Fn(u64),
+    tick: &(dyn Fn(u64) + Sync),
 ) -> Result<FlowState<f64>> {
     let p = FlowParams {
         viscosity: viscosity(re),
@@ -172,7 +183,7 @@ pub fn base_state(
     sizes: &Sizes,
     fine: &Scene,
     bump: Bump,
-    tick: &dyn Fn(u64),
+    tick: &(dyn Fn(u64) + Sync),
 ) -> Result<FlowState<f64>> {
     let path = cache.file("base", &format!("{bump:?}"));
     let g = fine.grid();
@@ -213,7 +224,7 @@ pub fn reference(
     fine: &Scene,
     base: (&FlowState<f64>, Bump),
     re: f64,
-    tick: &dyn Fn(u64),
+    tick: &(dyn Fn(u64) + Sync),
 ) -> Result<Reference> {
     let path = cache.file(&format!("re{re}"), &format!("{:?}", base.1));
     let packed = coarse.packed_shape();

@@ -233,6 +233,9 @@ pub struct Sizes {
     pub starts: Vec<usize>,
     /// The long rollout (from step 0).
     pub long: usize,
+    /// The starts of the speed study's rollouts (a subset of `starts`: the
+    /// 4× solver is the costly part).
+    pub speed_starts: Vec<usize>,
 }
 
 impl Sizes {
@@ -249,6 +252,7 @@ impl Sizes {
             rollout: 100,
             starts: vec![0, 50, 100, 150],
             long: 240,
+            speed_starts: vec![0, 100],
         }
     }
 
@@ -265,6 +269,7 @@ impl Sizes {
             rollout: 16,
             starts: vec![0, 16],
             long: 36,
+            speed_starts: vec![0, 16],
         }
     }
 }
@@ -293,6 +298,16 @@ pub fn wake_scene(
         .advection(advection)
         .splitting(splitting)
         .pressure_solver(pressure)
+        // Semi-Lagrangian advection is stable at any Courant number (a
+        // corrected state, early in training, may run much faster than the
+        // inflow: its error says so, not a refused step); MacCormack is not,
+        // and substeps instead.
+        .max_courant(if advection == Advection::SemiLagrangian {
+            1e3
+        } else {
+            1.0
+        })
+        .substepping(advection != Advection::SemiLagrangian)
         .build()?)
 }
 
@@ -397,6 +412,27 @@ pub struct NetSize {
 }
 
 impl NetSize {
+    /// Parses a label `wXbY` (width X, Y blocks).
+    ///
+    /// # Errors
+    /// [`WakeError::Argument`] for anything else or a zero width.
+    pub fn parse(label: &str) -> Result<Self> {
+        let bad = || WakeError::Argument {
+            option: "--capacity-sizes".into(),
+            message: format!("not a size wXbY (width X, Y blocks): {label:?}"),
+        };
+        let (w, b) = label
+            .strip_prefix('w')
+            .and_then(|r| r.split_once('b'))
+            .ok_or_else(bad)?;
+        let width: usize = w.parse().map_err(|_| bad())?;
+        let blocks: usize = b.parse().map_err(|_| bad())?;
+        if width == 0 {
+            return Err(bad());
+        }
+        Ok(NetSize { width, blocks })
+    }
+
     /// A short label, `w16b2`.
     pub fn label(&self) -> String {
         format!("w{}b{}", self.width, self.blocks)
@@ -534,10 +570,14 @@ pub struct Options {
     pub held_out_re: Vec<f64>,
     /// Learning rates to choose from on validation.
     pub learning_rates: Vec<f64>,
-    /// Run the capacity sweep.
-    pub capacity: bool,
+    /// The corrector sizes of the capacity sweep besides [`MAIN_SIZE`]
+    /// (empty: no sweep).
+    pub capacity: Vec<NetSize>,
     /// Run the speed study.
     pub speed: bool,
+    /// Trainings (and held-out evaluations) run at once, each on its own
+    /// thread (default: the available cores).
+    pub threads: usize,
 }
 
 impl Options {
@@ -568,13 +608,15 @@ impl Options {
                 list(&[71.0, 283.0, 1131.0, 2263.0])
             },
             learning_rates: if small { vec![1e-3] } else { vec![1e-3, 3e-3] },
-            capacity: true,
+            capacity: vec![SIZES[0], SIZES[2]],
             speed: true,
+            threads: std::thread::available_parallelism().map_or(1, usize::from),
         }
     }
 
     /// Takes `--variants LIST`, `--train-re LIST`, `--validation-re LIST`,
-    /// `--held-out-re LIST`, `--lrs LIST`, `--no-capacity`, `--no-speed` out of
+    /// `--held-out-re LIST`, `--lrs LIST`, `--threads N`, `--capacity-sizes
+    /// w8b1,w24b2`, `--no-capacity`, `--no-speed` out of
     /// `args`, the rest left for the common options.
     ///
     /// # Errors
@@ -626,9 +668,30 @@ impl Options {
                         })
                         .collect::<Result<_>>()?;
                 }
+                "--threads" => {
+                    let v = value(args)?;
+                    o.threads = match v.trim().parse::<usize>() {
+                        Ok(n) if n > 0 => n,
+                        _ => {
+                            return Err(WakeError::Argument {
+                                option: flag.clone(),
+                                message: format!("not a positive thread count: {v:?}"),
+                            })
+                        }
+                    };
+                }
                 "--no-capacity" => {
-                    o.capacity = false;
+                    o.capacity = Vec::new();
                     took = 1;
+                }
+                "--capacity-sizes" => {
+                    let v = value(args)?;
+                    o.capacity = v
+                        .split(',')
+                        .filter(|s| !s.trim().is_empty())
+                        .map(|s| NetSize::parse(s.trim()))
+                        .filter(|s| s.as_ref().map_or(true, |s| *s != MAIN_SIZE))
+                        .collect::<Result<_>>()?;
                 }
                 "--no-speed" => {
                     o.speed = false;

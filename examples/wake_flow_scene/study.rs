@@ -77,43 +77,37 @@ fn window(r: &Reference, start: usize, count: usize) -> Result<Trajectory> {
 }
 
 /// The rollouts of the hybrid (`params = None`: the coarse solver alone) on
-/// every held-out reference: `rollout` steps from each start, and the long
-/// rollout from step 0; `tick` after each Reynolds number.
+/// one held-out reference: `rollout` steps from each start, and the long
+/// rollout from step 0.
 ///
 /// # Errors
 /// Whatever the rollouts return.
-pub fn held_out_run<S: Simulator + 'static, C: Corrector + 'static>(
+pub fn held_out_re<S: Simulator + 'static, C: Corrector + 'static>(
     hybrid: &Hybrid<S, C>,
     params: Option<&Params<f64>>,
-    refs: &[Reference],
+    r: &Reference,
     sizes: &Sizes,
-    tick: &dyn Fn(),
-) -> Result<HeldOutRun> {
-    let mut per_re = Vec::new();
-    for r in refs {
-        let windows = sizes
-            .starts
-            .iter()
-            .map(|&s| window(r, s, sizes.rollout + 1))
-            .collect::<Result<Vec<_>>>()?;
-        let short = rollout(hybrid, params, &windows, sizes.rollout)?;
-        let long = rollout(hybrid, params, &[window(r, 0, sizes.long + 1)?], sizes.long)?;
-        let last = long
-            .last
-            .index_axis(Axis(0), 0)
-            .to_owned()
-            .into_dimensionality()
-            .map_err(|e| WakeError::Output(e.to_string()))?;
-        per_re.push(ReRun {
-            re: r.re,
-            mean: short.mean(),
-            curve: short.per_step,
-            long: long.mean(),
-            last,
-        });
-        tick();
-    }
-    Ok(HeldOutRun { per_re })
+) -> Result<ReRun> {
+    let windows = sizes
+        .starts
+        .iter()
+        .map(|&s| window(r, s, sizes.rollout + 1))
+        .collect::<Result<Vec<_>>>()?;
+    let short = rollout(hybrid, params, &windows, sizes.rollout)?;
+    let long = rollout(hybrid, params, &[window(r, 0, sizes.long + 1)?], sizes.long)?;
+    let last = long
+        .last
+        .index_axis(Axis(0), 0)
+        .to_owned()
+        .into_dimensionality()
+        .map_err(|e| WakeError::Output(e.to_string()))?;
+    Ok(ReRun {
+        re: r.re,
+        mean: short.mean(),
+        curve: short.per_step,
+        long: long.mean(),
+        last,
+    })
 }
 
 /// Rolls an uncorrected solver at `level` × the coarse resolution out from
@@ -134,7 +128,12 @@ fn finer_rollout(
             viscosity: nu,
             ..scene.params()
         };
-        for (k, &start) in sizes.starts.iter().enumerate() {
+        for &start in &sizes.speed_starts {
+            let k = sizes
+                .starts
+                .iter()
+                .position(|&s| s == start)
+                .ok_or_else(|| WakeError::Output(format!("speed start {start} is not a start")))?;
             let (fx, fy) = &r.fine_starts[k];
             let (ux, uy) = restrict_velocity(scene.grid(), FACTOR / level, fx.view(), fy.view())?;
             let mut s = FlowState::from_velocity(&scene, ux, uy);
@@ -167,7 +166,7 @@ fn coarse_rollout<S: Simulator + 'static, C: Corrector + 'static>(
 ) -> Result<(f64, f64)> {
     let (mut err, mut seconds, mut samples) = (0.0, 0.0, 0.0);
     for r in refs {
-        for &start in &sizes.starts {
+        for &start in &sizes.speed_starts {
             let mut u = r.states[start].clone().insert_axis(Axis(0)).into_dyn();
             for t in 1..=sizes.rollout {
                 let t0 = Instant::now();
@@ -239,7 +238,7 @@ pub fn speed<S: Simulator + 'static, C: Corrector + 'static>(
         "rows": rows,
         "verdict": verdict,
         "rollout_steps": sizes.rollout,
-        "starts": sizes.starts,
+        "starts": sizes.speed_starts,
         "note": "wall time per coarse step and sample on this machine (2 cores shared); finer solvers take 2 and 4 substeps per coarse step and start from the reference's fine state restricted to their grid",
     }))
 }

@@ -17,9 +17,10 @@
 //! use diffphys_tape::parallel;
 //!
 //! let a: Vec<f64> = (0..100_000).map(|i| (i as f64).sin()).collect();
-//! let one = parallel::with_threads(1, || parallel::dot(&a, &a));
-//! let two = parallel::with_threads(2, || parallel::dot(&a, &a));
+//! let one = parallel::with_threads(1, || parallel::dot(&a, &a))?;
+//! let two = parallel::with_threads(2, || parallel::dot(&a, &a))?;
 //! assert_eq!(one.to_bits(), two.to_bits()); // fixed chunking: bitwise equal
+//! # Ok::<(), parallel::LengthMismatch>(())
 //! ```
 
 use std::ops::Range;

@@ -34,6 +34,7 @@
 
 use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
 use ndarray::{Array1, Array2, ArrayView1, ArrayView2};
+use rayon::prelude::*;
 
 use crate::boundaries::{view1, view2, FaceKind};
 use crate::grid::{FlowGrid, Lattice};
@@ -80,9 +81,12 @@ struct Hit {
     frac: f64,
     /// Whether the sample moves with the coordinate (false where clamped).
     moves: bool,
+    /// Whether both entries are plain lattice values (factor 1, no wall term).
+    inside: bool,
 }
 
 impl AxisRule {
+    #[inline(always)]
     fn hit(self, s: f64) -> Hit {
         let plain = |i0: usize, i1: usize, frac: f64, moves: bool| Hit {
             idx: [i0, i1],
@@ -91,6 +95,7 @@ impl AxisRule {
             side: [0, 0],
             frac,
             moves,
+            inside: true,
         };
         match self {
             AxisRule::Clamp { n } => {
@@ -105,8 +110,20 @@ impl AxisRule {
             }
             AxisRule::Wrap { n } => {
                 let fl = s.floor();
-                let i0 = (fl as i64).rem_euclid(n as i64) as usize;
-                plain(i0, (i0 + 1) % n, s - fl, true)
+                // one wrap covers any Courant number below n; no division then
+                let mut i0 = fl as i64;
+                let n64 = n as i64;
+                if i0 < 0 {
+                    i0 += n64;
+                } else if i0 >= n64 {
+                    i0 -= n64;
+                }
+                if !(0..n64).contains(&i0) {
+                    i0 = i0.rem_euclid(n64);
+                }
+                let i0 = i0 as usize;
+                let i1 = if i0 + 1 == n { 0 } else { i0 + 1 };
+                plain(i0, i1, s - fl, true)
             }
             AxisRule::Ghost { n, lo, hi } => {
                 let top = n as f64;
@@ -131,6 +148,7 @@ impl AxisRule {
                     side: [a.3, b.3],
                     frac,
                     moves,
+                    inside: i0 >= 0 && i0 + 1 < n as i64,
                 }
             }
         }
@@ -153,6 +171,9 @@ pub(crate) struct Stencil {
     hx: Hit,
     hy: Hit,
     nb: usize,
+    /// Every corner is a plain lattice value (the common case, away from
+    /// the walls): `corner` is a load and `scatter_corner` one add.
+    inside: bool,
 }
 
 impl Sampler {
@@ -189,28 +210,38 @@ impl Sampler {
     }
 
     /// The stencil of the point `p`.
+    #[inline(always)]
     pub(crate) fn locate(&self, p: [f64; 2]) -> Stencil {
+        let hx = self.rx.hit(p[0] / self.h.0 - self.offsets.0);
+        let hy = self.ry.hit(p[1] / self.h.1 - self.offsets.1);
         Stencil {
-            hx: self.rx.hit(p[0] / self.h.0 - self.offsets.0),
-            hy: self.ry.hit(p[1] / self.h.1 - self.offsets.1),
+            hx,
+            hy,
             nb: self.nb,
+            inside: hx.inside && hy.inside,
         }
     }
 }
 
 impl Stencil {
+    #[inline(always)]
     fn weights(h: &Hit) -> [f64; 2] {
         [1.0 - h.frac, h.frac]
     }
 
     /// The corner value `(a, b)` with its ghost factors.
+    #[inline(always)]
     fn corner(&self, a: usize, b: usize, u: &[f64], walls: &[f64; 4]) -> f64 {
         let k = self.hx.idx[a] * self.nb + self.hy.idx[b];
+        if self.inside {
+            return u[k];
+        }
         self.hx.factor[a] * self.hy.factor[b] * u[k]
             + self.hx.wall[a] * walls[self.hx.side[a]]
             + self.hy.wall[b] * walls[self.hy.side[b]]
     }
 
+    #[inline(always)]
     fn corners(&self, u: &[f64], walls: &[f64; 4]) -> [[f64; 2]; 2] {
         [
             [self.corner(0, 0, u, walls), self.corner(0, 1, u, walls)],
@@ -219,6 +250,7 @@ impl Stencil {
     }
 
     /// The interpolated value.
+    #[inline(always)]
     pub(crate) fn value(&self, u: &[f64], walls: &[f64; 4]) -> f64 {
         let v = self.corners(u, walls);
         let (wx, wy) = (Self::weights(&self.hx), Self::weights(&self.hy));
@@ -226,6 +258,7 @@ impl Stencil {
     }
 
     /// `∂value/∂s` along x and y in lattice units (zero where clamped).
+    #[inline(always)]
     fn slopes(&self, u: &[f64], walls: &[f64; 4]) -> (f64, f64) {
         let v = self.corners(u, walls);
         let (wx, wy) = (Self::weights(&self.hx), Self::weights(&self.hy));
@@ -243,6 +276,7 @@ impl Stencil {
     }
 
     /// Adds `c · ∂value/∂u` to `grad_u` and `c · ∂value/∂U` to `grad_walls`.
+    #[inline(always)]
     pub(crate) fn scatter(&self, c: f64, grad_u: &mut [f64], grad_walls: &mut [f64; 4]) {
         let (wx, wy) = (Self::weights(&self.hx), Self::weights(&self.hy));
         for (a, wa) in wx.iter().enumerate() {
@@ -252,6 +286,7 @@ impl Stencil {
         }
     }
 
+    #[inline(always)]
     fn scatter_corner(
         &self,
         a: usize,
@@ -261,12 +296,23 @@ impl Stencil {
         grad_walls: &mut [f64; 4],
     ) {
         let k = self.hx.idx[a] * self.nb + self.hy.idx[b];
+        if self.inside {
+            grad_u[k] += c;
+            return;
+        }
         grad_u[k] += c * self.hx.factor[a] * self.hy.factor[b];
-        grad_walls[self.hx.side[a]] += c * self.hx.wall[a];
-        grad_walls[self.hy.side[b]] += c * self.hy.wall[b];
+        // most corners are inside: no wall term, and no store to the walls
+        // that would chain every scatter through memory
+        if self.hx.wall[a] != 0.0 {
+            grad_walls[self.hx.side[a]] += c * self.hx.wall[a];
+        }
+        if self.hy.wall[b] != 0.0 {
+            grad_walls[self.hy.side[b]] += c * self.hy.wall[b];
+        }
     }
 
     /// The corner holding the smallest and the largest value.
+    #[inline(always)]
     fn extremes(&self, u: &[f64], walls: &[f64; 4]) -> ((usize, usize, f64), (usize, usize, f64)) {
         let v = self.corners(u, walls);
         let mut lo = (0, 0, v[0][0]);
@@ -288,7 +334,7 @@ impl Stencil {
 // ---------------------------------------------------------------------------
 // Semi-Lagrangian and MacCormack steps of one field.
 
-/// The velocity field a step traces with, and where its entries are free.
+/// The velocity field a step traces with.
 struct Tracer<'a> {
     grid: &'a FlowGrid,
     ux: &'a [f64],
@@ -311,88 +357,165 @@ impl Field<'_> {
     }
 }
 
-/// The tracing stencils and departure point of entry `(a, b)` of `field`.
-struct Trace {
-    sx: Stencil,
-    sy: Stencil,
-    dep: Stencil,
+/// Entries per block of the loops that compute each entry on its own; the
+/// blocks run on all cores from [`PARALLEL_FROM`] entries. Every entry is
+/// computed by the same arithmetic wherever it runs, so the results do not
+/// depend on the number of threads.
+const BLOCK: usize = 1024;
+
+/// The number of entries from which the per-entry loops use all cores (an
+/// entry costs a few bilinear interpolations, about a hundred times a CG
+/// kernel's element).
+const PARALLEL_FROM: usize = 8192;
+
+/// Runs `f(offset, block)` on the [`BLOCK`]-sized blocks of `out`.
+fn for_blocks<V: Send>(out: &mut [V], f: impl Fn(usize, &mut [V]) + Sync + Send) {
+    if out.len() >= PARALLEL_FROM && rayon::current_num_threads() > 1 {
+        out.par_chunks_mut(BLOCK)
+            .enumerate()
+            .for_each(|(c, o)| f(c * BLOCK, o));
+    } else {
+        out.chunks_mut(BLOCK)
+            .enumerate()
+            .for_each(|(c, o)| f(c * BLOCK, o));
+    }
 }
 
 impl Tracer<'_> {
-    fn trace(&self, field: &Field<'_>, a: usize, b: usize, dt: f64) -> Trace {
-        let p = self.grid.position(field.lattice, a, b);
-        let sx = self.sx.locate(p);
-        let sy = self.sy.locate(p);
-        let v = [
-            sx.value(self.ux, &self.walls),
-            sy.value(self.uy, &self.walls),
-        ];
-        let dep = field.sampler.locate([p[0] - dt * v[0], p[1] - dt * v[1]]);
-        Trace { sx, sy, dep }
-    }
-
-    /// `A q`: one semi-Lagrangian step of `q` (fixed entries copied).
-    fn semi_lagrangian(&self, field: &Field<'_>, q: &[f64], dt: f64) -> Vec<f64> {
-        let mut out = q.to_vec();
+    /// Runs `f(k, x_k)` on the entries `off..off + len` of `field` in order,
+    /// `x_k` its position (as [`FlowGrid::position`], without a division per
+    /// entry).
+    fn each_entry(
+        &self,
+        field: &Field<'_>,
+        off: usize,
+        len: usize,
+        mut f: impl FnMut(usize, [f64; 2]),
+    ) {
         let nb = field.sampler.nb;
-        for (k, o) in out.iter_mut().enumerate() {
-            if field.free(k) {
-                let t = self.trace(field, k / nb, k % nb, dt);
-                *o = t.dep.value(q, &self.walls);
+        let (oa, ob) = field.lattice.offsets();
+        let (dx, dy) = (self.grid.dx, self.grid.dy);
+        let (mut a, mut b) = (off / nb, off % nb);
+        for k in off..off + len {
+            f(k, [(a as f64 + oa) * dx, (b as f64 + ob) * dy]);
+            b += 1;
+            if b == nb {
+                b = 0;
+                a += 1;
             }
         }
+    }
+
+    /// `v(x_k) = (I_ux(x_k), I_uy(x_k))` at every free entry of `field`
+    /// (zero at fixed entries, which are not traced). Computed once per step
+    /// and shared by its passes.
+    fn velocities(&self, field: &Field<'_>, len: usize) -> Vec<[f64; 2]> {
+        let mut v = vec![[0.0; 2]; len];
+        for_blocks(&mut v, |off, out| {
+            self.each_entry(field, off, out.len(), |k, p| {
+                if field.free(k) {
+                    out[k - off] = [
+                        self.sx.locate(p).value(self.ux, &self.walls),
+                        self.sy.locate(p).value(self.uy, &self.walls),
+                    ];
+                }
+            });
+        });
+        v
+    }
+
+    /// Adds `I_vᵀ g_v` (the adjoint of [`Tracer::velocities`]) to the
+    /// gradients of `u_x`, `u_y` and the walls.
+    fn velocities_vjp(&self, field: &Field<'_>, g_v: &[[f64; 2]], grads: &mut Grads) {
+        self.each_entry(field, 0, g_v.len(), |k, p| {
+            let g = g_v[k];
+            if g[0] != 0.0 {
+                self.sx
+                    .locate(p)
+                    .scatter(g[0], &mut grads.ux, &mut grads.walls);
+            }
+            if g[1] != 0.0 {
+                self.sy
+                    .locate(p)
+                    .scatter(g[1], &mut grads.uy, &mut grads.walls);
+            }
+        });
+    }
+
+    /// The stencil at the departure point `p − dt v` of the entry at `p`.
+    #[inline(always)]
+    fn departure(field: &Field<'_>, p: [f64; 2], v: [f64; 2], dt: f64) -> Stencil {
+        field.sampler.locate([p[0] - dt * v[0], p[1] - dt * v[1]])
+    }
+
+    /// `A q`: one semi-Lagrangian step of `q` with the tracing velocities
+    /// `vel` (fixed entries copied).
+    fn semi_lagrangian(&self, field: &Field<'_>, q: &[f64], vel: &[[f64; 2]], dt: f64) -> Vec<f64> {
+        let mut out = q.to_vec();
+        for_blocks(&mut out, |off, block| {
+            self.each_entry(field, off, block.len(), |k, p| {
+                if field.free(k) {
+                    block[k - off] = Self::departure(field, p, vel[k], dt).value(q, &self.walls);
+                }
+            });
+        });
         out
     }
 
-    /// Adds the vector–Jacobian product of `A q` with `g` to the gradients of
-    /// `q`, `u_x`, `u_y` and the walls.
+    /// Adds the vector–Jacobian product of `A q` with `g` to the gradients
+    /// of `q` and the walls, and to `g_v`, the gradient of the tracing
+    /// velocities (scattered to `u` once, by [`Tracer::velocities_vjp`]).
+    #[allow(clippy::too_many_arguments)]
     fn semi_lagrangian_vjp(
         &self,
         field: &Field<'_>,
         q: &[f64],
+        vel: &[[f64; 2]],
         dt: f64,
         g: &[f64],
         grads: &mut Grads,
+        g_v: &mut [[f64; 2]],
     ) {
-        let nb = field.sampler.nb;
         let (hx, hy) = (self.grid.dx, self.grid.dy);
-        for (k, &gk) in g.iter().enumerate() {
+        self.each_entry(field, 0, g.len(), |k, p| {
+            let gk = g[k];
             if !field.free(k) {
                 grads.q[k] += gk;
-                continue;
+                return;
             }
             if gk == 0.0 {
-                continue;
+                return;
             }
-            let t = self.trace(field, k / nb, k % nb, dt);
-            t.dep.scatter(gk, &mut grads.q, &mut grads.walls);
-            let (slx, sly) = t.dep.slopes(q, &self.walls);
-            t.sx.scatter(-dt * gk * slx / hx, &mut grads.ux, &mut grads.walls);
-            t.sy.scatter(-dt * gk * sly / hy, &mut grads.uy, &mut grads.walls);
-        }
+            let dep = Self::departure(field, p, vel[k], dt);
+            dep.scatter(gk, &mut grads.q, &mut grads.walls);
+            let (slx, sly) = dep.slopes(q, &self.walls);
+            g_v[k][0] += -dt * gk * slx / hx;
+            g_v[k][1] += -dt * gk * sly / hy;
+        });
     }
 
     /// One step of `scheme`.
     fn step(&self, field: &Field<'_>, q: &[f64], dt: f64, scheme: Advection) -> Vec<f64> {
+        let vel = self.velocities(field, q.len());
         let Advection::MacCormack { limiter } = scheme else {
-            return self.semi_lagrangian(field, q, dt);
+            return self.semi_lagrangian(field, q, &vel, dt);
         };
-        let qh = self.semi_lagrangian(field, q, dt);
-        let qt = self.semi_lagrangian(field, &qh, -dt);
-        let nb = field.sampler.nb;
+        let qh = self.semi_lagrangian(field, q, &vel, dt);
+        let qt = self.semi_lagrangian(field, &qh, &vel, -dt);
         let mut out = qh.clone();
-        for k in 0..q.len() {
-            if !field.free(k) {
-                continue;
-            }
-            let mut v = qh[k] + 0.5 * (q[k] - qt[k]);
-            if limiter {
-                let t = self.trace(field, k / nb, k % nb, dt);
-                let (lo, hi) = t.dep.extremes(q, &self.walls);
-                v = v.clamp(lo.2, hi.2);
-            }
-            out[k] = v;
-        }
+        for_blocks(&mut out, |off, block| {
+            self.each_entry(field, off, block.len(), |k, p| {
+                if !field.free(k) {
+                    return;
+                }
+                let mut v = qh[k] + 0.5 * (q[k] - qt[k]);
+                if limiter {
+                    let (lo, hi) = Self::departure(field, p, vel[k], dt).extremes(q, &self.walls);
+                    v = v.clamp(lo.2, hi.2);
+                }
+                block[k - off] = v;
+            });
+        });
         out
     }
 
@@ -406,24 +529,27 @@ impl Tracer<'_> {
         g: &[f64],
         grads: &mut Grads,
     ) {
-        let Advection::MacCormack { limiter } = scheme else {
-            return self.semi_lagrangian_vjp(field, q, dt, g, grads);
-        };
         let n = q.len();
-        let nb = field.sampler.nb;
-        let qh = self.semi_lagrangian(field, q, dt);
-        let qt = self.semi_lagrangian(field, &qh, -dt);
+        let vel = self.velocities(field, n);
+        let mut g_v = vec![[0.0; 2]; n];
+        let Advection::MacCormack { limiter } = scheme else {
+            self.semi_lagrangian_vjp(field, q, &vel, dt, g, grads, &mut g_v);
+            self.velocities_vjp(field, &g_v, grads);
+            return;
+        };
+        let qh = self.semi_lagrangian(field, q, &vel, dt);
+        let qt = self.semi_lagrangian(field, &qh, &vel, -dt);
         let mut g_hat = vec![0.0; n];
         let mut g_tilde = vec![0.0; n];
-        for k in 0..n {
+        self.each_entry(field, 0, n, |k, p| {
             let gk = g[k];
             if !field.free(k) {
                 grads.q[k] += gk;
-                continue;
+                return;
             }
             if limiter {
-                let t = self.trace(field, k / nb, k % nb, dt);
-                let (lo, hi) = t.dep.extremes(q, &self.walls);
+                let dep = Self::departure(field, p, vel[k], dt);
+                let (lo, hi) = dep.extremes(q, &self.walls);
                 let v = qh[k] + 0.5 * (q[k] - qt[k]);
                 let chosen = if v < lo.2 {
                     Some(lo)
@@ -433,25 +559,25 @@ impl Tracer<'_> {
                     None
                 };
                 if let Some((a, b, _)) = chosen {
-                    t.dep
-                        .scatter_corner(a, b, gk, &mut grads.q, &mut grads.walls);
-                    continue;
+                    dep.scatter_corner(a, b, gk, &mut grads.q, &mut grads.walls);
+                    return;
                 }
             }
             g_hat[k] += gk;
             grads.q[k] += 0.5 * gk;
             g_tilde[k] = -0.5 * gk;
-        }
+        });
         // q̃ = A⁻ q̂: its field gradient lands on q̂.
-        let mut inner = Grads::zeros(n, grads.ux.len(), grads.uy.len());
-        self.semi_lagrangian_vjp(field, &qh, -dt, &g_tilde, &mut inner);
+        let mut inner = Grads::zeros(n, 0, 0);
+        self.semi_lagrangian_vjp(field, &qh, &vel, -dt, &g_tilde, &mut inner, &mut g_v);
         for (a, b) in g_hat.iter_mut().zip(&inner.q) {
             *a += b;
         }
         inner.q.iter_mut().for_each(|v| *v = 0.0);
         // q̂ = A q.
-        self.semi_lagrangian_vjp(field, q, dt, &g_hat, &mut inner);
+        self.semi_lagrangian_vjp(field, q, &vel, dt, &g_hat, &mut inner, &mut g_v);
         grads.add(&inner);
+        self.velocities_vjp(field, &g_v, grads);
     }
 }
 
@@ -473,6 +599,7 @@ impl Grads {
         }
     }
 
+    /// Adds `o` (whose velocity gradients may be empty: none).
     fn add(&mut self, o: &Grads) {
         for (a, b) in [
             (&mut self.q, &o.q),

@@ -61,6 +61,7 @@ pub mod grid;
 pub mod packed;
 pub mod pressure;
 mod sparse;
+mod spectral;
 pub mod step;
 pub mod validation;
 

@@ -49,6 +49,7 @@ use crate::advection::{narrow, wide};
 use crate::boundaries::{view2, FaceKind, Faces};
 use crate::grid::FlowGrid;
 use crate::sparse::Csr;
+use crate::spectral::PeriodicPoisson;
 use crate::{Boundary, FlowError, Result, Scene};
 
 /// How the pressure system is solved.
@@ -57,6 +58,10 @@ pub enum PressureSolver {
     /// Sparse Cholesky, factorised once per scene (the default; for small and
     /// medium grids).
     Cholesky,
+    /// The fast Fourier transform (see [`crate::spectral`]): a direct solve
+    /// in `O(n log n)` for a box periodic in both axes without obstacle; any
+    /// other scene is refused when it is built.
+    Fourier,
     /// Conjugate gradient with a Jacobi preconditioner, warm-started.
     Cg {
         /// Relative tolerance.
@@ -122,12 +127,19 @@ impl LinearOperator<f64> for PoissonMatrix {
     }
 }
 
+/// A direct solver of the pressure system.
+#[derive(Debug, Clone)]
+enum Direct {
+    Cholesky(Arc<SparseCholesky>),
+    Fourier(Arc<PeriodicPoisson>),
+}
+
 /// The pressure system of a scene, built once.
 #[derive(Debug, Clone)]
 pub(crate) struct PressureSystem {
     matrix: PoissonMatrix,
     fluid: Vec<bool>,
-    direct: Option<Arc<SparseCholesky>>,
+    direct: Option<Direct>,
     cg: CgParams,
     /// Whether the operator is singular (no outflow).
     pub(crate) singular: bool,
@@ -186,7 +198,19 @@ impl PressureSystem {
             PressureSolver::Cholesky => {
                 let chol = SparseCholesky::new(&matrix, null_space)
                     .map_err(|e| FlowError::Direct(e.to_string()))?;
-                direct = Some(Arc::new(chol));
+                direct = Some(Direct::Cholesky(Arc::new(chol)));
+            }
+            PressureSolver::Fourier => {
+                if !(grid.periodic_x() && grid.periodic_y()) || !all_fluid {
+                    return Err(FlowError::scene(
+                        "pressure solver",
+                        "the Fourier solve needs a box periodic in both axes without obstacle; \
+                         use Cholesky, Cg or MultigridCg",
+                    ));
+                }
+                direct = Some(Direct::Fourier(Arc::new(PeriodicPoisson::new(
+                    nx, ny, grid.dx, grid.dy,
+                ))));
             }
             PressureSolver::Cg { rel_tol, max_iters } => {
                 cg = cg
@@ -226,11 +250,17 @@ impl PressureSystem {
         let shape = self.matrix.shape;
         let b = ArrayD::from_shape_vec(IxDyn(&shape), rhs).expect("one per cell");
         let (x, iterations) = match &self.direct {
-            Some(chol) => (
+            Some(Direct::Cholesky(chol)) => (
                 chol.solve(b.view())
                     .map_err(|e| FlowError::Direct(e.to_string()))?,
                 0,
             ),
+            Some(Direct::Fourier(fft)) => {
+                let rhs = b.as_slice().expect("standard layout");
+                let x =
+                    ArrayD::from_shape_vec(IxDyn(&shape), fft.solve(rhs)).expect("one per cell");
+                (x, 0)
+            }
             None => {
                 let mut x = match guess {
                     Some(g) => ArrayD::from_shape_vec(IxDyn(&shape), g).expect("one per cell"),

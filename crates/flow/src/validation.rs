@@ -21,6 +21,7 @@ use ndarray::Array2;
 use crate::advection::Advection;
 use crate::boundaries::Sides;
 use crate::grid::Lattice;
+use crate::pressure::PressureSolver;
 use crate::{FlowState, Result, Scene, SceneBuilder};
 
 /// The Taylor–Green vortex of amplitude `amplitude` and viscosity `viscosity`.
@@ -34,13 +35,15 @@ pub struct TaylorGreen {
 
 impl TaylorGreen {
     /// A builder for the periodic box `[0, 2π]²` with `n × n` cells, this
-    /// viscosity, time step `dt` and scheme `advection`.
+    /// viscosity, time step `dt` and scheme `advection`; the pressure is
+    /// solved by the Fourier transform ([`PressureSolver::Fourier`]).
     pub fn scene(&self, n: usize, dt: f64, advection: Advection) -> SceneBuilder {
         Scene::builder(n, n, [2.0 * PI, 2.0 * PI])
             .sides(Sides::periodic())
             .viscosity(self.viscosity)
             .dt(dt)
             .advection(advection)
+            .pressure_solver(PressureSolver::Fourier)
     }
 
     /// `e^{−2νt}`.

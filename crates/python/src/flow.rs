@@ -97,7 +97,8 @@ impl FlowStep {
     /// max_courant=1.0)`. `shape` is the cells `(nx, ny)`, `size` the domain
     /// `(lx, ly)`; `obstacle` a bool array of the cell shape (true: solid);
     /// `inflow` a speed (uniform) or a profile along the inflow side;
-    /// `pressure_solver` `"cholesky"`, `"cg"` or `"multigrid"`.
+    /// `pressure_solver` `"cholesky"`, `"fourier"` (a box periodic in both
+    /// axes without obstacle), `"cg"` or `"multigrid"`.
     #[new]
     #[pyo3(signature = (
         shape, size, *, sides = None, obstacle = None, viscosity = 0.01, dt = 0.01,
@@ -144,6 +145,7 @@ impl FlowStep {
             })
             .pressure_solver(match pressure_solver {
                 "cholesky" => PressureSolver::Cholesky,
+                "fourier" => PressureSolver::Fourier,
                 "cg" => PressureSolver::Cg {
                     rel_tol: pressure_rel_tol,
                     max_iters: 100_000,
@@ -153,7 +155,13 @@ impl FlowStep {
                     max_iters: 10_000,
                     sweeps: 2,
                 },
-                other => return Err(unknown("pressure_solver", other, "cholesky, cg, multigrid")),
+                other => {
+                    return Err(unknown(
+                        "pressure_solver",
+                        other,
+                        "cholesky, fourier, cg, multigrid",
+                    ))
+                }
             })
             .splitting(match splitting {
                 "incremental" => Splitting::Incremental,

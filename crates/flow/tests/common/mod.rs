@@ -1,7 +1,7 @@
 //! Scenes and helpers shared by the flow tests.
 #![allow(dead_code)]
 
-use diffphys_flow::{Boundary, Obstacle, Scene, SceneBuilder, Sides};
+use diffphys_flow::{Boundary, Obstacle, PressureSolver, Scene, SceneBuilder, Sides};
 use diffphys_tape::{test_array, ArrayD, Result as TapeResult, Tape, Var};
 use ndarray::{Array2, IxDyn};
 
@@ -45,13 +45,18 @@ pub fn periodic() -> SceneBuilder {
         .dt(0.04)
 }
 
-/// All four test scenes, named.
+/// All five test scenes, named: the periodic box twice, with the sparse
+/// Cholesky and the Fourier pressure solve.
 pub fn scenes() -> Vec<(&'static str, SceneBuilder)> {
     vec![
         ("channel", channel()),
         ("cavity", cavity()),
         ("mixed", mixed()),
         ("periodic", periodic()),
+        (
+            "periodic (Fourier)",
+            periodic().pressure_solver(PressureSolver::Fourier),
+        ),
     ]
 }
 

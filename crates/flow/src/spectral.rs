@@ -1,0 +1,128 @@
+//! The pressure system of a fully periodic box without obstacle, solved by
+//! the fast Fourier transform.
+//!
+//! On a box periodic in both axes with every face free, the pressure operator
+//! `A = D_F D_Fᵀ` of [`crate::pressure`] is the five-point negative Laplacian
+//! with wrap-around, a circulant operator. The discrete Fourier modes
+//! `e^{2πi(ka/nx + lb/ny)}` are its eigenvectors, with eigenvalues
+//!
+//! ```text
+//! λ(k, l) = (2 − 2 cos(2πk/nx)) / dx² + (2 − 2 cos(2πl/ny)) / dy²
+//! ```
+//!
+//! so `A⁺ b = F⁻¹ (F b / λ)`, with the `(0, 0)` mode (the constants, `A`'s
+//! kernel) set to zero: the zero-mean solution, the same the sparse Cholesky
+//! path returns for a singular operator. `A` is symmetric, so the same solve is
+//! its adjoint. The cost is `O(n log n)` with no factorisation and no fill-in;
+//! the result does not depend on the thread count (one thread).
+//!
+//! # References
+//! R. W. Hockney, *A fast direct solution of Poisson's equation using Fourier
+//! analysis*, J. ACM 12 (1965) 95–113.
+
+use std::fmt;
+use std::sync::Arc;
+
+use rustfft::num_complex::Complex;
+use rustfft::{Fft, FftPlanner};
+
+/// `A⁺` of the periodic five-point Laplacian on an `nx × ny` box.
+pub(crate) struct PeriodicPoisson {
+    nx: usize,
+    ny: usize,
+    along_y: Arc<dyn Fft<f64>>,
+    along_y_inv: Arc<dyn Fft<f64>>,
+    along_x: Arc<dyn Fft<f64>>,
+    along_x_inv: Arc<dyn Fft<f64>>,
+    /// `1/λ(k, l)` in the transposed layout `[l · nx + k]`, zero at `(0, 0)`,
+    /// with the `1/(nx ny)` of the inverse transform folded in.
+    inverse_eigenvalues: Vec<f64>,
+}
+
+impl fmt::Debug for PeriodicPoisson {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("PeriodicPoisson")
+            .field("nx", &self.nx)
+            .field("ny", &self.ny)
+            .finish_non_exhaustive()
+    }
+}
+
+impl PeriodicPoisson {
+    /// The solver for `nx × ny` cells of size `dx × dy`.
+    pub(crate) fn new(nx: usize, ny: usize, dx: f64, dy: f64) -> Self {
+        let mut planner = FftPlanner::new();
+        let along_y = planner.plan_fft_forward(ny);
+        let along_y_inv = planner.plan_fft_inverse(ny);
+        let along_x = planner.plan_fft_forward(nx);
+        let along_x_inv = planner.plan_fft_inverse(nx);
+        let symbol = |k: usize, n: usize, h: f64| {
+            (2.0 - 2.0 * (2.0 * std::f64::consts::PI * k as f64 / n as f64).cos()) / (h * h)
+        };
+        let scale = 1.0 / (nx * ny) as f64;
+        let mut inverse_eigenvalues = vec![0.0; nx * ny];
+        for l in 0..ny {
+            for k in 0..nx {
+                let lambda = symbol(k, nx, dx) + symbol(l, ny, dy);
+                if k != 0 || l != 0 {
+                    inverse_eigenvalues[l * nx + k] = scale / lambda;
+                }
+            }
+        }
+        PeriodicPoisson {
+            nx,
+            ny,
+            along_y,
+            along_y_inv,
+            along_x,
+            along_x_inv,
+            inverse_eigenvalues,
+        }
+    }
+
+    /// `A⁺ b` for `b` in the layout `[a · ny + b]`: the zero-mean solution of
+    /// `A p = b − mean(b)`.
+    pub(crate) fn solve(&self, rhs: &[f64]) -> Vec<f64> {
+        let (nx, ny) = (self.nx, self.ny);
+        debug_assert_eq!(rhs.len(), nx * ny, "one value per cell");
+        let scratch_len = [
+            &self.along_y,
+            &self.along_y_inv,
+            &self.along_x,
+            &self.along_x_inv,
+        ]
+        .iter()
+        .map(|f| f.get_inplace_scratch_len())
+        .max()
+        .unwrap_or(0);
+        let mut scratch = vec![Complex::default(); scratch_len];
+        let mut rows: Vec<Complex<f64>> = rhs.iter().map(|&v| Complex::new(v, 0.0)).collect();
+        self.along_y.process_with_scratch(&mut rows, &mut scratch);
+        let mut cols = vec![Complex::default(); nx * ny];
+        transpose(&rows, &mut cols, nx, ny);
+        self.along_x.process_with_scratch(&mut cols, &mut scratch);
+        cols.iter_mut()
+            .zip(&self.inverse_eigenvalues)
+            .for_each(|(c, s)| *c *= *s);
+        self.along_x_inv
+            .process_with_scratch(&mut cols, &mut scratch);
+        transpose(&cols, &mut rows, ny, nx);
+        self.along_y_inv
+            .process_with_scratch(&mut rows, &mut scratch);
+        rows.iter().map(|c| c.re).collect()
+    }
+}
+
+/// `to[b · na + a] = from[a · nb + b]` for an `na × nb` array, in tiles.
+fn transpose(from: &[Complex<f64>], to: &mut [Complex<f64>], na: usize, nb: usize) {
+    const TILE: usize = 16;
+    for a0 in (0..na).step_by(TILE) {
+        for b0 in (0..nb).step_by(TILE) {
+            for a in a0..(a0 + TILE).min(na) {
+                for b in b0..(b0 + TILE).min(nb) {
+                    to[b * na + a] = from[a * nb + b];
+                }
+            }
+        }
+    }
+}

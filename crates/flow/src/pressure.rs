@@ -201,7 +201,7 @@ impl PressureSystem {
                 direct = Some(Direct::Cholesky(Arc::new(chol)));
             }
             PressureSolver::Fourier => {
-                if !(grid.periodic_x() && grid.periodic_y()) || !all_fluid {
+                if !(grid.periodic_x() && grid.periodic_y() && all_fluid) {
                     return Err(FlowError::scene(
                         "pressure solver",
                         "the Fourier solve needs a box periodic in both axes without obstacle; \

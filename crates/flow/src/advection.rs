@@ -223,6 +223,52 @@ impl Sampler {
     }
 }
 
+/// A sampler's stencils at the entries of a lattice, by axis: the position of
+/// entry `(a, b)` is `((a + o_a) dx, (b + o_b) dy)`, so `locate` of it is
+/// `along_x[a]` by `along_y[b]` (the same hits, computed once per axis).
+struct LatticeStencils {
+    along_x: Vec<Hit>,
+    along_y: Vec<Hit>,
+    nb: usize,
+}
+
+impl LatticeStencils {
+    /// The stencil of entry `(a, b)`: the one `locate` gives at its position.
+    #[inline(always)]
+    fn at(&self, [a, b]: [usize; 2]) -> Stencil {
+        let (hx, hy) = (self.along_x[a], self.along_y[b]);
+        Stencil {
+            hx,
+            hy,
+            nb: self.nb,
+            inside: hx.inside && hy.inside,
+        }
+    }
+}
+
+impl Sampler {
+    /// The stencils of this sampler at every entry of `lattice`.
+    fn on_lattice(&self, grid: &FlowGrid, lattice: Lattice) -> LatticeStencils {
+        let [na, nb] = grid.shape(lattice);
+        let (oa, ob) = lattice.offsets();
+        LatticeStencils {
+            along_x: (0..na)
+                .map(|a| {
+                    self.rx
+                        .hit((a as f64 + oa) * grid.dx / self.h.0 - self.offsets.0)
+                })
+                .collect(),
+            along_y: (0..nb)
+                .map(|b| {
+                    self.ry
+                        .hit((b as f64 + ob) * grid.dy / self.h.1 - self.offsets.1)
+                })
+                .collect(),
+            nb: self.nb,
+        }
+    }
+}
+
 impl Stencil {
     #[inline(always)]
     fn weights(h: &Hit) -> [f64; 2] {
@@ -311,6 +357,19 @@ impl Stencil {
         }
     }
 
+    /// The interpolated value (as [`Stencil::value`]) and the smallest and
+    /// largest of the four corner values (those of [`Stencil::extremes`]).
+    #[inline(always)]
+    fn value_and_range(&self, u: &[f64], walls: &[f64; 4]) -> (f64, [f64; 2]) {
+        let v = self.corners(u, walls);
+        let (wx, wy) = (Self::weights(&self.hx), Self::weights(&self.hy));
+        let value = wx[0] * (wy[0] * v[0][0] + wy[1] * v[0][1])
+            + wx[1] * (wy[0] * v[1][0] + wy[1] * v[1][1]);
+        let lo = v[0][0].min(v[0][1]).min(v[1][0]).min(v[1][1]);
+        let hi = v[0][0].max(v[0][1]).max(v[1][0]).max(v[1][1]);
+        (value, [lo, hi])
+    }
+
     /// The corner holding the smallest and the largest value.
     #[inline(always)]
     fn extremes(&self, u: &[f64], walls: &[f64; 4]) -> ((usize, usize, f64), (usize, usize, f64)) {
@@ -382,22 +441,22 @@ fn for_blocks<V: Send>(out: &mut [V], f: impl Fn(usize, &mut [V]) + Sync + Send)
 }
 
 impl Tracer<'_> {
-    /// Runs `f(k, x_k)` on the entries `off..off + len` of `field` in order,
-    /// `x_k` its position (as [`FlowGrid::position`], without a division per
-    /// entry).
+    /// Runs `f(k, [a, b], x_k)` on the entries `off..off + len` of `field` in
+    /// order, `(a, b)` the entry's index and `x_k` its position (as
+    /// [`FlowGrid::position`], without a division per entry).
     fn each_entry(
         &self,
         field: &Field<'_>,
         off: usize,
         len: usize,
-        mut f: impl FnMut(usize, [f64; 2]),
+        mut f: impl FnMut(usize, [usize; 2], [f64; 2]),
     ) {
         let nb = field.sampler.nb;
         let (oa, ob) = field.lattice.offsets();
         let (dx, dy) = (self.grid.dx, self.grid.dy);
         let (mut a, mut b) = (off / nb, off % nb);
         for k in off..off + len {
-            f(k, [(a as f64 + oa) * dx, (b as f64 + ob) * dy]);
+            f(k, [a, b], [(a as f64 + oa) * dx, (b as f64 + ob) * dy]);
             b += 1;
             if b == nb {
                 b = 0;
@@ -408,15 +467,20 @@ impl Tracer<'_> {
 
     /// `v(x_k) = (I_ux(x_k), I_uy(x_k))` at every free entry of `field`
     /// (zero at fixed entries, which are not traced). Computed once per step
-    /// and shared by its passes.
+    /// and shared by its passes; the stencils come from the per-axis tables
+    /// of [`Sampler::on_lattice`].
     fn velocities(&self, field: &Field<'_>, len: usize) -> Vec<[f64; 2]> {
+        let (tx, ty) = (
+            self.sx.on_lattice(self.grid, field.lattice),
+            self.sy.on_lattice(self.grid, field.lattice),
+        );
         let mut v = vec![[0.0; 2]; len];
         for_blocks(&mut v, |off, out| {
-            self.each_entry(field, off, out.len(), |k, p| {
+            self.each_entry(field, off, out.len(), |k, ab, _| {
                 if field.free(k) {
                     out[k - off] = [
-                        self.sx.locate(p).value(self.ux, &self.walls),
-                        self.sy.locate(p).value(self.uy, &self.walls),
+                        tx.at(ab).value(self.ux, &self.walls),
+                        ty.at(ab).value(self.uy, &self.walls),
                     ];
                 }
             });
@@ -427,17 +491,17 @@ impl Tracer<'_> {
     /// Adds `I_vᵀ g_v` (the adjoint of [`Tracer::velocities`]) to the
     /// gradients of `u_x`, `u_y` and the walls.
     fn velocities_vjp(&self, field: &Field<'_>, g_v: &[[f64; 2]], grads: &mut Grads) {
-        self.each_entry(field, 0, g_v.len(), |k, p| {
+        let (tx, ty) = (
+            self.sx.on_lattice(self.grid, field.lattice),
+            self.sy.on_lattice(self.grid, field.lattice),
+        );
+        self.each_entry(field, 0, g_v.len(), |k, ab, _| {
             let g = g_v[k];
             if g[0] != 0.0 {
-                self.sx
-                    .locate(p)
-                    .scatter(g[0], &mut grads.ux, &mut grads.walls);
+                tx.at(ab).scatter(g[0], &mut grads.ux, &mut grads.walls);
             }
             if g[1] != 0.0 {
-                self.sy
-                    .locate(p)
-                    .scatter(g[1], &mut grads.uy, &mut grads.walls);
+                ty.at(ab).scatter(g[1], &mut grads.uy, &mut grads.walls);
             }
         });
     }
@@ -453,13 +517,54 @@ impl Tracer<'_> {
     fn semi_lagrangian(&self, field: &Field<'_>, q: &[f64], vel: &[[f64; 2]], dt: f64) -> Vec<f64> {
         let mut out = q.to_vec();
         for_blocks(&mut out, |off, block| {
-            self.each_entry(field, off, block.len(), |k, p| {
+            self.each_entry(field, off, block.len(), |k, _, p| {
                 if field.free(k) {
                     block[k - off] = Self::departure(field, p, vel[k], dt).value(q, &self.walls);
                 }
             });
         });
         out
+    }
+
+    /// `A q` and, at each free entry, the smallest and largest of the four
+    /// values it interpolated from (the limiter's range).
+    fn semi_lagrangian_ranged(
+        &self,
+        field: &Field<'_>,
+        q: &[f64],
+        vel: &[[f64; 2]],
+        dt: f64,
+    ) -> (Vec<f64>, Vec<[f64; 2]>) {
+        let mut out: Vec<[f64; 3]> = q.iter().map(|&v| [v, v, v]).collect();
+        for_blocks(&mut out, |off, block| {
+            self.each_entry(field, off, block.len(), |k, _, p| {
+                if field.free(k) {
+                    let (v, [lo, hi]) =
+                        Self::departure(field, p, vel[k], dt).value_and_range(q, &self.walls);
+                    block[k - off] = [v, lo, hi];
+                }
+            });
+        });
+        (
+            out.iter().map(|e| e[0]).collect(),
+            out.iter().map(|e| [e[1], e[2]]).collect(),
+        )
+    }
+
+    /// `q̂ = A q`, with the limiter's range where `limiter` is on (else empty).
+    fn first_pass(
+        &self,
+        field: &Field<'_>,
+        q: &[f64],
+        vel: &[[f64; 2]],
+        dt: f64,
+        limiter: bool,
+    ) -> (Vec<f64>, Vec<[f64; 2]>) {
+        if limiter {
+            self.semi_lagrangian_ranged(field, q, vel, dt)
+        } else {
+            (self.semi_lagrangian(field, q, vel, dt), Vec::new())
+        }
     }
 
     /// Adds the vector–Jacobian product of `A q` with `g` to the gradients
@@ -477,7 +582,7 @@ impl Tracer<'_> {
         g_v: &mut [[f64; 2]],
     ) {
         let (hx, hy) = (self.grid.dx, self.grid.dy);
-        self.each_entry(field, 0, g.len(), |k, p| {
+        self.each_entry(field, 0, g.len(), |k, _, p| {
             let gk = g[k];
             if !field.free(k) {
                 grads.q[k] += gk;
@@ -500,21 +605,22 @@ impl Tracer<'_> {
         let Advection::MacCormack { limiter } = scheme else {
             return self.semi_lagrangian(field, q, &vel, dt);
         };
-        let qh = self.semi_lagrangian(field, q, &vel, dt);
+        let (qh, range) = self.first_pass(field, q, &vel, dt, limiter);
         let qt = self.semi_lagrangian(field, &qh, &vel, -dt);
         let mut out = qh.clone();
         for_blocks(&mut out, |off, block| {
-            self.each_entry(field, off, block.len(), |k, p| {
+            for (i, o) in block.iter_mut().enumerate() {
+                let k = off + i;
                 if !field.free(k) {
-                    return;
+                    continue;
                 }
-                let mut v = qh[k] + 0.5 * (q[k] - qt[k]);
-                if limiter {
-                    let (lo, hi) = Self::departure(field, p, vel[k], dt).extremes(q, &self.walls);
-                    v = v.clamp(lo.2, hi.2);
-                }
-                block[k - off] = v;
-            });
+                let v = qh[k] + 0.5 * (q[k] - qt[k]);
+                *o = if limiter {
+                    v.clamp(range[k][0], range[k][1])
+                } else {
+                    v
+                };
+            }
         });
         out
     }
@@ -537,28 +643,24 @@ impl Tracer<'_> {
             self.velocities_vjp(field, &g_v, grads);
             return;
         };
-        let qh = self.semi_lagrangian(field, q, &vel, dt);
+        let (qh, range) = self.first_pass(field, q, &vel, dt, limiter);
         let qt = self.semi_lagrangian(field, &qh, &vel, -dt);
         let mut g_hat = vec![0.0; n];
         let mut g_tilde = vec![0.0; n];
-        self.each_entry(field, 0, n, |k, p| {
+        self.each_entry(field, 0, n, |k, _, p| {
             let gk = g[k];
             if !field.free(k) {
                 grads.q[k] += gk;
                 return;
             }
             if limiter {
-                let dep = Self::departure(field, p, vel[k], dt);
-                let (lo, hi) = dep.extremes(q, &self.walls);
                 let v = qh[k] + 0.5 * (q[k] - qt[k]);
-                let chosen = if v < lo.2 {
-                    Some(lo)
-                } else if v > hi.2 {
-                    Some(hi)
-                } else {
-                    None
-                };
-                if let Some((a, b, _)) = chosen {
+                let [lo, hi] = range[k];
+                if v < lo || v > hi {
+                    // clamped: the gradient goes to the corner that was chosen
+                    let dep = Self::departure(field, p, vel[k], dt);
+                    let (lo, hi) = dep.extremes(q, &self.walls);
+                    let (a, b, _) = if v < lo.2 { lo } else { hi };
                     dep.scatter_corner(a, b, gk, &mut grads.q, &mut grads.walls);
                     return;
                 }

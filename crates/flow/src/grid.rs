@@ -130,9 +130,13 @@ impl Lattice {
     }
 }
 
+#[inline]
 fn face_cells(f: usize, n: usize, periodic: bool) -> (Option<usize>, Option<usize>) {
     if periodic {
-        (Some((f + n - 1) % n), Some(f % n))
+        // (f − 1) mod n and f mod n, without a division in the inner loops
+        let hi = if f < n { f } else { f % n };
+        let lo = if hi == 0 { n - 1 } else { hi - 1 };
+        (Some(lo), Some(hi))
     } else {
         (f.checked_sub(1), (f < n).then_some(f))
     }

@@ -8,8 +8,11 @@ grid, so ``apply`` averages the cell velocities onto the faces
 (``u_f[a] = (u[a-1] + u[a]) / 2``, periodic) and the final face velocities
 back onto the cells (``u[i] = (u_f[i] + u_f[i+1]) / 2``); the VJP applies the
 transposes of both averages around diffphys' own VJP of the steps
-(``diffphys.FlowStep.vjp``: the steps recorded on the tape, checkpointed,
-hand-written adjoints, one pressure solve per step in the adjoint).
+(``diffphys.FlowStep.vjp``: the steps recorded on the tape, every step kept,
+hand-written adjoints, one pressure solve per step in the adjoint). The
+pressure is solved by FFT on the periodic box without obstacle, by a sparse
+Cholesky factor (MG-PCG above 128²) with one; the viscosity is explicit where
+that is stable at the requested dt and implicit beyond.
 
 Supported: the periodic box, with an optional cylinder obstacle (no-slip,
 a staircase mask of the cells whose centre lies inside). Not expressed here:
@@ -76,9 +79,21 @@ def _obstacle_mask(obstacle: dict | None, n: int) -> np.ndarray | None:
 @functools.lru_cache(maxsize=8)
 def _scene(n: int, extent: float, dt: float, nu: float, obstacle_key: bytes | None):
     solid = None if obstacle_key is None else np.frombuffer(obstacle_key, bool).reshape(n, n)
-    solver = "cholesky" if n <= 128 else "multigrid"
+    # the Fourier solve for the periodic box without obstacle (direct,
+    # O(n log n)); with an obstacle, the sparse Cholesky up to 128², MG-PCG above
+    if solid is None:
+        solver = "fourier"
+    else:
+        solver = "cholesky" if n <= 128 else "multigrid"
+    # explicit viscosity while it is stable at this dt (diffusion number
+    # nu dt (1/h^2 + 1/h^2) <= 1/2), the implicit Helmholtz solve beyond (at
+    # N = 256 with Mosaic's nu = 0.05, dt = 0.01 the number is 1.66: explicit
+    # diffusion would need 4 substeps, and diverges without them)
+    h = extent / n
+    viscosity_mode = "explicit" if nu * dt * 2.0 / (h * h) <= 0.5 else "implicit"
     return dp.FlowStep((n, n), (extent, extent), sides="periodic", obstacle=solid,
-                       viscosity=nu, dt=dt, pressure_solver=solver, substepping=True)
+                       viscosity=nu, dt=dt, pressure_solver=solver, substepping=True,
+                       viscosity_mode=viscosity_mode)
 
 
 def _setup(inputs: dict):
@@ -152,7 +167,10 @@ def vector_jacobian_product(
         gx, gy = _to_cells_t(np.asarray(g_result, np.float64)[:, :, 0, :])
     if g_drag is not None:
         gf = np.array([float(np.asarray(g_drag).reshape(-1)[0]), 0.0])
-    g = scene.vjp(ux, uy, gx, gy, None, gf, steps=int(raw["steps"]), viscosity=nu)
+    # every step kept on the tape, as JAX's scan keeps its residuals (100
+    # steps at 256² in f64: about 1 GB); no recomputation in the reverse sweep
+    g = scene.vjp(ux, uy, gx, gy, None, gf, steps=int(raw["steps"]), viscosity=nu,
+                  checkpoint_every=1)
     out = {}
     if "v0" in vjp_inputs:
         gux, guy = _zero_solid(scene, g[0], g[1])

@@ -65,6 +65,9 @@ def main():
                  "runs_s": v} for k, v in times.items()}
         r["ratio_diffphys_over_jax_cfd"] = r["diffphys"]["best_s"] / r["jax_cfd"]["best_s"]
         r["gradient_cosine"] = float(ga.ravel() @ gb.ravel() / (np.linalg.norm(ga) * np.linalg.norm(gb)))
+        # a gradient with NaN or infinity (an unstable run) measured nothing
+        for k, g in (("diffphys", ga), ("jax_cfd", gb)):
+            r[k]["gradient_finite"] = bool(np.isfinite(g).all())
         out["sizes"][str(n)] = r
     out["loadavg_after"] = os.getloadavg()
     print(json.dumps(out))

@@ -15,7 +15,9 @@
 //!
 //! `L_FF` (free faces to free faces) is symmetric negative semidefinite, so the
 //! implicit operator `M = I − ν dt L_FF` is symmetric positive definite and the
-//! solve is conjugate gradient (Jacobi-preconditioned; `M` is close to `I`).
+//! solve is conjugate gradient (Jacobi-preconditioned; `M` is close to `I`);
+//! on a box periodic in both axes without obstacle `M` is circulant and the
+//! solve is the exact one of the fast Fourier transform (`crate::spectral`).
 //!
 //! **Adjoints.** Explicit: `∂L/∂u = g + ν dt L₀ᵀ g_F`, `∂L/∂ν = dt ⟨g_F, L u⟩`,
 //! `∂L/∂U = ν dt ∂c/∂Uᵀ g_F`. Implicit, through the same solve path as the
@@ -263,18 +265,25 @@ impl LinearOperator<f64> for Helmholtz<'_> {
     }
 }
 
-/// Solves `M x = r` from `guess`.
+/// Solves `M x = r` from `guess`: by FFT on a box periodic in both axes
+/// without obstacle (every face free, `M` circulant; exact), by CG otherwise.
 fn helmholtz_solve(
+    scene: &Scene,
     lap: &ComponentLaplacian,
     nu_dt: f64,
     r: Vec<f64>,
     guess: Vec<f64>,
-    params: &CgParams,
 ) -> Result<Vec<f64>> {
     let n = r.len();
     if n == 0 {
         return Ok(r);
     }
+    if let Some(fft) = scene.spectral() {
+        if lap.free.len() == lap.len {
+            return Ok(fft.solve_helmholtz(&r, nu_dt));
+        }
+    }
+    let params = &scene.settings().viscosity_solver;
     let op = Helmholtz {
         lap,
         nu_dt,
@@ -363,7 +372,7 @@ pub fn diffuse<T: Real>(
                 r.iter_mut()
                     .zip(&uf)
                     .for_each(|(r, u)| *r = u + nu * dt * *r);
-                helmholtz_solve(l, nu * dt, r, uf, &scene.settings().viscosity_solver)?
+                helmholtz_solve(scene, l, nu * dt, r, uf)?
             }
         };
         for (&k, v) in l.free.iter().zip(new_free) {
@@ -429,13 +438,7 @@ pub fn diffuse_vjp<T: Real>(
                 g_nu += dt * g_free.iter().zip(&lu).map(|(a, b)| a * b).sum::<f64>();
             }
             ViscosityMode::Implicit => {
-                let s = helmholtz_solve(
-                    l,
-                    nu * dt,
-                    g_free.clone(),
-                    g_free,
-                    &scene.settings().viscosity_solver,
-                )?;
+                let s = helmholtz_solve(scene, l, nu * dt, g_free.clone(), g_free)?;
                 for (&k, &sv) in l.free.iter().zip(&s) {
                     gu[k] += sv;
                 }

@@ -1,10 +1,12 @@
-//! The pressure system of a fully periodic box without obstacle, solved by
-//! the fast Fourier transform.
+//! The pressure and viscosity systems of a fully periodic box without
+//! obstacle, solved by the fast Fourier transform.
 //!
 //! On a box periodic in both axes with every face free, the pressure operator
 //! `A = D_F D_Fᵀ` of [`crate::pressure`] is the five-point negative Laplacian
-//! with wrap-around, a circulant operator. The discrete Fourier modes
-//! `e^{2πi(ka/nx + lb/ny)}` are its eigenvectors, with eigenvalues
+//! with wrap-around, a circulant operator, and so is `−L` for each velocity
+//! component in [`crate::diffusion`] (its lattice has the cells' `nx × ny`
+//! entries). The discrete Fourier modes `e^{2πi(ka/nx + lb/ny)}` are their
+//! eigenvectors, with eigenvalues
 //!
 //! ```text
 //! λ(k, l) = (2 − 2 cos(2πk/nx)) / dx² + (2 − 2 cos(2πl/ny)) / dy²
@@ -12,9 +14,11 @@
 //!
 //! so `A⁺ b = F⁻¹ (F b / λ)`, with the `(0, 0)` mode (the constants, `A`'s
 //! kernel) set to zero: the zero-mean solution, the same the sparse Cholesky
-//! path returns for a singular operator. `A` is symmetric, so the same solve is
-//! its adjoint. The cost is `O(n log n)` with no factorisation and no fill-in;
-//! the result does not depend on the thread count (one thread).
+//! path returns for a singular operator; and the implicit viscosity step
+//! `(I − ν dt L) x = r` is `x = F⁻¹ (F r / (1 + ν dt λ))`. Both operators are
+//! symmetric, so the same solves are their adjoints. The cost is `O(n log n)`
+//! with no factorisation and no fill-in; the result does not depend on the
+//! thread count (one thread).
 //!
 //! # References
 //! R. W. Hockney, *A fast direct solution of Poisson's equation using Fourier
@@ -34,9 +38,8 @@ pub(crate) struct PeriodicPoisson {
     along_y_inv: Arc<dyn Fft<f64>>,
     along_x: Arc<dyn Fft<f64>>,
     along_x_inv: Arc<dyn Fft<f64>>,
-    /// `1/λ(k, l)` in the transposed layout `[l · nx + k]`, zero at `(0, 0)`,
-    /// with the `1/(nx ny)` of the inverse transform folded in.
-    inverse_eigenvalues: Vec<f64>,
+    /// `λ(k, l)` in the transposed layout `[l · nx + k]`.
+    eigenvalues: Vec<f64>,
 }
 
 impl fmt::Debug for PeriodicPoisson {
@@ -59,14 +62,10 @@ impl PeriodicPoisson {
         let symbol = |k: usize, n: usize, h: f64| {
             (2.0 - 2.0 * (2.0 * std::f64::consts::PI * k as f64 / n as f64).cos()) / (h * h)
         };
-        let scale = 1.0 / (nx * ny) as f64;
-        let mut inverse_eigenvalues = vec![0.0; nx * ny];
+        let mut eigenvalues = vec![0.0; nx * ny];
         for l in 0..ny {
             for k in 0..nx {
-                let lambda = symbol(k, nx, dx) + symbol(l, ny, dy);
-                if k != 0 || l != 0 {
-                    inverse_eigenvalues[l * nx + k] = scale / lambda;
-                }
+                eigenvalues[l * nx + k] = symbol(k, nx, dx) + symbol(l, ny, dy);
             }
         }
         PeriodicPoisson {
@@ -76,13 +75,24 @@ impl PeriodicPoisson {
             along_y_inv,
             along_x,
             along_x_inv,
-            inverse_eigenvalues,
+            eigenvalues,
         }
     }
 
     /// `A⁺ b` for `b` in the layout `[a · ny + b]`: the zero-mean solution of
     /// `A p = b − mean(b)`.
     pub(crate) fn solve(&self, rhs: &[f64]) -> Vec<f64> {
+        self.solve_symbol(rhs, |lambda| if lambda == 0.0 { 0.0 } else { 1.0 / lambda })
+    }
+
+    /// `(I + a A)⁻¹ r` (`a = ν dt`: the implicit viscosity step `(I − ν dt L)`
+    /// of a velocity component), for `r` in the layout `[a · ny + b]`.
+    pub(crate) fn solve_helmholtz(&self, rhs: &[f64], a: f64) -> Vec<f64> {
+        self.solve_symbol(rhs, |lambda| 1.0 / (1.0 + a * lambda))
+    }
+
+    /// `F⁻¹ (m(λ) · F rhs)`.
+    fn solve_symbol(&self, rhs: &[f64], multiplier: impl Fn(f64) -> f64) -> Vec<f64> {
         let (nx, ny) = (self.nx, self.ny);
         debug_assert_eq!(rhs.len(), nx * ny, "one value per cell");
         let scratch_len = [
@@ -101,9 +111,11 @@ impl PeriodicPoisson {
         let mut cols = vec![Complex::default(); nx * ny];
         transpose(&rows, &mut cols, nx, ny);
         self.along_x.process_with_scratch(&mut cols, &mut scratch);
+        // λ(0, 0) = 0 exactly (cos 0 = 1), the one mode a pseudo-inverse drops
+        let scale = 1.0 / (nx * ny) as f64;
         cols.iter_mut()
-            .zip(&self.inverse_eigenvalues)
-            .for_each(|(c, s)| *c *= *s);
+            .zip(&self.eigenvalues)
+            .for_each(|(c, &lambda)| *c *= scale * multiplier(lambda));
         self.along_x_inv
             .process_with_scratch(&mut cols, &mut scratch);
         transpose(&cols, &mut rows, ny, nx);

@@ -52,6 +52,7 @@ use crate::grid::FlowGrid;
 use crate::pressure::{
     PressureSolver, PressureSystem, Project, SolveCounter, SubtractPressureGradient,
 };
+use crate::spectral::PeriodicPoisson;
 use crate::{Boundary, FlowError, Result};
 
 /// How the pressure enters the step (see the [module docs](self)).
@@ -99,6 +100,8 @@ impl Default for Settings {
 
 #[derive(Debug)]
 struct SceneInner {
+    /// The Fourier solves of a box periodic in both axes without obstacle.
+    spectral: Option<Arc<PeriodicPoisson>>,
     grid: FlowGrid,
     solid: Array2<bool>,
     faces: Faces,
@@ -417,7 +420,10 @@ impl SceneBuilder {
         let laplacian = VectorLaplacian::new(&grid, &faces);
         let pressure = PressureSystem::new(&grid, &faces, &solid, &settings.pressure_solver)?;
         let forces = ForceWeights::new(&grid, &solid);
+        let spectral = (grid.periodic_x() && grid.periodic_y() && !solid.iter().any(|&s| s))
+            .then(|| Arc::new(PeriodicPoisson::new(grid.nx, grid.ny, grid.dx, grid.dy)));
         Ok(Scene(Arc::new(SceneInner {
+            spectral,
             grid,
             solid,
             faces,
@@ -718,6 +724,11 @@ impl Scene {
 
     pub(crate) fn faces(&self) -> &Faces {
         &self.0.faces
+    }
+
+    /// The Fourier solves, on a box periodic in both axes without obstacle.
+    pub(crate) fn spectral(&self) -> Option<&PeriodicPoisson> {
+        self.0.spectral.as_deref()
     }
 
     pub(crate) fn laplacian(&self) -> &VectorLaplacian {

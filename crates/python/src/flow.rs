@@ -269,9 +269,12 @@ impl FlowStep {
     /// `grad_uy`, `grad_pressure`, `grad_force`; None is zero), `(∂L/∂ux,
     /// ∂L/∂uy, ∂L/∂P, ∂L/∂viscosity, ∂L/∂wall_speed, ∂L/∂inflow)`, by
     /// recording the steps on a tape and one reverse sweep.
+    /// `checkpoint_every=k` keeps the state of every k-th step and recomputes
+    /// the others in the reverse sweep (1: keep every step, the fastest and
+    /// the most memory); the default is about √steps.
     #[pyo3(signature = (ux, uy, grad_ux = None, grad_uy = None, grad_pressure = None,
                         grad_force = None, *, steps = 1, pressure = None, viscosity = None,
-                        wall_speed = None, inflow = None))]
+                        wall_speed = None, inflow = None, checkpoint_every = None))]
     #[allow(clippy::too_many_arguments)]
     fn vjp<'py>(
         &self,
@@ -286,7 +289,13 @@ impl FlowStep {
         viscosity: Option<f64>,
         wall_speed: Option<&Bound<'py, PyAny>>,
         inflow: Option<&Bound<'py, PyAny>>,
+        checkpoint_every: Option<usize>,
     ) -> PyResult<Bound<'py, PyTuple>> {
+        if checkpoint_every == Some(0) {
+            return Err(InvalidArgumentError::new_err(
+                "invalid checkpoint_every in the flow step's vjp: need at least 1 (1 keeps every step)",
+            ));
+        }
         let args = Args {
             steps,
             pressure,
@@ -296,8 +305,8 @@ impl FlowStep {
         };
         let seeds = [grad_ux, grad_uy, grad_pressure, grad_force];
         match dtype_of(ux, "ux")? {
-            Dtype::F32 => self.vjp_t::<f32>(ux, uy, seeds, &args),
-            Dtype::F64 => self.vjp_t::<f64>(ux, uy, seeds, &args),
+            Dtype::F32 => self.vjp_t::<f32>(ux, uy, seeds, &args, checkpoint_every),
+            Dtype::F64 => self.vjp_t::<f64>(ux, uy, seeds, &args, checkpoint_every),
         }
     }
 }
@@ -409,6 +418,7 @@ impl FlowStep {
         uy: &Bound<'py, PyAny>,
         seeds: [Option<&Bound<'py, PyAny>>; 4],
         args: &Args<'_, 'py>,
+        checkpoint_every: Option<usize>,
     ) -> PyResult<Bound<'py, PyTuple>> {
         let py = ux.py();
         let (state, params) = self.inputs::<T>(ux, uy, args)?;
@@ -437,7 +447,8 @@ impl FlowStep {
         }
         let scene = &self.scene;
         let steps = args.steps;
-        let grads = check(py.detach(|| vjp_on_tape(scene, state, params, g, steps)))?;
+        let grads =
+            check(py.detach(|| vjp_on_tape(scene, state, params, g, steps, checkpoint_every)))?;
         let [gux, guy, gp, gnu, gw, gq] = grads;
         let nu = gnu.first().copied().unwrap_or_else(T::zero).as_f64();
         let items = vec![
@@ -461,6 +472,7 @@ fn vjp_on_tape<T: Real>(
     params: FlowParams<T>,
     seeds: [Option<ArrayD<T>>; 4],
     steps: usize,
+    checkpoint_every: Option<usize>,
 ) -> Result<[ArrayD<T>; 6], diffphys_flow::FlowError> {
     let tape = Tape::<T>::new();
     let vars = FlowVars {
@@ -474,8 +486,8 @@ fn vjp_on_tape<T: Real>(
         wall_speed: tape.var(params.wall_speed),
         inflow: tape.var(params.inflow),
     };
-    let every = (steps as f64).sqrt().ceil() as usize;
-    let schedule = if steps <= 2 {
+    let every = checkpoint_every.unwrap_or((steps as f64).sqrt().ceil() as usize);
+    let schedule = if steps <= 2 || every <= 1 {
         Schedule::Full
     } else {
         Schedule::Every(every)

@@ -58,7 +58,7 @@ pub enum PressureSolver {
     /// Sparse Cholesky, factorised once per scene (the default; for small and
     /// medium grids).
     Cholesky,
-    /// The fast Fourier transform (see [`crate::spectral`]): a direct solve
+    /// The fast Fourier transform (the module `spectral`): a direct solve
     /// in `O(n log n)` for a box periodic in both axes without obstacle; any
     /// other scene is refused when it is built.
     Fourier,

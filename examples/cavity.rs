@@ -106,8 +106,11 @@ fn ghia(re: u32) -> Result<Ghia> {
     })
 }
 
-/// The centrelines of an earlier run at another grid, from its JSON file.
+/// The centrelines of a run, `(y, u, x, v)` as in its JSON.
 type Profiles = (Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>);
+
+/// Which centreline of a run a chart panel draws.
+type Line = dyn Fn(&Profiles) -> (&Vec<f64>, &Vec<f64>);
 
 fn earlier_run(path: &std::path::Path) -> Result<Profiles> {
     let text = std::fs::read_to_string(path).map_err(|e| {
@@ -416,7 +419,7 @@ fn write_chart(
                  caption: String,
                  (xr, yr): (std::ops::Range<f64>, std::ops::Range<f64>),
                  (x_desc, y_desc): (&str, &str),
-                 pick: &dyn Fn(&Profiles) -> (&Vec<f64>, &Vec<f64>),
+                 pick: &Line,
                  points: (&[f64], &[f64], &[bool]),
                  xy: &dyn Fn(f64, f64) -> (f64, f64),
                  legend: Option<SeriesLabelPosition>|

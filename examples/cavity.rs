@@ -14,14 +14,19 @@
 //! x = 0.5) and `centerline_v` (`x`, `v` along y = 0.5) on the grid, normalised
 //! by the lid speed; at Ghia's 17 points of each line the values interpolated
 //! linearly from the grid, the table's, and the largest deviation; steps, time,
-//! per-step time, `peak_rss_bytes`. A chart of both profiles against the table
-//! is written to `OUT/cavity_re{Re}_n{n}.svg`.
+//! per-step time, `peak_rss_bytes`. A value the data file flags as suspect (a
+//! likely misprint in Ghia's table) is shown and reported on its own but left
+//! out of the largest deviation. A chart of both profiles against the table is
+//! written to `OUT/cavity_re{Re}_n{n}.svg`, the JSON line to
+//! `OUT/cavity_re{Re}_n{n}.json`; `--overlay-n 64,256` also draws the profiles
+//! of earlier runs at those grids from their JSON files in `OUT` (a refinement
+//! figure).
 //!
 //! Floor (the flow-step issue): at 128 x 128 and Re = 100, |u − u_Ghia| ≤ 0.02
 //! at every tabulated point.
 //!
 //! `cargo run --release --example cavity -- [--re 100|400|1000] [--n 128]
-//! [--tol 1e-4] [--max-time T] [--small] [--out DIR]`
+//! [--tol 1e-4] [--max-time T] [--overlay-n 64,256] [--small] [--out DIR]`
 
 mod common;
 mod flow_common;
@@ -45,6 +50,9 @@ struct Ghia {
     u: Vec<f64>,
     x: Vec<f64>,
     v: Vec<f64>,
+    /// Whether each point of `u` (`v`) is flagged as suspect in the data file.
+    u_suspect: Vec<bool>,
+    v_suspect: Vec<bool>,
 }
 
 fn ghia(re: u32) -> Result<Ghia> {
@@ -73,12 +81,58 @@ fn ghia(re: u32) -> Result<Ghia> {
         &table["u_along_vertical_centreline"],
         &table["v_along_horizontal_centreline"],
     );
+    let (y, x) = (numbers(&u["y"])?, numbers(&v["x"])?);
+    // the points `suspect` names for this Re in one table, by coordinate
+    let suspect = |name: &str, coords: &[f64]| -> Vec<bool> {
+        let flagged: Vec<f64> = table["suspect"]
+            .as_array()
+            .into_iter()
+            .flatten()
+            .filter(|s| s["table"] == name && s["re"].as_u64() == Some(re as u64))
+            .filter_map(|s| s["x"].as_f64().or_else(|| s["y"].as_f64()))
+            .collect();
+        coords
+            .iter()
+            .map(|c| flagged.iter().any(|f| (f - c).abs() < 1e-9))
+            .collect()
+    };
     Ok(Ghia {
-        y: numbers(&u["y"])?,
+        u_suspect: suspect("u_along_vertical_centreline", &y),
+        v_suspect: suspect("v_along_horizontal_centreline", &x),
+        y,
         u: numbers(&u[&key])?,
-        x: numbers(&v["x"])?,
+        x,
         v: numbers(&v[&key])?,
     })
+}
+
+/// The centrelines of a run, `(y, u, x, v)` as in its JSON.
+type Profiles = (Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>);
+
+/// Which centreline of a run a chart panel draws.
+type Line = dyn Fn(&Profiles) -> (&Vec<f64>, &Vec<f64>);
+
+fn earlier_run(path: &std::path::Path) -> Result<Profiles> {
+    let text = std::fs::read_to_string(path).map_err(|e| {
+        format!(
+            "--overlay-n: {} (written by a run at that grid): {e}",
+            path.display()
+        )
+    })?;
+    let run: Value = serde_json::from_str(&text)?;
+    let numbers = |v: &Value| -> Result<Vec<f64>> {
+        v.as_array()
+            .ok_or_else(|| format!("{}: no centrelines", path.display()))?
+            .iter()
+            .map(|x| x.as_f64().ok_or_else(|| "not a number".into()))
+            .collect()
+    };
+    Ok((
+        numbers(&run["centerline_u"]["y"])?,
+        numbers(&run["centerline_u"]["u"])?,
+        numbers(&run["centerline_v"]["x"])?,
+        numbers(&run["centerline_v"]["v"])?,
+    ))
 }
 
 /// Linear interpolation of the samples `(s, f)` (ascending `s`) at `q`.
@@ -134,11 +188,13 @@ struct Options {
     n: usize,
     tol: f64,
     max_time: Option<f64>,
+    overlay_n: Vec<usize>,
 }
 
 fn parse() -> Result<(common::ExampleArgs, Options)> {
     let mut rest = Vec::new();
     let (mut re, mut n, mut tol, mut max_time) = (100, None, 1e-4, None);
+    let mut overlay_n = Vec::new();
     let mut it = std::env::args().skip(1);
     while let Some(a) = it.next() {
         let mut value = |name: &str| it.next().ok_or_else(|| format!("{name} needs a value"));
@@ -147,6 +203,12 @@ fn parse() -> Result<(common::ExampleArgs, Options)> {
             "--n" => n = Some(value("--n")?.parse()?),
             "--tol" => tol = value("--tol")?.parse()?,
             "--max-time" => max_time = Some(value("--max-time")?.parse()?),
+            "--overlay-n" => {
+                overlay_n = value("--overlay-n")?
+                    .split(',')
+                    .map(str::parse)
+                    .collect::<std::result::Result<Vec<usize>, _>>()?
+            }
             _ => rest.push(a),
         }
     }
@@ -162,6 +224,7 @@ fn parse() -> Result<(common::ExampleArgs, Options)> {
             n,
             tol,
             max_time,
+            overlay_n,
         },
     ))
 }
@@ -169,6 +232,13 @@ fn parse() -> Result<(common::ExampleArgs, Options)> {
 fn main() -> Result<()> {
     let (args, opt) = parse()?;
     let table = ghia(opt.re)?;
+    let chart_name = |n: usize, ext: &str| format!("cavity_re{}_n{n}.{ext}", opt.re);
+    // read the earlier runs first: a missing file is an error before the run
+    let overlays = opt
+        .overlay_n
+        .iter()
+        .map(|&n| Ok((n, earlier_run(&args.out.join(chart_name(n, "json")))?)))
+        .collect::<Result<Vec<_>>>()?;
     let nu = LID / opt.re as f64;
     let h = 1.0 / opt.n as f64;
     let dt = 0.5 * h / LID;
@@ -239,16 +309,46 @@ fn main() -> Result<()> {
             .collect()
     };
     let (du, dv) = (dev(&u_at, &table.u), dev(&v_at, &table.v));
-    let worst = |d: &[f64]| d.iter().cloned().fold(0.0f64, f64::max);
-    let (max_du, max_dv) = (worst(&du), worst(&dv));
+    // the largest deviation over the points not flagged as suspect
+    let worst = |d: &[f64], suspect: &[bool]| {
+        d.iter()
+            .zip(suspect)
+            .filter(|(_, &s)| !s)
+            .fold(0.0f64, |m, (&x, _)| m.max(x))
+    };
+    let (max_du, max_dv) = (worst(&du, &table.u_suspect), worst(&dv, &table.v_suspect));
+    let suspect_points: Vec<Value> = (0..table.y.len())
+        .filter(|&k| table.u_suspect[k])
+        .map(|k| json!({"line": "u", "y": table.y[k], "ours": u_at[k], "ghia": table.u[k], "abs_deviation": du[k]}))
+        .chain(
+            (0..table.x.len())
+                .filter(|&k| table.v_suspect[k])
+                .map(|k| json!({"line": "v", "x": table.x[k], "ours": v_at[k], "ghia": table.v[k], "abs_deviation": dv[k]})),
+        )
+        .collect();
     let at_floor = opt.re == 100 && opt.n == 128;
     let floor_met = max_du <= FLOOR;
 
     println!("   y       u (ours)   u (Ghia)   |diff|      x       v (ours)   v (Ghia)   |diff|");
+    let mark = |s: bool| if s { "*" } else { " " };
     for k in 0..table.y.len() {
         println!(
-            "  {:.4}  {:+.5}  {:+.5}  {:.5}     {:.4}  {:+.5}  {:+.5}  {:.5}",
-            table.y[k], u_at[k], table.u[k], du[k], table.x[k], v_at[k], table.v[k], dv[k]
+            "  {:.4}  {:+.5}  {:+.5}  {:.5}{}    {:.4}  {:+.5}  {:+.5}  {:.5}{}",
+            table.y[k],
+            u_at[k],
+            table.u[k],
+            du[k],
+            mark(table.u_suspect[k]),
+            table.x[k],
+            v_at[k],
+            table.v[k],
+            dv[k],
+            mark(table.v_suspect[k])
+        );
+    }
+    if !suspect_points.is_empty() {
+        println!(
+            "  * flagged as suspect in the data file (a likely misprint): not in the maxima below"
         );
     }
     println!(
@@ -265,11 +365,12 @@ fn main() -> Result<()> {
             if floor_met { "met" } else { "NOT met" }
         );
     }
-    let chart = args.out.join(format!("cavity_re{}_n{}.svg", opt.re, opt.n));
-    write_chart(&chart, opt.re, opt.n, (&y, &u), (&x, &v), &table)?;
+    let chart = args.out.join(chart_name(opt.n, "svg"));
+    let ours = (y.clone(), u.clone(), x.clone(), v.clone());
+    write_chart(&chart, opt.re, (opt.n, &ours), &overlays, &table)?;
     println!("wrote {}", chart.display());
 
-    common::print_json_line(&json!({
+    let line = json!({
         "re": opt.re, "n": opt.n, "dt": dt, "viscosity_mode": format!("{mode:?}"),
         "pressure_solver": format!("{:?}", scene.settings().pressure_solver),
         "advection": format!("{:?}", scene.settings().advection),
@@ -280,77 +381,125 @@ fn main() -> Result<()> {
             "x": table.x, "v_ours": v_at, "v_ghia": table.v,
         },
         "max_abs_u_deviation": max_du, "max_abs_v_deviation": max_dv,
+        "suspect_points": suspect_points,
         "floor": if at_floor { json!({"max_abs_u_deviation": FLOOR, "met": floor_met}) } else { Value::Null },
         "steady": steady, "rate_at_end": rate, "tol": opt.tol,
         "steps": steps, "time": steps as f64 * dt, "wall_s": seconds,
         "ms_per_step": seconds / steps as f64 * 1e3,
         "pressure_iterations_per_step": pressure_iterations as f64 / steps as f64,
         "peak_rss_bytes": flow_common::peak_rss_bytes(),
-    }));
+    });
+    let path = args.out.join(chart_name(opt.n, "json"));
+    std::fs::write(&path, serde_json::to_string(&line)?)?;
+    println!("wrote {}", path.display());
+    common::print_json_line(&line);
     Ok(())
 }
 
 fn write_chart(
     path: &std::path::Path,
     re: u32,
-    n: usize,
-    (y, u): (&[f64], &[f64]),
-    (x, v): (&[f64], &[f64]),
+    (n, ours): (usize, &Profiles),
+    overlays: &[(usize, Profiles)],
     table: &Ghia,
 ) -> Result<()> {
     use plotters::prelude::*;
+    // the other grids' colours, in the order given
+    const OTHERS: [RGBColor; 3] = [RGBColor(0, 150, 60), RGBColor(200, 120, 0), BLACK];
+    let grids = std::iter::once(n)
+        .chain(overlays.iter().map(|o| o.0))
+        .map(|m| format!("{m}x{m}"))
+        .collect::<Vec<_>>()
+        .join(", ");
     let root = SVGBackend::new(path, (900, 440)).into_drawing_area();
     root.fill(&WHITE)?;
     let (left, right) = root.split_horizontally(450);
-    let mut c = ChartBuilder::on(&left)
-        .caption(
-            format!("u along x = 0.5, Re = {re}, {n}x{n}"),
-            ("sans-serif", 16),
-        )
-        .margin(10)
-        .x_label_area_size(35)
-        .y_label_area_size(45)
-        .build_cartesian_2d(-0.6..1.05, 0.0..1.0)?;
-    c.configure_mesh().x_desc("u / U").y_desc("y").draw()?;
-    c.draw_series(LineSeries::new(
-        u.iter().zip(y).map(|(&a, &b)| (a, b)),
-        &BLUE,
-    ))?
-    .label("diffphys-flow")
-    .legend(|(x, y)| PathElement::new([(x, y), (x + 16, y)], BLUE));
-    c.draw_series(
+    // one panel: the profile (coordinate, value) pairs drawn as (a, b) by `xy`
+    let panel = |area: &DrawingArea<SVGBackend, plotters::coord::Shift>,
+                 caption: String,
+                 (xr, yr): (std::ops::Range<f64>, std::ops::Range<f64>),
+                 (x_desc, y_desc): (&str, &str),
+                 pick: &Line,
+                 points: (&[f64], &[f64], &[bool]),
+                 xy: &dyn Fn(f64, f64) -> (f64, f64),
+                 legend: Option<SeriesLabelPosition>|
+     -> Result<()> {
+        let mut c = ChartBuilder::on(area)
+            .caption(caption, ("sans-serif", 16))
+            .margin(10)
+            .x_label_area_size(35)
+            .y_label_area_size(45)
+            .build_cartesian_2d(xr, yr)?;
+        c.configure_mesh().x_desc(x_desc).y_desc(y_desc).draw()?;
+        for (k, (m, profiles)) in overlays.iter().enumerate() {
+            let colour = OTHERS[k % OTHERS.len()];
+            let (s, f) = pick(profiles);
+            c.draw_series(DashedLineSeries::new(
+                s.iter().zip(f).map(|(&a, &b)| xy(a, b)),
+                6,
+                4,
+                colour.stroke_width(1),
+            ))?
+            .label(format!("diffphys-flow {m}x{m}"))
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 16, y)], colour));
+        }
+        let (s, f) = pick(ours);
+        c.draw_series(LineSeries::new(
+            s.iter().zip(f).map(|(&a, &b)| xy(a, b)),
+            BLUE.stroke_width(2),
+        ))?
+        .label(format!("diffphys-flow {n}x{n}"))
+        .legend(|(x, y)| PathElement::new([(x, y), (x + 16, y)], BLUE.stroke_width(2)));
+        let (coords, values, suspect) = points;
+        let at = |keep: bool| {
+            coords
+                .iter()
+                .zip(values)
+                .zip(suspect)
+                .filter(move |(_, &s)| s != keep)
+                .map(|((&a, &b), _)| xy(a, b))
+        };
+        c.draw_series(at(true).map(|p| Circle::new(p, 4, RED.stroke_width(2))))?
+            .label("Ghia et al. 1982")
+            .legend(|(x, y)| Circle::new((x + 8, y), 4, RED.stroke_width(2)));
+        if suspect.iter().any(|&s| s) {
+            c.draw_series(at(false).map(|p| Cross::new(p, 5, BLACK.stroke_width(2))))?
+                .label("Ghia, flagged suspect")
+                .legend(|(x, y)| Cross::new((x + 8, y), 5, BLACK.stroke_width(2)));
+        }
+        if let Some(at) = legend {
+            c.configure_series_labels()
+                .position(at)
+                .border_style(BLACK)
+                .background_style(WHITE)
+                .draw()?;
+        }
+        Ok(())
+    };
+    panel(
+        &left,
+        format!("u along x = 0.5, Re = {re}, {grids}"),
+        (-0.6..1.05, 0.0..1.0),
+        ("u / U", "y"),
+        &|p: &Profiles| (&p.0, &p.1),
+        (&table.y, &table.u, &table.u_suspect),
+        &|y, u| (u, y),
+        Some(SeriesLabelPosition::LowerRight),
+    )?;
+    panel(
+        &right,
+        format!("v along y = 0.5, Re = {re}, {grids}"),
+        (0.0..1.0, -0.6..0.45),
+        ("x", "v / U"),
+        &|p: &Profiles| (&p.2, &p.3),
+        (&table.x, &table.v, &table.v_suspect),
+        &|x, v| (x, v),
+        // the legend again where it explains the suspect marker
         table
-            .u
+            .v_suspect
             .iter()
-            .zip(&table.y)
-            .map(|(&a, &b)| Circle::new((a, b), 4, RED.stroke_width(2))),
-    )?
-    .label("Ghia et al. 1982")
-    .legend(|(x, y)| Circle::new((x + 8, y), 4, RED.stroke_width(2)));
-    c.configure_series_labels()
-        .border_style(BLACK)
-        .background_style(WHITE)
-        .draw()?;
-    let mut c = ChartBuilder::on(&right)
-        .caption(
-            format!("v along y = 0.5, Re = {re}, {n}x{n}"),
-            ("sans-serif", 16),
-        )
-        .margin(10)
-        .x_label_area_size(35)
-        .y_label_area_size(45)
-        .build_cartesian_2d(0.0..1.0, -0.6..0.45)?;
-    c.configure_mesh().x_desc("x").y_desc("v / U").draw()?;
-    c.draw_series(LineSeries::new(
-        x.iter().zip(v).map(|(&a, &b)| (a, b)),
-        &BLUE,
-    ))?;
-    c.draw_series(
-        table
-            .x
-            .iter()
-            .zip(&table.v)
-            .map(|(&a, &b)| Circle::new((a, b), 4, RED.stroke_width(2))),
+            .any(|&s| s)
+            .then_some(SeriesLabelPosition::UpperRight),
     )?;
     root.present()?;
     Ok(())

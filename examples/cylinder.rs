@@ -12,7 +12,7 @@
 //! Um, explicit viscosity where stable, implicit otherwise.
 //!
 //! - 2D-1: from the inflow profile extended through the channel, run until the
-//!   velocity changes by less than 1e-4 per unit time; drag and lift
+//!   velocity changes by less than `--tol` (1e-4) per unit time; drag and lift
 //!   coefficients `cD = 2 F_x / (Ubar² D)`, `cL = 2 F_y / (Ubar² D)` (the
 //!   force of the flow on the staircase body, pressure and wall shear), and the
 //!   pressure difference `dp = p(0.15, 0.2) − p(0.25, 0.2)` (the pressure of
@@ -29,7 +29,7 @@
 //! `OUT/cylinder_2d2_lift.svg`. The last stdout line is the JSON of it all.
 //!
 //! `cargo run --release --example cylinder -- [--cpd 10,20] [--cases 2d1,2d2]
-//! [--t-end 12] [--window 4] [--small] [--out DIR]`
+//! [--t-end 12] [--window 4] [--tol 1e-4] [--max-time 40] [--small] [--out DIR]`
 
 mod common;
 mod flow_common;
@@ -178,7 +178,7 @@ fn grid_json(scene: &Scene, cpd: usize) -> Value {
 }
 
 /// 2D-1 at `cpd`: run to steady state, report cD, cL, dp.
-fn steady(cpd: usize, max_time: f64) -> Result<(Value, Scene, FlowState<f64>)> {
+fn steady(cpd: usize, max_time: f64, tol: f64) -> Result<(Value, Scene, FlowState<f64>)> {
     let (um, ubar) = (0.3, 0.2);
     let scene = scene(cpd, um)?;
     let params = scene.params();
@@ -196,7 +196,7 @@ fn steady(cpd: usize, max_time: f64) -> Result<(Value, Scene, FlowState<f64>)> {
         if steps % WINDOW == 0 {
             rate = largest_change(&s, &mark) / (WINDOW as f64 * dt);
             mark = s.clone();
-            if rate < 1e-4 {
+            if rate < tol {
                 break;
             }
         }
@@ -207,12 +207,12 @@ fn steady(cpd: usize, max_time: f64) -> Result<(Value, Scene, FlowState<f64>)> {
     println!(
         "  2D-1 cpd {cpd:3}: cD {cd:.4}  cL {cl:+.5}  dp {dp:.4}  ({steps} steps to t = {:.2}, {}; {seconds:.1} s, {:.2} ms/step)",
         steps as f64 * dt,
-        if rate < 1e-4 { "steady" } else { "NOT steady" },
+        if rate < tol { "steady" } else { "NOT steady" },
         seconds / steps as f64 * 1e3
     );
     let row = json!({
         "grid": grid_json(&scene, cpd), "cd": cd, "cl": cl, "dp": dp,
-        "steady": rate < 1e-4, "rate_at_end": rate, "steps": steps, "substeps": substeps,
+        "steady": rate < tol, "tol": tol, "rate_at_end": rate, "steps": steps, "substeps": substeps,
         "time": steps as f64 * dt, "wall_s": seconds, "ms_per_step": seconds / steps as f64 * 1e3,
     });
     Ok((row, scene, s))
@@ -308,11 +308,13 @@ struct Options {
     t_end: f64,
     window: f64,
     max_time: f64,
+    tol: f64,
 }
 
 fn parse() -> Result<(common::ExampleArgs, Options)> {
     let mut rest = Vec::new();
     let (mut cpd, mut cases, mut t_end, mut window, mut max_time) = (None, None, None, None, None);
+    let mut tol = 1e-4;
     let mut it = std::env::args().skip(1);
     while let Some(a) = it.next() {
         let mut value = |name: &str| it.next().ok_or_else(|| format!("{name} needs a value"));
@@ -336,6 +338,7 @@ fn parse() -> Result<(common::ExampleArgs, Options)> {
             "--t-end" => t_end = Some(value("--t-end")?.parse()?),
             "--window" => window = Some(value("--window")?.parse()?),
             "--max-time" => max_time = Some(value("--max-time")?.parse()?),
+            "--tol" => tol = value("--tol")?.parse()?,
             _ => rest.push(a),
         }
     }
@@ -362,6 +365,7 @@ fn parse() -> Result<(common::ExampleArgs, Options)> {
             t_end,
             window,
             max_time,
+            tol,
         },
     ))
 }
@@ -383,7 +387,7 @@ fn main() -> Result<()> {
         let mut rows = Vec::new();
         let mut last = None;
         for &c in &opt.cpd {
-            let (row, scene, s) = steady(c, opt.max_time)?;
+            let (row, scene, s) = steady(c, opt.max_time, opt.tol)?;
             rows.push(row);
             last = Some((scene, s));
         }

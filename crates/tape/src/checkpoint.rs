@@ -29,6 +29,7 @@ use std::rc::Rc;
 
 use ndarray::{ArrayD, ArrayViewD};
 
+use crate::pool::BufferPool;
 use crate::{BackwardArgs, Op, Real, Result, Tape, TapeError, Var};
 
 /// A stretch of recorded computation: outputs from inputs on the tape it is given.
@@ -103,10 +104,18 @@ struct Checkpoint<T: Real> {
 
 impl<T: Real> Checkpoint<T> {
     fn scratch(&self) -> Tape<T> {
-        let tape = Tape::new();
-        tape.set_check_finite(self.check_finite);
-        tape
+        scratch_tape(self.check_finite)
     }
+}
+
+/// A scratch tape with a buffer pool of its own, freed with it. `Tape::new()`
+/// would share the pool of the tape whose op is running, which keeps what every
+/// dropped scratch tape recycles (up to its limit) and so would hold every
+/// recomputed step's buffers: the memory the checkpoint exists to save.
+fn scratch_tape<T: Real>(check_finite: bool) -> Tape<T> {
+    let tape = Tape::with_pool(&BufferPool::new());
+    tape.set_check_finite(check_finite);
+    tape
 }
 
 impl<T: Real> Op<T> for Checkpoint<T> {
@@ -171,9 +180,7 @@ struct StepSegment<T: Real> {
 
 impl<T: Real> StepSegment<T> {
     fn scratch(&self) -> Tape<T> {
-        let tape = Tape::new();
-        tape.set_check_finite(self.check_finite);
-        tape
+        scratch_tape(self.check_finite)
     }
 
     /// Step `k` from `state` without recording, on a scratch tape dropped after.

@@ -70,6 +70,34 @@ fn checkpointed_gradients_equal_the_full_tape() {
 }
 
 #[test]
+fn checkpointed_unrolls_leave_no_recomputed_steps_in_the_pool() {
+    // Steps of 4096 entries (above the pool's minimum length), 256 of them: the
+    // full tape keeps every step; a checkpointed unroll's scratch tapes must not
+    // leave their buffers in the outer tape's pool (before the scratch tapes had
+    // pools of their own, the pool held 2.5x the full tape's peak after the sweep).
+    let steps = 256;
+    let held = |schedule: Schedule| {
+        let tape = Tape::<f64>::new();
+        let u0 = tape.var(test_array(&[4096], 1));
+        let a = tape.var(test_array::<f64>(&[4096], 2).mapv(|v| 0.9 + 0.2 * v));
+        let b = tape.var(test_array::<f64>(&[4096], 3).mapv(|v| 0.1 * v));
+        let loss0 = tape.scalar(0.0);
+        let out =
+            checkpointed_steps(&tape, schedule, steps, &[u0, loss0], &[a, b], step()).unwrap();
+        tape.backward(out[1], &[u0, a, b]).unwrap();
+        (tape.pool().held_bytes(), tape.stats().peak_bytes)
+    };
+    let (_, full_bytes) = held(Schedule::Full);
+    for schedule in [Schedule::Every(16), Schedule::Nested { branches: 4 }] {
+        let (pool_bytes, tape_bytes) = held(schedule);
+        assert!(
+            (pool_bytes + tape_bytes) * 10 < full_bytes,
+            "{schedule:?}: pool {pool_bytes} + tape {tape_bytes} bytes vs the full tape's {full_bytes}"
+        );
+    }
+}
+
+#[test]
 fn the_checkpointed_gradient_passes_finite_differences() {
     let report = check_gradient(
         |tape, v| {

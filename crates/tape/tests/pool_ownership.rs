@@ -1,36 +1,45 @@
 //! Memory belongs to whoever allocated it: a dropped tape returns every byte it
 //! took, a pool passed by the caller keeps buffers across tapes until the caller
-//! drops it. Measured with a counting global allocator (live bytes), so each
-//! test runs its measured part alone (`LOCK`): the test harness's other threads
-//! allocate too.
+//! drops it. Measured with a counting global allocator that counts the live
+//! bytes of each thread apart: the test harness's other threads allocate and
+//! free while a test runs (a process-wide count once read −84 bytes), and each
+//! test records, sweeps and drops on its own thread (arrays this small never
+//! reach the parallel kernels).
 
 use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicIsize, Ordering};
-use std::sync::Mutex;
+use std::cell::Cell;
 
 use diffphys_tape::pool::BufferPool;
 use diffphys_tape::{test_array, ArrayD, Tape};
 
 struct Counting;
 
-static LIVE: AtomicIsize = AtomicIsize::new(0);
-static LOCK: Mutex<()> = Mutex::new(());
+thread_local! {
+    /// This thread's allocated minus freed bytes.
+    static LIVE: Cell<isize> = const { Cell::new(0) };
+}
+
+/// Adds `delta` to this thread's count (nothing once the thread's locals are
+/// gone, as it exits).
+fn count(delta: isize) {
+    let _ = LIVE.try_with(|l| l.set(l.get() + delta));
+}
 
 unsafe impl GlobalAlloc for Counting {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        LIVE.fetch_add(layout.size() as isize, Ordering::SeqCst);
+        count(layout.size() as isize);
         unsafe { System.alloc(layout) }
     }
     unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        LIVE.fetch_sub(layout.size() as isize, Ordering::SeqCst);
+        count(-(layout.size() as isize));
         unsafe { System.dealloc(ptr, layout) }
     }
     unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
-        LIVE.fetch_add(layout.size() as isize, Ordering::SeqCst);
+        count(layout.size() as isize);
         unsafe { System.alloc_zeroed(layout) }
     }
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        LIVE.fetch_add(new_size as isize - layout.size() as isize, Ordering::SeqCst);
+        count(new_size as isize - layout.size() as isize);
         unsafe { System.realloc(ptr, layout, new_size) }
     }
 }
@@ -38,8 +47,9 @@ unsafe impl GlobalAlloc for Counting {
 #[global_allocator]
 static ALLOC: Counting = Counting;
 
+/// This thread's live bytes.
 fn live() -> isize {
-    LIVE.load(Ordering::SeqCst)
+    LIVE.with(Cell::get)
 }
 
 const N: usize = 100_000;
@@ -61,7 +71,6 @@ fn record(tape: &Tape<f64>, x0: &ArrayD<f64>) {
 
 #[test]
 fn a_dropped_tape_returns_all_its_memory() {
-    let _alone = LOCK.lock().unwrap();
     let x0 = test_array::<f64>(&[N], 3);
     // Warm up the thread-local bookkeeping (the current-pool stack).
     record(&Tape::new(), &x0);
@@ -77,7 +86,6 @@ fn a_dropped_tape_returns_all_its_memory() {
 
 #[test]
 fn a_pool_the_caller_holds_serves_the_next_tape_and_goes_with_the_caller() {
-    let _alone = LOCK.lock().unwrap();
     let x0 = test_array::<f64>(&[N], 5);
     record(&Tape::new(), &x0);
     let before = live();
@@ -114,7 +122,6 @@ fn a_pool_the_caller_holds_serves_the_next_tape_and_goes_with_the_caller() {
 
 #[test]
 fn a_pool_keeps_no_more_than_its_limit() {
-    let _alone = LOCK.lock().unwrap();
     let x0 = test_array::<f64>(&[N], 7);
     let pool = BufferPool::with_limit_bytes(2 * N * 8);
     record(&Tape::with_pool(&pool), &x0);

@@ -800,8 +800,11 @@ pub fn advect_velocity<T: Real>(
     let (ux, uy) = (wide(velocity.0), wide(velocity.1));
     let tr = tracer(scene, &ux, &uy, walls_of(wall_speed));
     let g = scene.grid();
-    let ox = tr.step(&field_of(scene, Lattice::FaceX), &wide(field.0), dt, scheme);
-    let oy = tr.step(&field_of(scene, Lattice::FaceY), &wide(field.1), dt, scheme);
+    // the two components are independent: on two threads when there are
+    let (ox, oy) = rayon::join(
+        || tr.step(&field_of(scene, Lattice::FaceX), &wide(field.0), dt, scheme),
+        || tr.step(&field_of(scene, Lattice::FaceY), &wide(field.1), dt, scheme),
+    );
     Ok((narrow(g.shape_x(), &ox), narrow(g.shape_y(), &oy)))
 }
 

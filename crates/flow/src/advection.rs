@@ -512,18 +512,31 @@ impl Tracer<'_> {
         field.sampler.locate([p[0] - dt * v[0], p[1] - dt * v[1]])
     }
 
-    /// `A q`: one semi-Lagrangian step of `q` with the tracing velocities
-    /// `vel` (fixed entries copied).
-    fn semi_lagrangian(&self, field: &Field<'_>, q: &[f64], vel: &[[f64; 2]], dt: f64) -> Vec<f64> {
-        let mut out = q.to_vec();
+    /// `at(stencil)` of the departure stencil over `dt` at every free entry of
+    /// `field` (traced by `vel`), `fixed(k)` at the fixed entries.
+    fn at_departures<V: Send>(
+        &self,
+        field: &Field<'_>,
+        vel: &[[f64; 2]],
+        dt: f64,
+        fixed: impl Fn(usize) -> V,
+        at: impl Fn(Stencil) -> V + Sync + Send,
+    ) -> Vec<V> {
+        let mut out: Vec<V> = (0..vel.len()).map(fixed).collect();
         for_blocks(&mut out, |off, block| {
             self.each_entry(field, off, block.len(), |k, _, p| {
                 if field.free(k) {
-                    block[k - off] = Self::departure(field, p, vel[k], dt).value(q, &self.walls);
+                    block[k - off] = at(Self::departure(field, p, vel[k], dt));
                 }
             });
         });
         out
+    }
+
+    /// `A q`: one semi-Lagrangian step of `q` with the tracing velocities
+    /// `vel` (fixed entries copied).
+    fn semi_lagrangian(&self, field: &Field<'_>, q: &[f64], vel: &[[f64; 2]], dt: f64) -> Vec<f64> {
+        self.at_departures(field, vel, dt, |k| q[k], |s| s.value(q, &self.walls))
     }
 
     /// `A q` and, at each free entry, the smallest and largest of the four
@@ -535,20 +548,14 @@ impl Tracer<'_> {
         vel: &[[f64; 2]],
         dt: f64,
     ) -> (Vec<f64>, Vec<[f64; 2]>) {
-        let mut out: Vec<[f64; 3]> = q.iter().map(|&v| [v, v, v]).collect();
-        for_blocks(&mut out, |off, block| {
-            self.each_entry(field, off, block.len(), |k, _, p| {
-                if field.free(k) {
-                    let (v, [lo, hi]) =
-                        Self::departure(field, p, vel[k], dt).value_and_range(q, &self.walls);
-                    block[k - off] = [v, lo, hi];
-                }
-            });
-        });
-        (
-            out.iter().map(|e| e[0]).collect(),
-            out.iter().map(|e| [e[1], e[2]]).collect(),
-        )
+        let out = self.at_departures(
+            field,
+            vel,
+            dt,
+            |k| (q[k], [q[k]; 2]),
+            |s| s.value_and_range(q, &self.walls),
+        );
+        out.into_iter().unzip()
     }
 
     /// `q̂ = A q`, with the limiter's range where `limiter` is on (else empty).

@@ -151,6 +151,7 @@ impl PressureSystem {
         faces: &Faces,
         solid: &Array2<bool>,
         solver: &PressureSolver,
+        spectral: Option<&Arc<PeriodicPoisson>>,
     ) -> Result<Self> {
         let (nx, ny) = (grid.nx, grid.ny);
         let (cx, cy) = (1.0 / (grid.dx * grid.dx), 1.0 / (grid.dy * grid.dy));
@@ -201,16 +202,15 @@ impl PressureSystem {
                 direct = Some(Direct::Cholesky(Arc::new(chol)));
             }
             PressureSolver::Fourier => {
-                if !(grid.periodic_x() && grid.periodic_y() && all_fluid) {
+                // the scene has its Fourier solves exactly on a periodic box without obstacle
+                let Some(fft) = spectral else {
                     return Err(FlowError::scene(
                         "pressure solver",
                         "the Fourier solve needs a box periodic in both axes without obstacle; \
                          use Cholesky, Cg or MultigridCg",
                     ));
-                }
-                direct = Some(Direct::Fourier(Arc::new(PeriodicPoisson::new(
-                    nx, ny, grid.dx, grid.dy,
-                ))));
+                };
+                direct = Some(Direct::Fourier(Arc::clone(fft)));
             }
             PressureSolver::Cg { rel_tol, max_iters } => {
                 cg = cg

@@ -418,10 +418,16 @@ impl SceneBuilder {
         }
         let faces = Faces::classify(&grid, &solid);
         let laplacian = VectorLaplacian::new(&grid, &faces);
-        let pressure = PressureSystem::new(&grid, &faces, &solid, &settings.pressure_solver)?;
-        let forces = ForceWeights::new(&grid, &solid);
         let spectral = (grid.periodic_x() && grid.periodic_y() && !solid.iter().any(|&s| s))
             .then(|| Arc::new(PeriodicPoisson::new(grid.nx, grid.ny, grid.dx, grid.dy)));
+        let pressure = PressureSystem::new(
+            &grid,
+            &faces,
+            &solid,
+            &settings.pressure_solver,
+            spectral.as_ref(),
+        )?;
+        let forces = ForceWeights::new(&grid, &solid);
         Ok(Scene(Arc::new(SceneInner {
             spectral,
             grid,

@@ -280,6 +280,7 @@ fn helmholtz_solve(
     }
     if let Some(fft) = scene.spectral() {
         if lap.free.len() == lap.len {
+            crate::spectral::check_finite("viscosity solve", "right-hand side", &r)?;
             return Ok(fft.solve_helmholtz(&r, nu_dt));
         }
     }

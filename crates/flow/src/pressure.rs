@@ -257,6 +257,7 @@ impl PressureSystem {
             ),
             Some(Direct::Fourier(fft)) => {
                 let rhs = b.as_slice().expect("standard layout");
+                crate::spectral::check_finite("pressure solve", "right-hand side", rhs)?;
                 let x =
                     ArrayD::from_shape_vec(IxDyn(&shape), fft.solve(rhs)).expect("one per cell");
                 (x, 0)

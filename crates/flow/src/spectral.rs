@@ -30,6 +30,8 @@ use std::sync::Arc;
 use rustfft::num_complex::Complex;
 use rustfft::{Fft, FftPlanner};
 
+use crate::{FlowError, Result};
+
 /// `A⁺` of the periodic five-point Laplacian on an `nx × ny` box.
 pub(crate) struct PeriodicPoisson {
     nx: usize,
@@ -122,6 +124,21 @@ impl PeriodicPoisson {
         self.along_y_inv
             .process_with_scratch(&mut rows, &mut scratch);
         rows.iter().map(|c| c.re).collect()
+    }
+}
+
+/// [`FlowError::NonFinite`] naming `step` and `quantity` if `v` holds NaN or
+/// infinity: a transform would spread one to every entry of the solution.
+pub(crate) fn check_finite(step: &str, quantity: &str, v: &[f64]) -> Result<()> {
+    let count = v.iter().filter(|x| !x.is_finite()).count();
+    if count == 0 {
+        Ok(())
+    } else {
+        Err(FlowError::NonFinite {
+            step: step.into(),
+            quantity: quantity.into(),
+            count,
+        })
     }
 }
 

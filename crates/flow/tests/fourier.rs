@@ -131,3 +131,30 @@ fn implicit_viscosity_on_the_periodic_box_solves_its_helmholtz_system() {
     assert!(max_diff(&bx, &ux) < 1e-12, "{}", max_diff(&bx, &ux));
     assert!(max_diff(&by, &uy) < 1e-12, "{}", max_diff(&by, &uy));
 }
+
+#[test]
+fn fourier_solves_refuse_non_finite_input() {
+    use diffphys_flow::diffusion::diffuse;
+    use diffphys_flow::ViscosityMode;
+    let scene = periodic_box(PressureSolver::Fourier);
+    let (mut ux, uy) = velocity(&scene, 1.0, 31);
+    ux[[3, 2]] = f64::NAN;
+    match project(&scene, scene.dt(), ux.view(), uy.view(), None) {
+        Err(FlowError::NonFinite { step, .. }) => assert_eq!(step, "pressure solve"),
+        other => panic!("expected NonFinite, got {other:?}"),
+    }
+    let walls = scene.params::<f64>().wall_speed;
+    let r = diffuse(
+        &scene,
+        ViscosityMode::Implicit,
+        0.01,
+        ux.view(),
+        uy.view(),
+        0.1,
+        walls.view(),
+    );
+    match r {
+        Err(FlowError::NonFinite { step, .. }) => assert_eq!(step, "viscosity solve"),
+        other => panic!("expected NonFinite, got {other:?}"),
+    }
+}

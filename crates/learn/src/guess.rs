@@ -430,7 +430,7 @@ impl GuessTrainer {
             if due || done == self.steps {
                 let s = score(&params)?;
                 curve.push((done, s));
-                if best.as_ref().is_none_or(|b| s < b.1) {
+                if crate::metrics::improves(s, best.as_ref().map(|b| b.1)) {
                     best = Some((done, s, params.clone()));
                 }
             }

@@ -101,3 +101,31 @@ pub fn rollout<S: Simulator + 'static, C: Corrector + 'static>(
     }
     Ok(Rollout { per_step, last: u })
 }
+
+/// Whether a validation `score` should replace the `best` so far (none yet:
+/// always): a lower score does, and a NaN score is worse than any other, so a
+/// NaN first score is replaced by the first real one and never replaces one.
+pub(crate) fn improves(score: f64, best: Option<f64>) -> bool {
+    match best {
+        None => true,
+        Some(b) => !score.is_nan() && (b.is_nan() || score < b),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::improves;
+
+    #[test]
+    fn nan_scores_never_win_and_are_always_replaced() {
+        assert!(improves(0.5, None));
+        assert!(improves(f64::NAN, None));
+        assert!(improves(0.4, Some(0.5)));
+        assert!(!improves(0.5, Some(0.5)));
+        assert!(!improves(0.6, Some(0.5)));
+        assert!(improves(0.6, Some(f64::NAN)));
+        assert!(!improves(f64::NAN, Some(0.5)));
+        assert!(!improves(f64::NAN, Some(f64::NAN)));
+        assert!(improves(1e300, Some(f64::INFINITY)));
+    }
+}

@@ -164,7 +164,7 @@ impl SupervisedTrainer {
             if (self.validate_every > 0 && done % self.validate_every == 0) || done == self.steps {
                 let score = mean_squared_error(net, &params, validation)?;
                 curve.push((done, score));
-                if best.as_ref().is_none_or(|b| score < b.1) {
+                if crate::metrics::improves(score, best.as_ref().map(|b| b.1)) {
                     best = Some((done, score, params.clone()));
                 }
             }

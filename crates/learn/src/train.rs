@@ -34,12 +34,19 @@ pub struct TrainedCorrector {
     pub params: Params<f64>,
     /// The training loss at every iteration.
     pub losses: Vec<f64>,
-    /// `(iteration, validation score)` at every validation.
+    /// `(iteration, validation score)` at every validation, starting with the
+    /// untrained model at iteration 0. A rollout that diverged (a step
+    /// refused a non-finite state, or the error came out NaN) scores `+∞`.
     pub validation_curve: Vec<(usize, f64)>,
-    /// The iteration whose parameters were kept.
+    /// The iteration whose parameters were kept: 0 if no training iteration
+    /// validated better than the untrained model.
     pub best_iteration: usize,
     /// Their validation score: the mean relative L2 error of a rollout.
     pub validation: f64,
+    /// The validations whose rollout failed, `(iteration, message)`: a
+    /// corrector that drove the state to a non-finite value scores `+∞` there
+    /// and training goes on.
+    pub validation_failures: Vec<(usize, String)>,
 }
 
 /// Trains correctors: Adam on the strategy's loss for the budget's iterations,
@@ -193,7 +200,17 @@ impl Trainer {
         let mut adam = Adam::new(self.learning_rate);
         let mut losses = Vec::with_capacity(iterations);
         let mut curve = Vec::new();
-        let mut best: Option<(usize, f64, Params<f64>)> = None;
+        let mut failures = Vec::new();
+        // The untrained model is a candidate too: early stopping may keep it.
+        let initial = validation_score(hybrid, &params, validation, self.validation_steps)
+            .map_err(|message| LearnError::Selection {
+                message: format!(
+                    "the untrained model's validation rollout already fails ({message}); \
+                         there is nothing to stop early against"
+                ),
+            })?;
+        curve.push((0, initial));
+        let mut best: (usize, f64, Params<f64>) = (0, initial, params.clone());
         // One buffer pool for the tapes of all iterations (each step records
         // the same shapes), freed when training ends.
         let pool = BufferPool::new();
@@ -210,16 +227,18 @@ impl Trainer {
             let done = it + 1;
             let due = self.validate_every > 0 && done % self.validate_every == 0;
             if due || done == iterations {
-                let score =
-                    rollout(hybrid, Some(&params), validation, self.validation_steps)?.mean();
+                let score = validation_score(hybrid, &params, validation, self.validation_steps)
+                    .unwrap_or_else(|message| {
+                        failures.push((done, message));
+                        f64::INFINITY
+                    });
                 curve.push((done, score));
-                if best.as_ref().is_none_or(|b| score < b.1) {
-                    best = Some((done, score, params.clone()));
+                if score < best.1 {
+                    best = (done, score, params.clone());
                 }
             }
         }
-        let (best_iteration, validation_score, params) =
-            best.ok_or(LearnError::ZeroIterations { trainer: "trainer" })?;
+        let (best_iteration, validation_score, params) = best;
         Ok(Trained::new(TrainedCorrector {
             strategy,
             params,
@@ -227,6 +246,7 @@ impl Trainer {
             validation_curve: curve,
             best_iteration,
             validation: validation_score,
+            validation_failures: failures,
         }))
     }
 }
@@ -236,4 +256,22 @@ pub fn standard_normal(rng: &mut impl Rng) -> f64 {
     let u1: f64 = 1.0 - rng.random::<f64>();
     let u2: f64 = rng.random();
     (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
+}
+
+/// The mean relative L2 error of a validation rollout of the hybrid with
+/// `params`, or why there is none: the rollout's error, or a NaN error (a
+/// state gone non-finite without a step refusing it).
+fn validation_score<S: Simulator + 'static, C: Corrector + 'static>(
+    hybrid: &Hybrid<S, C>,
+    params: &Params<f64>,
+    validation: &[Trajectory],
+    steps: usize,
+) -> std::result::Result<f64, String> {
+    let score = rollout(hybrid, Some(params), validation, steps)
+        .map_err(|e| e.to_string())?
+        .mean();
+    if score.is_nan() {
+        return Err("the rollout's error is NaN".into());
+    }
+    Ok(score)
 }

@@ -239,7 +239,10 @@ fn training_helps_every_strategy_and_repeats_per_seed() {
             "{strategy}"
         );
         assert_eq!(a.model.losses.len(), 100);
-        assert_eq!(a.model.validation_curve.len(), 10);
+        // The untrained model at iteration 0, then every 10 iterations.
+        assert_eq!(a.model.validation_curve.len(), 11);
+        assert_eq!(a.model.validation_curve[0].0, 0);
+        assert!(a.model.validation_failures.is_empty());
         println!(
             "{strategy}: validation {} vs coarse {coarse}",
             a.model.validation
@@ -251,6 +254,55 @@ fn training_helps_every_strategy_and_repeats_per_seed() {
         );
         assert_ne!(a.id(), b.id());
     }
+}
+
+#[test]
+fn early_stopping_keeps_the_untrained_model_when_training_only_hurts() {
+    // Training data from another physics (u ↦ 0.6 u, far from the solver and
+    // from the validation reference): every trained iterate is worse on
+    // validation, and the kept model is the one training started from.
+    let data = splits(5, [4, 2, 1], 8);
+    let wrong: Vec<Trajectory> = data
+        .train
+        .iter()
+        .map(|tr| {
+            let mut u = tr[0].clone();
+            let mut out = vec![u.clone()];
+            for _ in 1..tr.len() {
+                u = u.mapv(|x| 0.6 * x);
+                out.push(u.clone());
+            }
+            out
+        })
+        .collect();
+    // A corrector that starts at zero: the untrained hybrid is the solver.
+    let (corrector, random) = net(3, 1);
+    let mut params = Params::new();
+    for (name, v) in random.names().iter().zip(random.values()) {
+        params.add(name.clone(), v.mapv(|_| 0.0)).unwrap();
+    }
+    let hybrid = Hybrid::new(Cubic, corrector);
+    let trained = trainer(20, 4)
+        .train(
+            &hybrid,
+            params.clone(),
+            Strategy::NonInteracting,
+            &wrong,
+            &data.validation,
+            TrainSeed(1),
+            &|| {},
+        )
+        .unwrap();
+    let m = trained.model;
+    let curve = &m.validation_curve;
+    assert_eq!(curve.iter().map(|c| c.0).collect::<Vec<_>>(), [0, 10, 20]);
+    assert!(
+        curve[1].1 > curve[0].1 && curve[2].1 > curve[0].1,
+        "{curve:?}"
+    );
+    assert_eq!(m.best_iteration, 0);
+    assert_eq!(m.validation, curve[0].1);
+    assert_eq!(m.params.values(), params.values());
 }
 
 #[test]

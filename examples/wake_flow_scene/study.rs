@@ -405,6 +405,41 @@ pub fn ratio_at_size(
     Some(mean(Variant::Sol(sol?))? / mean(Variant::Non)?)
 }
 
+/// The validation curves of every training (`{"curve": [[iteration, score],
+/// ...], ...}` per training) as one chart, `validation.svg`.
+///
+/// # Errors
+/// [`WakeError::Output`] if the chart cannot be written.
+pub fn validation_chart(out: &Path, curves: &BTreeMap<String, Value>) -> Result<()> {
+    let series: Vec<Series> = curves
+        .iter()
+        .filter_map(|(name, v)| {
+            let points: Vec<(f64, f64)> = v["curve"]
+                .as_array()?
+                .iter()
+                .filter_map(|p| Some((p[0].as_f64()?, p[1].as_f64()?)))
+                .filter(|(_, y)| y.is_finite())
+                .collect();
+            (!points.is_empty()).then(|| Series::new(name.clone(), points))
+        })
+        .collect();
+    if series.is_empty() {
+        return Ok(());
+    }
+    line_chart_svg(
+        &out.join("validation.svg"),
+        &LineChart {
+            title: "Validation error during training (mean relative L2 over the rollout)",
+            x_label: "Adam iteration",
+            y_label: "|u - u_ref| / |u_ref|",
+            log_x: false,
+            log_y: true,
+            series: &series,
+        },
+    )
+    .map_err(|e| WakeError::Output(e.to_string()))
+}
+
 /// The charts: `relative_error.svg` (held-out error per step), `capacity.svg`
 /// (error against corrector size, 100 steps and long), `speed_accuracy.svg`,
 /// and `vorticity_{name}.svg` of the long rollouts' last states at the first

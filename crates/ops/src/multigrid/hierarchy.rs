@@ -261,13 +261,18 @@ impl Level {
         let mut fx = vec![0.0; cnx * cny];
         let mut fy = vec![0.0; cnx * cny];
         let mut wall = [vec![0.0; cnx * cny], vec![0.0; cnx * cny]];
-        // A coarse cell is active if all its children are: the coarse grids
-        // cover the fluid away from obstacles, and a coarse correction is
-        // zero in (so a face to) a cell that an obstacle cuts.
-        let mut active = vec![true; cnx * cny];
+        // A coarse cell is active if any of its children is: the coarse grids
+        // cover all the fluid, up to the obstacle, and their couplings are
+        // the sums of the open fine faces between their children (a cut cell
+        // has fewer). Only a cell wholly inside an obstacle gets no
+        // correction. (Active only where all children were left a band of
+        // 2^l fine cells around each obstacle to the smoother on level l,
+        // and the iterations grew with the grid: 15-25 at 64^2-128^2 with
+        // a cylinder or a box, against 8-10 now.)
+        let mut active = vec![false; cnx * cny];
         for k in 0..nx * ny {
-            if !self.is_active(k) {
-                active[(k / ny / 2) * cny + (k % ny) / 2] = false;
+            if self.is_active(k) {
+                active[(k / ny / 2) * cny + (k % ny) / 2] = true;
             }
         }
         for i in 0..nx {
@@ -434,7 +439,7 @@ mod tests {
     }
 
     #[test]
-    fn coarse_levels_are_semidefinite_and_cover_whole_fluid_cells() {
+    fn coarse_levels_are_semidefinite_and_cover_every_fluid_cell() {
         for (name, mac) in macs(40, 27) {
             let mg = Multigrid::for_mac(&mac, 2).unwrap();
             assert!(mg.levels() >= 3, "{name}");
@@ -447,17 +452,22 @@ mod tests {
                     assert!(level.diag[k] >= off - 1e-12 * off.abs(), "{name}");
                 }
             }
-            // A coarse cell is active exactly when all its children are.
+            // A coarse cell is active exactly when any of its children is;
+            // some are cut by the obstacle (active, with an inactive child).
             if let Some(fine) = &mg.levels[0].active {
                 let coarse = mg.levels[1].active.as_ref().unwrap();
                 let cny = mg.levels[1].ny;
+                let mut cut = 0;
                 for (c, &a) in coarse.iter().enumerate() {
                     let (ci, cj) = (c / cny, c % cny);
-                    let all = (2 * ci..(2 * ci + 2).min(40))
+                    let children: Vec<bool> = (2 * ci..(2 * ci + 2).min(40))
                         .flat_map(|i| (2 * cj..(2 * cj + 2).min(27)).map(move |j| (i, j)))
-                        .all(|(i, j)| fine[i * 27 + j]);
-                    assert_eq!(a, all, "{name}: coarse cell {c}");
+                        .map(|(i, j)| fine[i * 27 + j])
+                        .collect();
+                    assert_eq!(a, children.iter().any(|&f| f), "{name}: coarse cell {c}");
+                    cut += usize::from(a && children.iter().any(|&f| !f));
                 }
+                assert!(cut > 0, "{name}: no coarse cell is cut by the obstacle");
             }
         }
     }

@@ -9,7 +9,10 @@
 //! - Training strategies are values ([`Strategy::NonInteracting`],
 //!   [`Strategy::Noise`], [`Strategy::SolverInTheLoop`] with a checkpoint
 //!   [`Schedule`]); the [`Trainer`] gives each the same [`Budget`] of network
-//!   evaluations and keeps the parameters of the best validation score.
+//!   evaluations and keeps the parameters of the best validation score, the
+//!   untrained model's (iteration 0) included: a training that only made the
+//!   model worse returns the model it started from. A validation rollout that
+//!   fails or comes out NaN scores `+∞` and is listed, not fatal.
 //! - Data are typed: a [`DataSeed`] derives the [`Split::Train`],
 //!   [`Split::Validation`] and [`Split::HeldOut`] draws from separate streams;
 //!   the held-out split ([`HeldOut`]) is read only through

@@ -301,12 +301,27 @@ fn ops_mac(grid: &FlowGrid, solid: &Array2<bool>) -> Result<MacGrid> {
     let s = &grid.sides;
     let g = Grid2::new(grid.nx, grid.ny, grid.dx, grid.dy, OpsBoundary::Closed)?
         .with_boundaries(axis(s.left, s.right), axis(s.bottom, s.top));
-    if solid.iter().any(|&v| v) {
+    let mut mac = if solid.iter().any(|&v| v) {
         let active = solid.mapv(|v| !v).into_dyn();
-        Ok(MacGrid::with_mask(g, CellMask::from_array(active.view()))?)
+        MacGrid::with_mask(g, CellMask::from_array(active.view()))?
     } else {
-        Ok(MacGrid::new(g))
+        MacGrid::new(g)
+    };
+    // An axis with an outflow at one end only: the other end (an inflow, a
+    // wall) is zero Neumann for the pressure, as in the operator itself; the
+    // cycle would otherwise precondition a Dirichlet end there.
+    for (a, lo, hi) in [(0, s.left, s.right), (1, s.bottom, s.top)] {
+        if lo.is_periodic() {
+            continue;
+        }
+        if lo != Boundary::Outflow && hi == Boundary::Outflow {
+            mac = mac.with_closed_side(a, false);
+        }
+        if hi != Boundary::Outflow && lo == Boundary::Outflow {
+            mac = mac.with_closed_side(a, true);
+        }
     }
+    Ok(mac)
 }
 
 fn push_face(t: &mut Vec<(usize, usize, f64)>, lo: Option<usize>, hi: Option<usize>, c: f64) {

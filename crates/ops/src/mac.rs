@@ -150,6 +150,39 @@ impl MacGrid {
         }
     }
 
+    /// The same grid with the boundary faces of one side closed: `axis` 0 (x)
+    /// or 1 (y), `high` the side at the axis' end. On a
+    /// [`Boundary::ZeroDirichlet`](crate::Boundary::ZeroDirichlet) axis this
+    /// makes that side a wall for the pressure (zero Neumann, its face
+    /// velocities fixed) while the other stays open: a channel with a
+    /// prescribed inflow at one end and an open outflow at the other. Faces
+    /// of the other sides, and an axis whose boundary faces are already
+    /// closed, are unchanged.
+    pub fn with_closed_side(mut self, axis: usize, high: bool) -> Self {
+        let (nx, ny) = (self.grid.nx, self.grid.ny);
+        let edge = |ax: &AxisFaces, f: usize| {
+            let (lo, hi) = ax.sides(f);
+            if high {
+                hi.is_none()
+            } else {
+                lo.is_none()
+            }
+        };
+        if axis == 0 {
+            for f in (0..self.ax.count()).filter(|&f| edge(&self.ax, f)) {
+                self.open_x[f * ny..(f + 1) * ny].fill(false);
+            }
+        } else {
+            let nfy = self.ay.count();
+            for f in (0..nfy).filter(|&f| edge(&self.ay, f)) {
+                for i in 0..nx {
+                    self.open_y[i * nfy + f] = false;
+                }
+            }
+        }
+        self
+    }
+
     /// The cell grid.
     pub fn grid(&self) -> &Grid2 {
         &self.grid

@@ -590,3 +590,49 @@ fn mgpcg_with_obstacles_converges_in_a_dozen_iterations() {
     let worst = report.iter().map(|r| r.3).max().unwrap();
     assert!(worst <= 12, "MG-PCG iterations to 1e-8: {report:?}");
 }
+
+/// A channel: closed side walls, its left end closed (a prescribed inflow:
+/// zero Neumann for the pressure) and its right end open (zero Dirichlet),
+/// a cylinder in it. The pressure operator has no wall term at the closed
+/// end and one at the open end, and the cycle built from the same faces
+/// preconditions it better than one that takes the closed end for open (what
+/// the flow crate built before): measured 12, 16, 20 MG-PCG iterations to
+/// 1e-8 at 32, 64, 128 cells across against 22, 30, 42. The count still grows
+/// with the grid here: the coarse levels put the zero of an open face half a
+/// coarse cell beyond the boundary, farther out on each level, and with one
+/// open end the smoothest mode feels it.
+#[test]
+fn a_channel_closed_at_its_inflow_end() {
+    let cylinder = |c: [f64; 2]| (c[0] - 0.5).powi(2) + (c[1] - 0.5).powi(2) > 0.1f64.powi(2);
+    let mut report = Vec::new();
+    for n in [32, 64, 128] {
+        let h = 1.0 / n as f64;
+        let grid = Grid2::new(2 * n, n, h, h, Closed)
+            .unwrap()
+            .with_boundaries(ZeroDirichlet, Closed);
+        let both_open = MacGrid::with_mask(grid, CellMask::from_fn2(&grid, cylinder)).unwrap();
+        let mac = both_open.clone().with_closed_side(0, false);
+        let ones = ArrayD::<f64>::ones(IxDyn(&[2 * n, n]));
+        let a1 = LinearOperator::<f64>::apply(&mac.pressure_operator(), ones.view()).unwrap();
+        assert!(a1[[0, 3]].abs() < 1e-9, "closed end: {}", a1[[0, 3]]);
+        assert!((a1[[2 * n - 1, 3]] - 1.0 / (h * h)).abs() < 1e-6 / (h * h));
+        let ux = random_field::<f64>(&mac.shape_x(), 21);
+        let uy = random_field::<f64>(&mac.shape_y(), 22);
+        let iterations = |cycle_of: &MacGrid| {
+            let mg = Multigrid::for_mac(cycle_of, 2).unwrap();
+            let params = CgParams::default()
+                .with_rel_tol(1e-8)
+                .with_preconditioner(Arc::new(mg));
+            let out = PressureProjection::new(mac.clone(), params)
+                .project(ux.view(), uy.view(), None)
+                .unwrap();
+            out.info.iterations
+        };
+        report.push((n, iterations(&mac), iterations(&both_open)));
+    }
+    println!("{report:?}");
+    for &(n, matched, mismatched) in &report {
+        assert!(matched < mismatched, "{n}: {report:?}");
+    }
+    assert!(report[0].1 <= 12, "{report:?}");
+}

@@ -12,6 +12,10 @@ gradients of the two are compared (relative max difference), and each
 solution's true relative residual is reported.
 
     python benches/python_poisson_grad.py [--sizes 256,1024] [--repeats 7]
+        [--preconditioner multigrid|none]
+
+``--preconditioner none`` runs diffphys' plain CG, the same algorithm as JAX's
+(issue 23's like-for-like comparison); the default is MG-PCG.
 
 Prints one JSON line. Needs diffphys (crates/python) and jax installed.
 """
@@ -78,14 +82,17 @@ def stats(times):
     }
 
 
-def measure(n, repeats, rtol):
+def measure(n, repeats, rtol, preconditioner):
     h = 1.0 / n
     rng = np.random.default_rng(n)
     b = jnp.asarray(rng.standard_normal((n, n)))
     w = jnp.asarray(rng.standard_normal((n, n)))
+    ours = "diffphys_mgpcg" if preconditioner == "multigrid" else "diffphys_cg"
+    opts = {"spacing": (h, h), "rel_tol": rtol, "preconditioner": preconditioner,
+            "max_iters": 100_000}
     entrants = {
-        "diffphys_mgpcg": jax.jit(
-            jax.grad(lambda b: jnp.sum(w * djax.poisson_solve(b, spacing=(h, h), rel_tol=rtol) ** 2))
+        ours: jax.jit(
+            jax.grad(lambda b: jnp.sum(w * djax.poisson_solve(b, **opts) ** 2))
         ),
         "jax_cg": jax.jit(jax.grad(lambda b: jnp.sum(w * jax_solve(b, h, rtol) ** 2))),
     }
@@ -94,16 +101,17 @@ def measure(n, repeats, rtol):
     for _ in range(repeats):
         for k, f in entrants.items():
             times[k].append(timed(f, b)[0])
-    g_dp, g_jax = np.asarray(grads["diffphys_mgpcg"]), np.asarray(grads["jax_cg"])
+    g_dp, g_jax = np.asarray(grads[ours]), np.asarray(grads["jax_cg"])
 
     def residual(p):
         return float(jnp.linalg.norm(neg_laplacian(p, h) - b) / jnp.linalg.norm(b))
 
-    _, info = dp.poisson(b.shape, spacing=(h, h), rel_tol=rtol).solve(np.asarray(b), return_info=True)
+    _, info = dp.poisson(b.shape, **opts).solve(np.asarray(b), return_info=True)
     result = {k: stats(v) for k, v in times.items()}
-    result["ratio_diffphys_over_jax"] = result["diffphys_mgpcg"]["best_s"] / result["jax_cg"]["best_s"]
+    result["ratio_diffphys_over_jax"] = result[ours]["best_s"] / result["jax_cg"]["best_s"]
+    result["ratio_per_round"] = [a / j for a, j in zip(times[ours], times["jax_cg"])]
     result["gradient_rel_diff"] = float(np.abs(g_dp - g_jax).max() / np.abs(g_jax).max())
-    result["residual_diffphys"] = residual(djax.poisson_solve(b, spacing=(h, h), rel_tol=rtol))
+    result["residual_diffphys"] = residual(djax.poisson_solve(b, **opts))
     result["residual_jax"] = residual(jax_solve(b, h, rtol))
     result["diffphys_forward_iterations"] = info["iterations"]
     return result
@@ -114,12 +122,14 @@ def main():
     ap.add_argument("--sizes", default="256,1024")
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--rtol", type=float, default=1e-8)
+    ap.add_argument("--preconditioner", default="multigrid", choices=["multigrid", "none"])
     args = ap.parse_args()
     sizes = [int(s) for s in args.sizes.split(",")]
     out = {
         "bench": "python_poisson_grad",
         "precision": "f64",
         "rtol": args.rtol,
+        "preconditioner": args.preconditioner,
         "repeats": args.repeats,
         "jax": jax.__version__,
         "loadavg_before": os.getloadavg(),
@@ -127,7 +137,7 @@ def main():
         "sizes": {},
     }
     for n in sizes:
-        out["sizes"][str(n)] = measure(n, args.repeats, args.rtol)
+        out["sizes"][str(n)] = measure(n, args.repeats, args.rtol, args.preconditioner)
     out["loadavg_after"] = os.getloadavg()
     print(json.dumps(out))
 

@@ -168,7 +168,9 @@ impl Trainer {
     /// [`LearnError::Budget`] (see [`Budget::windows`]); [`LearnError::EmptySplit`]
     /// for an empty training or validation split; [`LearnError::CorrectorShape`]
     /// if the corrector's output does not have the state's shape; a non-finite
-    /// loss ([`diffphys_nn::NnError::NonFiniteLoss`]).
+    /// loss ([`diffphys_nn::NnError::NonFiniteLoss`]); [`LearnError::Selection`]
+    /// if the untrained model's validation rollout already fails (there is
+    /// nothing to stop early against).
     #[allow(clippy::too_many_arguments)]
     pub fn train<S: Simulator + 'static, C: Corrector + 'static>(
         &self,

@@ -315,10 +315,10 @@ fn ops_mac(grid: &FlowGrid, solid: &Array2<bool>) -> Result<MacGrid> {
             continue;
         }
         if lo != Boundary::Outflow && hi == Boundary::Outflow {
-            mac = mac.with_closed_side(a, false);
+            mac = mac.with_closed_side(a, false)?;
         }
         if hi != Boundary::Outflow && lo == Boundary::Outflow {
-            mac = mac.with_closed_side(a, true);
+            mac = mac.with_closed_side(a, true)?;
         }
     }
     Ok(mac)

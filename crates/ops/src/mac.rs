@@ -158,7 +158,16 @@ impl MacGrid {
     /// prescribed inflow at one end and an open outflow at the other. Faces
     /// of the other sides, and an axis whose boundary faces are already
     /// closed, are unchanged.
-    pub fn with_closed_side(mut self, axis: usize, high: bool) -> Self {
+    ///
+    /// # Errors
+    /// [`OpsError::InvalidArgument`] for an axis other than 0 or 1.
+    pub fn with_closed_side(mut self, axis: usize, high: bool) -> Result<Self> {
+        if axis > 1 {
+            return Err(OpsError::invalid(
+                "mac_grid",
+                format!("axis {axis} of a 2-D grid (0 is x, 1 is y)"),
+            ));
+        }
         let (nx, ny) = (self.grid.nx, self.grid.ny);
         let edge = |ax: &AxisFaces, f: usize| {
             let (lo, hi) = ax.sides(f);
@@ -180,7 +189,7 @@ impl MacGrid {
                 }
             }
         }
-        self
+        Ok(self)
     }
 
     /// The cell grid.

@@ -611,7 +611,8 @@ fn a_channel_closed_at_its_inflow_end() {
             .unwrap()
             .with_boundaries(ZeroDirichlet, Closed);
         let both_open = MacGrid::with_mask(grid, CellMask::from_fn2(&grid, cylinder)).unwrap();
-        let mac = both_open.clone().with_closed_side(0, false);
+        let mac = both_open.clone().with_closed_side(0, false).unwrap();
+        assert!(both_open.clone().with_closed_side(2, false).is_err());
         let ones = ArrayD::<f64>::ones(IxDyn(&[2 * n, n]));
         let a1 = LinearOperator::<f64>::apply(&mac.pressure_operator(), ones.view()).unwrap();
         assert!(a1[[0, 3]].abs() < 1e-9, "closed end: {}", a1[[0, 3]]);

@@ -291,27 +291,18 @@ impl Level {
                 let y_ratio = (wy[j] + wy[north]) / (cwy[cj] + cwy[north / 2]) / 4.0;
                 let cross_x = self.fx[k] != 0.0 && east / 2 != ci;
                 let cross_y = self.fy[k] != 0.0 && north / 2 != cj;
-                if active[parent] {
-                    wall[0][parent] += self.wall[0][k] * wx[i] / cwx[ci] / 4.0;
-                    wall[1][parent] += self.wall[1][k] * wy[j] / cwy[cj] / 4.0;
-                }
+                // `k` is active, so its parent is; a coupling joins two
+                // active cells (an open face), so the neighbour's parent is
+                // active too.
+                wall[0][parent] += self.wall[0][k] * wx[i] / cwx[ci] / 4.0;
+                wall[1][parent] += self.wall[1][k] * wy[j] / cwy[cj] / 4.0;
                 if cross_x {
-                    let a = self.fx[k] * x_ratio;
-                    match (active[parent], active[east_parent]) {
-                        (true, true) => fx[parent] += a,
-                        (true, false) => wall[0][parent] += a,
-                        (false, true) => wall[0][east_parent] += a,
-                        (false, false) => {}
-                    }
+                    debug_assert!(active[east_parent], "a coupling to an inactive cell");
+                    fx[parent] += self.fx[k] * x_ratio;
                 }
                 if cross_y {
-                    let a = self.fy[k] * y_ratio;
-                    match (active[parent], active[north_parent]) {
-                        (true, true) => fy[parent] += a,
-                        (true, false) => wall[1][parent] += a,
-                        (false, true) => wall[1][north_parent] += a,
-                        (false, false) => {}
-                    }
+                    debug_assert!(active[north_parent], "a coupling to an inactive cell");
+                    fy[parent] += self.fy[k] * y_ratio;
                 }
             }
         }

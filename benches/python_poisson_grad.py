@@ -12,10 +12,13 @@ gradients of the two are compared (relative max difference), and each
 solution's true relative residual is reported.
 
     python benches/python_poisson_grad.py [--sizes 256,1024] [--repeats 7]
-        [--preconditioner multigrid|none]
+        [--preconditioner multigrid|none] [--iterations K]
 
 ``--preconditioner none`` runs diffphys' plain CG, the same algorithm as JAX's
 (issue 23's like-for-like comparison); the default is MG-PCG.
+``--iterations K`` runs exactly K iterations in each solve on both sides (no
+tolerance: JAX's ``cg`` with ``tol=0, atol=0, maxiter=K``, diffphys'
+``iterations=K``) instead of solving to ``--rtol``.
 
 Prints one JSON line. Needs diffphys (crates/python) and jax installed.
 """
@@ -54,12 +57,17 @@ def neg_laplacian(p, h):
     return out
 
 
-def jax_solve(b, h, rtol):
-    """p = A⁻¹ b by jax.scipy CG, differentiated implicitly by custom_linear_solve."""
+def jax_solve(b, h, rtol, iterations=None):
+    """p = A⁻¹ b by jax.scipy CG, differentiated implicitly by custom_linear_solve;
+    to ``rtol``, or exactly ``iterations`` iterations when given."""
     matvec = lambda x: neg_laplacian(x, h)
+    if iterations is None:
+        opts = {"tol": rtol, "maxiter": 100_000}
+    else:
+        opts = {"tol": 0.0, "atol": 0.0, "maxiter": iterations}
 
     def solve(mv, rhs):
-        x, _ = jax.scipy.sparse.linalg.cg(mv, rhs, tol=rtol, maxiter=100_000)
+        x, _ = jax.scipy.sparse.linalg.cg(mv, rhs, **opts)
         return x
 
     return jax.lax.custom_linear_solve(matvec, b, solve, symmetric=True)
@@ -82,19 +90,22 @@ def stats(times):
     }
 
 
-def measure(n, repeats, rtol, preconditioner):
+def measure(n, repeats, rtol, preconditioner, iterations):
     h = 1.0 / n
     rng = np.random.default_rng(n)
     b = jnp.asarray(rng.standard_normal((n, n)))
     w = jnp.asarray(rng.standard_normal((n, n)))
     ours = "diffphys_mgpcg" if preconditioner == "multigrid" else "diffphys_cg"
-    opts = {"spacing": (h, h), "rel_tol": rtol, "preconditioner": preconditioner,
-            "max_iters": 100_000}
+    if iterations is None:
+        opts = {"spacing": (h, h), "rel_tol": rtol, "preconditioner": preconditioner,
+                "max_iters": 100_000}
+    else:
+        opts = {"spacing": (h, h), "preconditioner": preconditioner, "iterations": iterations}
     entrants = {
         ours: jax.jit(
             jax.grad(lambda b: jnp.sum(w * djax.poisson_solve(b, **opts) ** 2))
         ),
-        "jax_cg": jax.jit(jax.grad(lambda b: jnp.sum(w * jax_solve(b, h, rtol) ** 2))),
+        "jax_cg": jax.jit(jax.grad(lambda b: jnp.sum(w * jax_solve(b, h, rtol, iterations) ** 2))),
     }
     grads = {k: timed(f, b)[1] for k, f in entrants.items()}  # compile and warm up
     times = {k: [] for k in entrants}
@@ -112,7 +123,7 @@ def measure(n, repeats, rtol, preconditioner):
     result["ratio_per_round"] = [a / j for a, j in zip(times[ours], times["jax_cg"])]
     result["gradient_rel_diff"] = float(np.abs(g_dp - g_jax).max() / np.abs(g_jax).max())
     result["residual_diffphys"] = residual(djax.poisson_solve(b, **opts))
-    result["residual_jax"] = residual(jax_solve(b, h, rtol))
+    result["residual_jax"] = residual(jax_solve(b, h, rtol, iterations))
     result["diffphys_forward_iterations"] = info["iterations"]
     return result
 
@@ -123,12 +134,17 @@ def main():
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--rtol", type=float, default=1e-8)
     ap.add_argument("--preconditioner", default="multigrid", choices=["multigrid", "none"])
+    ap.add_argument("--iterations", type=int, default=None,
+                    help="exactly this many CG iterations per solve (no tolerance)")
     args = ap.parse_args()
+    if args.iterations is not None and args.iterations < 1:
+        ap.error("--iterations must be at least 1")
     sizes = [int(s) for s in args.sizes.split(",")]
     out = {
         "bench": "python_poisson_grad",
         "precision": "f64",
-        "rtol": args.rtol,
+        "rtol": None if args.iterations else args.rtol,
+        "iterations": args.iterations,
         "preconditioner": args.preconditioner,
         "repeats": args.repeats,
         "jax": jax.__version__,
@@ -137,7 +153,8 @@ def main():
         "sizes": {},
     }
     for n in sizes:
-        out["sizes"][str(n)] = measure(n, args.repeats, args.rtol, args.preconditioner)
+        out["sizes"][str(n)] = measure(n, args.repeats, args.rtol, args.preconditioner,
+                                    args.iterations)
     out["loadavg_after"] = os.getloadavg()
     print(json.dumps(out))
 

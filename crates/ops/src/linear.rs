@@ -21,7 +21,11 @@ pub(crate) fn wide<T: Real>(x: T) -> f64 {
 /// checked; the provided [`LinearOperator::apply`] and
 /// [`LinearOperator::apply_transpose`] check shapes and allocate. Every implementor
 /// passes the dot-product test `<A x, y> = <x, Aᵀ y>`.
-pub trait LinearOperator<T: Real> {
+///
+/// Operators are `Send + Sync`: a large solve runs whole on one of the thread
+/// pool's workers ([`diffphys_tape::parallel::on_pool`]), so that its kernels
+/// split across cores without handing work to the pool at every call.
+pub trait LinearOperator<T: Real>: Send + Sync {
     /// A short name for errors and reports.
     fn name(&self) -> &str;
 

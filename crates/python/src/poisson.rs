@@ -35,13 +35,13 @@ pub struct Poisson {
 impl Poisson {
     /// `Poisson(shape, *, spacing=(1.0, 1.0), boundary="dirichlet",
     /// preconditioner="multigrid", rel_tol=None, abs_tol=0.0, max_iters=None,
-    /// sweeps=2, adjoint_rel_tol=None)`; `rel_tol` None is 1e-10 for float64
+    /// sweeps=2, adjoint_rel_tol=None, iterations=None)`; `rel_tol` None is 1e-10 for float64
     /// arrays and 1e-5 for float32 ones.
     #[new]
     #[pyo3(signature = (
         shape, *, spacing = (1.0, 1.0), boundary = BoundaryArg::both("dirichlet"),
         preconditioner = "multigrid", rel_tol = None, abs_tol = 0.0, max_iters = None,
-        sweeps = 2, adjoint_rel_tol = None
+        sweeps = 2, adjoint_rel_tol = None, iterations = None
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -54,6 +54,7 @@ impl Poisson {
         max_iters: Option<usize>,
         sweeps: usize,
         adjoint_rel_tol: Option<f64>,
+        iterations: Option<usize>,
     ) -> PyResult<Self> {
         let shape = [shape.0, shape.1];
         let grid = grid2(shape, spacing, &boundary)?;
@@ -64,6 +65,7 @@ impl Poisson {
             max_iters,
             sweeps,
             adjoint_rel_tol,
+            iterations,
         };
         let mut params = options.params(|s| Multigrid::new(&grid, s))?;
         let dirichlet = Boundary::ZeroDirichlet;

@@ -40,14 +40,14 @@ pub struct Projection {
 impl Projection {
     /// `Projection(shape, *, spacing=(1.0, 1.0), boundary="closed",
     /// obstacle=None, preconditioner="multigrid", rel_tol=None, abs_tol=0.0,
-    /// max_iters=None, sweeps=2, adjoint_rel_tol=None)`; `obstacle` is a
+    /// max_iters=None, sweeps=2, adjoint_rel_tol=None, iterations=None)`; `obstacle` is a
     /// boolean array of the cell shape, true inside the obstacle; `rel_tol`
     /// None is 1e-10 for float64 arrays and 1e-5 for float32 ones.
     #[new]
     #[pyo3(signature = (
         shape, *, spacing = (1.0, 1.0), boundary = BoundaryArg::both("closed"), obstacle = None,
         preconditioner = "multigrid", rel_tol = None, abs_tol = 0.0, max_iters = None,
-        sweeps = 2, adjoint_rel_tol = None
+        sweeps = 2, adjoint_rel_tol = None, iterations = None
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -61,6 +61,7 @@ impl Projection {
         max_iters: Option<usize>,
         sweeps: usize,
         adjoint_rel_tol: Option<f64>,
+        iterations: Option<usize>,
     ) -> PyResult<Self> {
         let grid = grid2([shape.0, shape.1], spacing, &boundary)?;
         let mac = match obstacle {
@@ -83,6 +84,7 @@ impl Projection {
             max_iters,
             sweeps,
             adjoint_rel_tol,
+            iterations,
         };
         let params = options.params(|s| Multigrid::for_mac(&mac, s))?;
         let of = |(forward, adjoint): &(CgParams, CgParams)| {

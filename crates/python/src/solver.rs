@@ -78,6 +78,10 @@ pub(crate) struct Options {
     pub(crate) max_iters: Option<usize>,
     pub(crate) sweeps: usize,
     pub(crate) adjoint_rel_tol: Option<f64>,
+    /// Exactly this many iterations in each solve, no tolerance and no error at
+    /// the cap ([`CgParams::fixed_iterations`]); excludes the tolerances and
+    /// `max_iters`.
+    pub(crate) iterations: Option<usize>,
 }
 
 impl Options {
@@ -100,7 +104,29 @@ impl Options {
                 )));
             }
         }
-        let mut base = CgParams::default().with_abs_tol(self.abs_tol);
+        if let Some(k) = self.iterations {
+            let given = [
+                ("rel_tol", self.rel_tol.is_some()),
+                ("abs_tol", self.abs_tol != 0.0),
+                ("max_iters", self.max_iters.is_some()),
+                ("adjoint_rel_tol", self.adjoint_rel_tol.is_some()),
+            ];
+            if let Some((name, _)) = given.iter().find(|g| g.1) {
+                return Err(InvalidArgumentError::new_err(format!(
+                    "iterations={k} runs a fixed number of iterations without a tolerance; \
+                     {name} cannot be given with it"
+                )));
+            }
+            if k == 0 {
+                return Err(InvalidArgumentError::new_err(
+                    "iterations must be at least 1",
+                ));
+            }
+        }
+        let mut base = match self.iterations {
+            Some(k) => CgParams::default().fixed_iterations(k),
+            None => CgParams::default().with_abs_tol(self.abs_tol),
+        };
         if let Some(cap) = self.max_iters {
             base = base.with_max_iters(cap);
         }
@@ -113,6 +139,9 @@ impl Options {
             }
         };
         let pair = |default: f64| {
+            if self.iterations.is_some() {
+                return (base.clone(), base.clone());
+            }
             let forward = base.clone().with_rel_tol(self.rel_tol.unwrap_or(default));
             let adjoint = forward
                 .clone()
@@ -147,6 +176,7 @@ mod tests {
             max_iters: Some(7),
             sweeps: 2,
             adjoint_rel_tol: Some(1e-6),
+            iterations: None,
         }
     }
 
@@ -169,5 +199,34 @@ mod tests {
         let no_mg = |_| unreachable!("rejected before");
         assert!(options(Some(-1.0)).params(no_mg).is_err());
         assert!(options(Some(f64::NAN)).params(no_mg).is_err());
+    }
+
+    #[test]
+    fn fixed_iterations_exclude_tolerances() {
+        let no_mg = |_| unreachable!("Jacobi builds no cycle");
+        let fixed = |o: Options| Options {
+            iterations: Some(5),
+            ..o
+        };
+        // max_iters and adjoint_rel_tol are set by `options`: refused (the
+        // message is checked by the Python tests, which have an interpreter).
+        assert!(fixed(options(None)).params(no_mg).is_err());
+        let plain = Options {
+            max_iters: None,
+            adjoint_rel_tol: None,
+            ..fixed(options(None))
+        };
+        let p = plain.params(no_mg).unwrap();
+        for (forward, adjoint) in [p.of::<f32>(), p.of::<f64>()] {
+            for q in [forward, adjoint] {
+                assert_eq!((q.max_iters, q.rel_tol), (Some(5), 0.0));
+                assert!(!q.require_convergence);
+            }
+        }
+        let zero = Options {
+            iterations: Some(0),
+            ..plain
+        };
+        assert!(zero.params(no_mg).is_err());
     }
 }

@@ -84,6 +84,25 @@ def test_jax_grad_matches_jax_cg_reference():
     np.testing.assert_allclose(g_jit, g, rtol=0, atol=1e-14 * np.abs(g).max())
 
 
+def test_fixed_iterations_match_jax_cg_with_the_same_count():
+    n, k, spacing = 16, 12, (1.0 / 16, 1.0 / 16)
+    b = np.random.default_rng(6).standard_normal((n, n))
+    solver = dp.poisson((n, n), spacing=spacing, preconditioner="none", iterations=k)
+    p, info = solver.solve(b, return_info=True)
+    assert info["iterations"] == k and not info["converged"]
+    matvec = lambda x: neg_laplacian(x, spacing)
+    ref, _ = jax.scipy.sparse.linalg.cg(matvec, jnp.asarray(b), tol=0.0, atol=0.0, maxiter=k)
+    # k iterations of the same recurrence: equal up to rounding, and far from
+    # the converged solution (so the count is what is compared).
+    np.testing.assert_allclose(p, ref, rtol=0, atol=1e-10 * np.abs(ref).max())
+    converged = dp.poisson_solve(b, spacing=spacing, rel_tol=1e-12)
+    assert np.abs(p - converged).max() > 1e-3 * np.abs(converged).max()
+    with pytest.raises(dp.InvalidArgumentError, match="rel_tol"):
+        dp.poisson((n, n), iterations=k, rel_tol=1e-8)
+    with pytest.raises(dp.InvalidArgumentError, match="at least 1"):
+        dp.poisson((n, n), iterations=0)
+
+
 def test_jax_vmap_runs_per_element():
     bs = jnp.asarray(np.random.default_rng(5).standard_normal((3, 8, 8)))
     ps = jax.vmap(djax.poisson_solve)(bs)

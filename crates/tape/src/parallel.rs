@@ -35,12 +35,14 @@ use crate::Real;
 pub const CHUNK: usize = 4096;
 
 /// The default of [`min_parallel_len`]: arrays shorter than this run on the
-/// calling thread. Measured with the harness on two cores: at 256² (65,536
-/// cells) a CG iteration took 104 µs on one thread and 236 µs on two while
-/// another process kept one core busy (the second thread waits for a core at
-/// every one of the iteration's three synchronisations), while at 1024² two
-/// threads halved it (1.66 ms against 3.4 ms). Chunking does not depend on it,
-/// so results do not either.
+/// calling thread when it is not one of the pool's. Such a call hands its chunks
+/// to the pool and sleeps until they are done, and waking the pool costs about
+/// 30 µs on the two-core machine of the benchmarks: at 256² (65,536 cells) a CG
+/// iteration took 61 µs on one thread and 126 µs on two when its three kernels
+/// were each called from outside the pool, while at 1024² two threads halved it
+/// (1.66 ms against 3.4 ms). Chunking does not depend on it, so results do not
+/// either. On a pool thread the threshold is [`POOL_DISCOUNT`] times lower (see
+/// [`is_parallel`]).
 pub const PARALLEL_MIN_LEN: usize = 1 << 18;
 
 /// The environment variable that sets [`min_parallel_len`] for a process (a
@@ -114,15 +116,59 @@ pub fn threads() -> usize {
     rayon::current_num_threads()
 }
 
-/// Whether an array of `len` elements is worth splitting across threads.
-pub fn is_parallel(len: usize) -> bool {
-    len >= min_parallel_len() && rayon::current_num_threads() > 1
+/// Runs `f` on a thread of the pool when it is called from outside the pool
+/// and its work, on arrays of `len` elements, would be split there (see
+/// [`is_parallel`]).
+///
+/// A parallel kernel called from a thread that is not one of the pool's hands
+/// its chunks to the pool and sleeps until they are done: a few tens of
+/// microseconds per call, paid at every synchronisation. A solver that calls
+/// kernels thousands of times (CG: three per iteration) runs whole on a worker
+/// instead, so that each kernel's split costs a few microseconds. On a pool's
+/// thread already (inside [`with_threads`], or nested), or for arrays that
+/// stay on one thread, `f` runs here. The result does not depend on where `f`
+/// runs: the chunks are the same.
+pub fn on_pool<R: Send>(len: usize, f: impl FnOnce() -> R + Send) -> R {
+    if rayon::current_thread_index().is_some()
+        || rayon::current_num_threads() <= 1
+        || len < (min_parallel_len() / POOL_DISCOUNT).max(1)
+    {
+        return f();
+    }
+    rayon::scope(|_| f())
 }
 
-/// Chunks of `chunk_len` per rayon task: enough that an array below
-/// [`min_parallel_len`] is never split.
+/// How much shorter an array may be on one of the pool's threads than on
+/// another thread and still be split: from a pool thread, a split only wakes the
+/// other workers (a few µs), with no hand-over to the pool. Measured with CG on
+/// `−∇²` on two cores, all kernels called on a pool thread
+/// ([`on_pool`]): per iteration 15.3 µs on one thread and 11.5 µs on two at
+/// 128², 29.6 and 18.9 µs at 181², 61 and 34 µs at 256²; so from 2¹⁵ cells (the
+/// default `2¹⁸ / 8`).
+pub const POOL_DISCOUNT: usize = 8;
+
+/// Whether an array of `len` elements is worth splitting across threads: at
+/// least [`min_parallel_len`] elements, or `min_parallel_len() / POOL_DISCOUNT`
+/// when called on one of the pool's threads, and more than one thread.
+pub fn is_parallel(len: usize) -> bool {
+    rayon::current_num_threads() > 1 && len >= split_len()
+}
+
+/// The length from which an array is split on this thread: [`min_parallel_len`],
+/// divided by [`POOL_DISCOUNT`] on one of the pool's threads.
+fn split_len() -> usize {
+    let min = min_parallel_len();
+    if rayon::current_thread_index().is_some() {
+        (min / POOL_DISCOUNT).max(1)
+    } else {
+        min
+    }
+}
+
+/// Chunks of `chunk_len` per rayon task: enough that an array shorter than the
+/// split length of this thread (see [`is_parallel`]) is never split.
 fn min_tasks_len(chunk_len: usize) -> usize {
-    min_parallel_len().div_ceil(chunk_len.max(1)).max(1)
+    split_len().div_ceil(chunk_len.max(1)).max(1)
 }
 
 /// `f` applied to the ranges `[0, CHUNK)`, `[CHUNK, 2 CHUNK)`, … covering
@@ -512,7 +558,28 @@ mod tests {
         assert_eq!(with_threads(3, threads), 3);
         assert!(!with_threads(1, || is_parallel(1 << 20)));
         set_min_parallel_len(TEST_MIN_LEN);
-        assert!(with_threads(2, || is_parallel(TEST_MIN_LEN)));
-        assert!(!with_threads(2, || is_parallel(TEST_MIN_LEN - 1)));
+        // On a pool thread (inside with_threads) the threshold is discounted …
+        let on_pool_len = TEST_MIN_LEN / POOL_DISCOUNT;
+        assert!(with_threads(2, || is_parallel(on_pool_len)));
+        assert!(!with_threads(2, || is_parallel(on_pool_len - 1)));
+        // … off it (this test's thread) the whole length is needed.
+        assert!(!is_parallel(TEST_MIN_LEN - 1));
+    }
+
+    #[test]
+    fn on_pool_moves_large_work_onto_a_pool_thread() {
+        set_min_parallel_len(TEST_MIN_LEN);
+        let worker = || rayon::current_thread_index().is_some();
+        // Large work from this (non-pool) thread runs on the global pool when it
+        // has more than one thread; small work stays here.
+        assert_eq!(on_pool(TEST_MIN_LEN, worker), threads() > 1);
+        assert!(!on_pool(TEST_MIN_LEN / POOL_DISCOUNT - 1, worker));
+        // On a one-thread pool nothing is split, so nothing moves.
+        assert_eq!(with_threads(1, || on_pool(TEST_MIN_LEN, threads)), 1);
+        // The result is the same wherever it ran.
+        let a: Vec<f64> = (0..3 * CHUNK).map(|i| (i as f64).cos()).collect();
+        let here = dot(&a, &a).unwrap();
+        let moved = on_pool(TEST_MIN_LEN, || dot(&a, &a).unwrap());
+        assert_eq!(here.to_bits(), moved.to_bits());
     }
 }

@@ -55,7 +55,7 @@
 //! - E. F. Kaasschieter, *Preconditioned conjugate gradients for solving singular
 //!   systems*, J. Comput. Appl. Math. 24 (1988) 265–275 (the null space).
 
-use diffphys_tape::Real;
+use diffphys_tape::{parallel, Real};
 use ndarray::{ArrayD, ArrayViewD, ArrayViewMutD, IxDyn};
 
 use crate::LinearOperator;
@@ -95,15 +95,20 @@ pub fn conjugate_gradient<T: Real, A: LinearOperator<T> + ?Sized>(
     params: &CgParams,
 ) -> Result<CgInfo, CgError> {
     let shape = validate(op, b.shape(), x.shape(), params)?;
-    if let Some(xs) = x.as_slice_mut() {
-        return Solver::new(op, shape, params)?.solve(b, xs);
-    }
-    let mut buf: Vec<T> = x.iter().copied().collect();
-    let result = Solver::new(op, shape, params).and_then(|mut s| s.solve(b, &mut buf));
-    for (o, &v) in x.iter_mut().zip(&buf) {
-        *o = v;
-    }
-    result
+    let n = shape.iter().product();
+    // The whole solve on one of the pool's threads: its kernels then split
+    // cheaply (see `parallel::on_pool`).
+    parallel::on_pool(n, move || {
+        if let Some(xs) = x.as_slice_mut() {
+            return Solver::new(op, shape, params)?.solve(b, xs);
+        }
+        let mut buf: Vec<T> = x.iter().copied().collect();
+        let result = Solver::new(op, shape, params).and_then(|mut s| s.solve(b, &mut buf));
+        for (o, &v) in x.iter_mut().zip(&buf) {
+            *o = v;
+        }
+        result
+    })
 }
 
 /// [`conjugate_gradient`] from the zero initial guess, returning the solution.

@@ -78,7 +78,7 @@
 
 use std::sync::Mutex;
 
-use diffphys_tape::Real;
+use diffphys_tape::{parallel, Real};
 use ndarray::{ArrayViewD, ArrayViewMutD};
 
 use crate::cg::Preconditioner;
@@ -101,6 +101,14 @@ use transfer::Transfer1;
 
 /// Levels stop coarsening at or below this many cells.
 pub const COARSEST_CELLS: usize = 64;
+/// Cells per block of the parallel smoother and transfers: half of what a
+/// pool thread splits from (`min_parallel_len / POOL_DISCOUNT`, so that a
+/// level that splits has at least two blocks), at most four
+/// [`parallel::CHUNK`]s. The results do not depend on it.
+fn block_cells() -> usize {
+    (parallel::min_parallel_len() / parallel::POOL_DISCOUNT / 2).clamp(1, 4 * parallel::CHUNK)
+}
+
 /// The largest coarsest level solved by dense Cholesky.
 const MAX_DIRECT_CELLS: usize = 4096;
 

@@ -1,9 +1,19 @@
 //! The transfers between a level and the next coarser one, one axis at a
 //! time: bilinear prolongation `P` between cell centres (with the wall's
-//! ghost rule) and restriction `R = ¼ Pᵀ`, fused with the residual.
+//! ghost rule) and restriction `R = ¼ Pᵀ`, fused with the residual. Both
+//! run on all cores for large levels, with the serial order of every sum.
 
+use diffphys_tape::parallel;
+use rayon::prelude::*;
+
+use super::block_cells;
 use super::hierarchy::Level;
 use crate::Boundary;
+
+/// Rows of `n` cells per block of a parallel transfer (see [`block_cells`]).
+fn block_rows(n: usize) -> usize {
+    block_cells().div_ceil(n).max(1)
+}
 
 /// The sign a wall's ghost cell carries in the interpolation: `−1` Dirichlet,
 /// `+1` closed.
@@ -152,8 +162,12 @@ impl Level {
         }
     }
 
-    /// `coarse = R (b − A x) = ¼ Pᵀ (b − A x)`, row by row (`row` of length
-    /// `ny`, `tmp` of the coarse row length).
+    /// `coarse = R (b − A x) = ¼ Pᵀ (b − A x)`, row by row: each coarse row
+    /// adds its fine rows' restricted residuals in ascending fine order (`row`
+    /// of length `ny` and `tmp` of the coarse row length are scratch). On all
+    /// cores for a large coarse level, in blocks of coarse rows (a fine row
+    /// next to two blocks is computed by both), with the serial sums' order,
+    /// so the same result.
     pub(super) fn restrict_residual(
         &self,
         x: &[f64],
@@ -164,20 +178,59 @@ impl Level {
         tmp: &mut [f64],
     ) {
         let cny = ty.coarse;
-        coarse.fill(0.0);
-        for i in 0..self.nx {
+        if cny == 0 {
+            return;
+        }
+        if !parallel::is_parallel(coarse.len()) {
+            self.restrict_block(x, b, (tx, ty), 0, coarse, row, tmp);
+            return;
+        }
+        let rows = block_rows(cny);
+        coarse
+            .par_chunks_mut(rows * cny)
+            .enumerate()
+            .for_each(|(k, block)| {
+                let (mut row, mut tmp) = (vec![0.0; self.ny], vec![0.0; cny]);
+                self.restrict_block(x, b, (tx, ty), k * rows, block, &mut row, &mut tmp);
+            });
+    }
+
+    /// [`Level::restrict_residual`] into the coarse rows from `c0` on that
+    /// `block` holds.
+    #[allow(clippy::too_many_arguments)]
+    fn restrict_block(
+        &self,
+        x: &[f64],
+        b: &[f64],
+        (tx, ty): (&Transfer1, &Transfer1),
+        c0: usize,
+        block: &mut [f64],
+        row: &mut [f64],
+        tmp: &mut [f64],
+    ) {
+        let cny = ty.coarse;
+        let c1 = c0 + block.len() / cny;
+        let into = |c: usize| (c0..c1).contains(&c);
+        block.fill(0.0);
+        for (i, &(p, s, w)) in tx.rows.iter().enumerate() {
+            if !into(p) && !into(s) {
+                continue;
+            }
             self.residual_row(x, b, i, row);
             ty.restrict(&row[..self.ny], tmp);
-            let (p, s, w) = tx.rows[i];
-            let (wp, ws) = (0.25 * 0.75, 0.25 * w);
-            for (c, &t) in tmp[..cny].iter().enumerate() {
-                coarse[p * cny + c] += wp * t;
-                coarse[s * cny + c] += ws * t;
+            for (c, weight) in [(p, 0.25 * 0.75), (s, 0.25 * w)] {
+                if into(c) {
+                    let out = &mut block[(c - c0) * cny..(c - c0 + 1) * cny];
+                    for (o, &t) in out.iter_mut().zip(&tmp[..cny]) {
+                        *o += weight * t;
+                    }
+                }
             }
         }
     }
 
-    /// `x += P coarse`, row by row (`tmp` of the coarse row length).
+    /// `x += P coarse`, row by row (`tmp` of the coarse row length is
+    /// scratch); on all cores for a large level.
     pub(super) fn prolong_add(
         &self,
         coarse: &[f64],
@@ -185,8 +238,35 @@ impl Level {
         x: &mut [f64],
         tmp: &mut [f64],
     ) {
+        let ny = self.ny;
+        if ny == 0 {
+            return;
+        }
+        if !parallel::is_parallel(x.len()) {
+            self.prolong_block(coarse, (tx, ty), 0, x, tmp);
+            return;
+        }
+        let rows = block_rows(ny);
+        x.par_chunks_mut(rows * ny)
+            .enumerate()
+            .for_each(|(k, block)| {
+                let mut tmp = vec![0.0; ty.coarse];
+                self.prolong_block(coarse, (tx, ty), k * rows, block, &mut tmp);
+            });
+    }
+
+    /// [`Level::prolong_add`] on the fine rows from `i0` on that `block` holds.
+    fn prolong_block(
+        &self,
+        coarse: &[f64],
+        (tx, ty): (&Transfer1, &Transfer1),
+        i0: usize,
+        block: &mut [f64],
+        tmp: &mut [f64],
+    ) {
         let (ny, cny) = (self.ny, ty.coarse);
-        for i in 0..self.nx {
+        for (r, xrow) in block.chunks_exact_mut(ny).enumerate() {
+            let i = i0 + r;
             let (p, s, w) = tx.rows[i];
             let (cp, cs) = (
                 &coarse[p * cny..(p + 1) * cny],
@@ -196,7 +276,7 @@ impl Level {
                 *t = 0.75 * a + w * c;
             }
             let active = self.active.as_ref().map(|a| &a[i * ny..(i + 1) * ny]);
-            ty.prolong_add(&tmp[..cny], &mut x[i * ny..(i + 1) * ny], active);
+            ty.prolong_add(&tmp[..cny], xrow, active);
         }
     }
 }

@@ -115,8 +115,10 @@ def poisson_solve(b, **kwargs):
     Keyword arguments: ``spacing=(dx, dy)``, ``boundary`` (``"dirichlet"``,
     ``"closed"``, ``"periodic"`` or a pair per axis), ``rel_tol=1e-10``,
     ``abs_tol=0``, ``max_iters``, ``sweeps=2`` (multigrid smoothing),
-    ``adjoint_rel_tol``. Without a Dirichlet axis ``A`` is singular: the
-    zero-mean solution of ``A p = Π b`` is returned.
+    ``adjoint_rel_tol``, ``iterations`` (exactly that many CG iterations in
+    each solve, without a tolerance: no convergence error, and none of the
+    tolerances or ``max_iters`` with it). Without a Dirichlet axis ``A`` is
+    singular: the zero-mean solution of ``A p = Π b`` is returned.
 
     Adjoint: ``grad_b = A^{-T} grad_p = A^{-1} grad_p`` (``poisson_solve_vjp``),
     one solve with the same operator.

@@ -38,7 +38,9 @@ use std::rc::Rc;
 use std::sync::Arc;
 
 use diffphys_ops::cg::CgParams;
-use diffphys_tape::{checkpointed_steps, ArrayD, Op, Real, Schedule, StepFn, Tape, TapeError, Var};
+use diffphys_tape::{
+    checkpointed_steps, parallel, ArrayD, Op, Real, Schedule, StepFn, Tape, TapeError, Var,
+};
 use ndarray::{Array1, Array2, ArrayView1, ArrayView2, IxDyn};
 
 use crate::advection::{AdvectScalar, AdvectVelocity, Advection};
@@ -981,9 +983,24 @@ impl Scene {
 
     /// One step without a tape: the same ops' forwards, no tape memory.
     ///
+    /// A large step runs whole on a thread of the pool
+    /// ([`diffphys_tape::parallel::on_pool`]), so that its kernels and its
+    /// pressure solve split across cores without handing work over at each
+    /// call; the result is the same bits on any number of threads.
+    ///
     /// # Errors
     /// As [`Scene::step`].
     pub fn forward<T: Real>(
+        &self,
+        state: &FlowState<T>,
+        params: &FlowParams<T>,
+    ) -> Result<(FlowState<T>, StepInfo)> {
+        let cells = self.grid().nx * self.grid().ny;
+        parallel::on_pool(cells, || self.forward_here(state, params))
+    }
+
+    /// [`Scene::forward`] on the calling thread.
+    fn forward_here<T: Real>(
         &self,
         state: &FlowState<T>,
         params: &FlowParams<T>,

@@ -45,10 +45,14 @@
 //!
 //! Smoothing is Gauss–Seidel in red–black order, rows and colours interleaved
 //! (red on row `i`, then black on row `i − 1`: one pass over memory per sweep).
-//! The sweeps after the coarse correction visit the cells in exactly the
-//! reverse order of those before it, which makes the cycle symmetric for every
-//! boundary and size (also where a periodic axis of odd length breaks the
-//! checkerboard). The coarsest level is solved by a dense Cholesky
+//! The black cells of the first and the last row come after all the others
+//! (before them in reverse), which keeps the order a true red–black one on a
+//! periodic axis. The sweeps after the coarse correction visit the cells in
+//! exactly the reverse order of those before it, which makes the cycle
+//! symmetric for every boundary and size (also where a periodic axis of odd
+//! length breaks the checkerboard). On large levels the sweeps, the restricted
+//! residual and the prolongation run on all cores in blocks of rows, with the
+//! same result to the bit as on one thread (see `smoother`). The coarsest level is solved by a dense Cholesky
 //! factorisation that skips vanishing pivots (a generalised inverse, still
 //! symmetric, for singular levels: closed walls, periodic, isolated fluid
 //! regions). When the finest operator is singular (no wall term anywhere) the

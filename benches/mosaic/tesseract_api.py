@@ -22,7 +22,10 @@ channel needs a face convention this adapter does not yet define); a request
 with them raises.
 
 Differentiable: ``v0`` and ``viscosity`` in, ``result`` and ``drag`` out.
-The solver runs in float64 and returns float32, as the schema asks.
+The solver runs in float32, as Mosaic's JAX-CFD entrant does (JAX's default
+precision), and returns float32, as the schema asks; set the environment
+variable ``DIFFPHYS_TESSERACT_DTYPE=float64`` (before the Tesseract is loaded)
+to run it in float64.
 """
 
 from __future__ import annotations
@@ -46,7 +49,14 @@ from mosaic_shared.problems.navier_stokes_grid import OutputSchema as _BaseOut
 from mosaic_shared.schema_types import make_differentiable
 from pydantic import model_validator
 
+import os
+
 import diffphys as dp
+
+# The precision of the steps (see the module docs).
+DTYPE = np.dtype(os.environ.get("DIFFPHYS_TESSERACT_DTYPE", "float32"))
+if DTYPE not in (np.float32, np.float64):
+    raise ValueError(f"DIFFPHYS_TESSERACT_DTYPE must be float32 or float64, not {DTYPE}")
 
 
 class InputSchema(make_differentiable(_Base, ["v0", "viscosity"])):
@@ -97,7 +107,7 @@ def _scene(n: int, extent: float, dt: float, nu: float, obstacle_key: bytes | No
 
 
 def _setup(inputs: dict):
-    v0 = np.asarray(inputs["v0"], np.float64)
+    v0 = np.asarray(inputs["v0"], DTYPE)
     n = v0.shape[0]
     if v0.shape != (n, n, 1, 2):
         raise ValueError(f"v0 must be (N, N, 1, 2), got {v0.shape}")
@@ -164,9 +174,9 @@ def vector_jacobian_product(
     g_drag = cotangent_vector.get("drag") if "drag" in vjp_outputs else None
     gx = gy = gf = None
     if g_result is not None:
-        gx, gy = _to_cells_t(np.asarray(g_result, np.float64)[:, :, 0, :])
+        gx, gy = _to_cells_t(np.asarray(g_result, DTYPE)[:, :, 0, :])
     if g_drag is not None:
-        gf = np.array([float(np.asarray(g_drag).reshape(-1)[0]), 0.0])
+        gf = np.array([float(np.asarray(g_drag).reshape(-1)[0]), 0.0], DTYPE)
     # every step kept on the tape, as JAX's scan keeps its residuals (100
     # steps at 256² in f64: about 1 GB); no recomputation in the reverse sweep
     g = scene.vjp(ux, uy, gx, gy, None, gf, steps=int(raw["steps"]), viscosity=nu,

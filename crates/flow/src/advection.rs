@@ -425,7 +425,7 @@ const BLOCK: usize = 1024;
 /// The number of entries from which the per-entry loops use all cores (an
 /// entry costs a few bilinear interpolations, about a hundred times a CG
 /// kernel's element).
-const PARALLEL_FROM: usize = 8192;
+pub(crate) const PARALLEL_FROM: usize = 8192;
 
 /// Runs `f(offset, block)` on the [`BLOCK`]-sized blocks of `out`.
 fn for_blocks<V: Send>(out: &mut [V], f: impl Fn(usize, &mut [V]) + Sync + Send) {

@@ -983,10 +983,10 @@ impl Scene {
 
     /// One step without a tape: the same ops' forwards, no tape memory.
     ///
-    /// A large step runs whole on a thread of the pool
-    /// ([`diffphys_tape::parallel::on_pool`]), so that its kernels and its
-    /// pressure solve split across cores without handing work over at each
-    /// call; the result is the same bits on any number of threads.
+    /// A step whose kernels split runs whole on a thread of the pool
+    /// ([`Scene::on_pool`]), so that its kernels and its pressure solve split
+    /// across cores without handing work over at each call; the result is the
+    /// same bits on any number of threads.
     ///
     /// # Errors
     /// As [`Scene::step`].
@@ -995,8 +995,30 @@ impl Scene {
         state: &FlowState<T>,
         params: &FlowParams<T>,
     ) -> Result<(FlowState<T>, StepInfo)> {
-        let cells = self.grid().nx * self.grid().ny;
-        parallel::on_pool(cells, || self.forward_here(state, params))
+        if self.splits() {
+            parallel::to_pool(|| self.forward_here(state, params))
+        } else {
+            self.forward_here(state, params)
+        }
+    }
+
+    /// Whether the step's kernels split across threads: its advection does
+    /// from [`crate::advection::PARALLEL_FROM`] entries, the pressure solve
+    /// and the tape's kernels from [`parallel::on_pool`]'s length.
+    pub(crate) fn splits(&self) -> bool {
+        self.grid().nx * self.grid().ny >= crate::advection::PARALLEL_FROM
+    }
+
+    /// Runs `f` on a thread of the pool if the step's kernels split there
+    /// ([`parallel::to_pool`]), else here: for a caller that records a
+    /// rollout on a tape of its own, created inside `f` (a tape stays on the
+    /// thread that made it).
+    pub fn on_pool<R: Send>(&self, f: impl FnOnce() -> R + Send) -> R {
+        if self.splits() {
+            parallel::to_pool(f)
+        } else {
+            f()
+        }
     }
 
     /// [`Scene::forward`] on the calling thread.

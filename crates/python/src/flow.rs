@@ -388,18 +388,20 @@ impl FlowStep {
         let scene = &self.scene;
         let steps = args.steps;
         let (end, force) = check(py.detach(|| {
-            let mut s = state;
-            for _ in 0..steps {
-                s = scene.forward(&s, &params)?.0;
-            }
-            let f = obstacle_force(
-                scene,
-                s.ux.view(),
-                s.uy.view(),
-                s.pressure.view(),
-                params.viscosity,
-            )?;
-            Ok::<_, diffphys_flow::FlowError>((s, f))
+            scene.on_pool(|| {
+                let mut s = state;
+                for _ in 0..steps {
+                    s = scene.forward(&s, &params)?.0;
+                }
+                let f = obstacle_force(
+                    scene,
+                    s.ux.view(),
+                    s.uy.view(),
+                    s.pressure.view(),
+                    params.viscosity,
+                )?;
+                Ok::<_, diffphys_flow::FlowError>((s, f))
+            })
         }))?;
         PyTuple::new(
             py,
@@ -447,8 +449,11 @@ impl FlowStep {
         }
         let scene = &self.scene;
         let steps = args.steps;
-        let grads =
-            check(py.detach(|| vjp_on_tape(scene, state, params, g, steps, checkpoint_every)))?;
+        // The tape is made and dropped on a pool thread when the step splits
+        // across cores (Scene::on_pool): its kernels then split cheaply.
+        let grads = check(py.detach(|| {
+            scene.on_pool(|| vjp_on_tape(scene, state, params, g, steps, checkpoint_every))
+        }))?;
         let [gux, guy, gp, gnu, gw, gq] = grads;
         let nu = gnu.first().copied().unwrap_or_else(T::zero).as_f64();
         let items = vec![

@@ -129,10 +129,18 @@ pub fn threads() -> usize {
 /// stay on one thread, `f` runs here. The result does not depend on where `f`
 /// runs: the chunks are the same.
 pub fn on_pool<R: Send>(len: usize, f: impl FnOnce() -> R + Send) -> R {
-    if rayon::current_thread_index().is_some()
-        || rayon::current_num_threads() <= 1
-        || len < (min_parallel_len() / POOL_DISCOUNT).max(1)
-    {
+    if len < (min_parallel_len() / POOL_DISCOUNT).max(1) {
+        return f();
+    }
+    to_pool(f)
+}
+
+/// Runs `f` on a thread of the pool if it is called from outside the pool
+/// and the pool has more than one thread, else here: [`on_pool`] without the
+/// size test, for work whose kernels split by rules of their own (the flow
+/// step's advection splits from 8,192 entries).
+pub fn to_pool<R: Send>(f: impl FnOnce() -> R + Send) -> R {
+    if rayon::current_thread_index().is_some() || rayon::current_num_threads() <= 1 {
         return f();
     }
     rayon::scope(|_| f())
@@ -574,6 +582,9 @@ mod tests {
         // has more than one thread; small work stays here.
         assert_eq!(on_pool(TEST_MIN_LEN, worker), threads() > 1);
         assert!(!on_pool(TEST_MIN_LEN / POOL_DISCOUNT - 1, worker));
+        // to_pool moves whatever the size; on a pool thread it stays put.
+        assert_eq!(to_pool(worker), threads() > 1);
+        assert!(with_threads(2, || to_pool(worker)));
         // On a one-thread pool nothing is split, so nothing moves.
         assert_eq!(with_threads(1, || on_pool(TEST_MIN_LEN, threads)), 1);
         // The result is the same wherever it ran.

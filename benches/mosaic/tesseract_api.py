@@ -22,10 +22,12 @@ channel needs a face convention this adapter does not yet define); a request
 with them raises.
 
 Differentiable: ``v0`` and ``viscosity`` in, ``result`` and ``drag`` out.
-The solver runs in float32, as Mosaic's JAX-CFD entrant does (JAX's default
-precision), and returns float32, as the schema asks; set the environment
-variable ``DIFFPHYS_TESSERACT_DTYPE=float64`` (before the Tesseract is loaded)
-to run it in float64.
+The solver runs in float64 and returns float32, as the schema asks; set the
+environment variable ``DIFFPHYS_TESSERACT_DTYPE=float32`` (before the
+Tesseract is loaded) to run it in float32, as Mosaic's JAX-CFD entrant does
+(JAX's default precision). Measured at N = 128 (100 steps, 2026-11-26):
+float32 is no faster (VJP 0.32 s against 0.30 s), and at N = 64 its fd_check
+median relative error is 8.6e-4 against 2.2e-4 (threshold 1e-3).
 """
 
 from __future__ import annotations
@@ -54,7 +56,7 @@ import os
 import diffphys as dp
 
 # The precision of the steps (see the module docs).
-DTYPE = np.dtype(os.environ.get("DIFFPHYS_TESSERACT_DTYPE", "float32"))
+DTYPE = np.dtype(os.environ.get("DIFFPHYS_TESSERACT_DTYPE", "float64"))
 if DTYPE not in (np.float32, np.float64):
     raise ValueError(f"DIFFPHYS_TESSERACT_DTYPE must be float32 or float64, not {DTYPE}")
 

@@ -1,5 +1,7 @@
 //! A compressed-row sparse matrix of `f64`, for the stencils a scene assembles once.
 
+use diffphys_tape::parallel;
+
 /// Rows of `(column, value)` pairs.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub(crate) struct Csr {
@@ -40,15 +42,21 @@ impl Csr {
         }
     }
 
-    /// `y += alpha · A x`.
+    /// `y += alpha · A x`, rows in blocks on all cores for a large matrix
+    /// (each row's sum in column order wherever it runs: the same bits on any
+    /// number of threads).
     pub(crate) fn mul_add(&self, alpha: f64, x: &[f64], y: &mut [f64]) {
-        for (r, yr) in y.iter_mut().enumerate().take(self.rows) {
-            let mut acc = 0.0;
-            for k in self.indptr[r]..self.indptr[r + 1] {
-                acc += self.values[k] * x[self.indices[k]];
+        let rows = self.rows.min(y.len());
+        parallel::for_each_chunk_mut(&mut y[..rows], |off, block| {
+            for (i, yr) in block.iter_mut().enumerate() {
+                let r = off + i;
+                let mut acc = 0.0;
+                for k in self.indptr[r]..self.indptr[r + 1] {
+                    acc += self.values[k] * x[self.indices[k]];
+                }
+                *yr += alpha * acc;
             }
-            *yr += alpha * acc;
-        }
+        });
     }
 
     /// `y += alpha · Aᵀ x`.

@@ -242,7 +242,10 @@ fn main() -> Result<(), BoxError> {
     if !data_seed_given {
         seeds.data = vec![1];
     }
-    let sizes = if small { Sizes::small() } else { Sizes::full() };
+    let sizes = Sizes {
+        advection: options.coarse_advection,
+        ..if small { Sizes::small() } else { Sizes::full() }
+    };
     let threads = options.threads;
     let coarse_scene = uncorrected(&sizes, 1, PressureSolver::Cholesky)?;
     let fine = reference_scene(&sizes)?;

@@ -175,3 +175,30 @@ fn capacity_sizes_parse_and_bad_ones_are_refused() {
     }
     assert!(options(&["--no-capacity"]).unwrap().capacity.is_empty());
 }
+
+#[test]
+fn the_coarse_advection_parses_and_an_unknown_one_is_refused() {
+    use diffphys::flow::Advection;
+    assert_eq!(
+        options(&[]).unwrap().coarse_advection,
+        Advection::SemiLagrangian
+    );
+    let o = options(&["--coarse-advection", "maccormack"]).unwrap();
+    assert_eq!(o.coarse_advection, Advection::MacCormack { limiter: true });
+    let sizes = Sizes {
+        advection: o.coarse_advection,
+        ..Sizes::small()
+    };
+    let scene = uncorrected(&sizes, 1, PressureSolver::Cholesky).unwrap();
+    assert_eq!(
+        scene.settings().advection,
+        Advection::MacCormack { limiter: true }
+    );
+    match options(&["--coarse-advection", "upwind"]) {
+        Err(WakeError::Argument { option, message }) => {
+            assert_eq!(option, "--coarse-advection");
+            assert!(message.contains("upwind"), "{message}");
+        }
+        other => panic!("expected an argument error, got {other:?}"),
+    }
+}

@@ -236,6 +236,9 @@ pub struct Sizes {
     /// The starts of the speed study's rollouts (a subset of `starts`: the
     /// 4× solver is the costly part).
     pub speed_starts: Vec<usize>,
+    /// The coarse (uncorrected and corrected) solver's advection, also at the
+    /// speed study's finer levels.
+    pub advection: Advection,
 }
 
 impl Sizes {
@@ -253,6 +256,7 @@ impl Sizes {
             starts: vec![0, 50, 100, 150],
             long: 240,
             speed_starts: vec![0, 100],
+            advection: Advection::SemiLagrangian,
         }
     }
 
@@ -270,6 +274,7 @@ impl Sizes {
             starts: vec![0, 16],
             long: 36,
             speed_starts: vec![0, 16],
+            advection: Advection::SemiLagrangian,
         }
     }
 }
@@ -312,13 +317,14 @@ pub fn wake_scene(
 }
 
 /// The coarse solver's scheme at `level` times the coarse resolution
-/// (`dt / level`): semi-Lagrangian, plain splitting.
+/// (`dt / level`): the advection of `sizes`, plain splitting (a packed state
+/// carries no pressure).
 pub fn uncorrected(sizes: &Sizes, level: usize, pressure: PressureSolver) -> Result<Scene> {
     wake_scene(
         level * sizes.nx,
         level * sizes.ny,
         sizes.dt / level as f64,
-        Advection::SemiLagrangian,
+        sizes.advection,
         Splitting::Plain,
         pressure,
     )
@@ -578,6 +584,8 @@ pub struct Options {
     /// Trainings (and held-out evaluations) run at once, each on its own
     /// thread (default: the available cores).
     pub threads: usize,
+    /// The coarse solver's advection (`--coarse-advection`).
+    pub coarse_advection: Advection,
 }
 
 impl Options {
@@ -611,6 +619,7 @@ impl Options {
             capacity: vec![SIZES[0], SIZES[2]],
             speed: true,
             threads: std::thread::available_parallelism().map_or(1, usize::from),
+            coarse_advection: Advection::SemiLagrangian,
         }
     }
 
@@ -692,6 +701,19 @@ impl Options {
                         .map(|s| NetSize::parse(s.trim()))
                         .filter(|s| s.as_ref().map_or(true, |s| *s != MAIN_SIZE))
                         .collect::<Result<_>>()?;
+                }
+                "--coarse-advection" => {
+                    let v = value(args)?;
+                    o.coarse_advection = match v.trim() {
+                        "semi-lagrangian" => Advection::SemiLagrangian,
+                        "maccormack" => Advection::MacCormack { limiter: true },
+                        _ => {
+                            return Err(WakeError::Argument {
+                                option: flag.clone(),
+                                message: format!("not semi-lagrangian or maccormack: {v:?}"),
+                            })
+                        }
+                    };
                 }
                 "--no-speed" => {
                     o.speed = false;

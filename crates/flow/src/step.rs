@@ -995,11 +995,7 @@ impl Scene {
         state: &FlowState<T>,
         params: &FlowParams<T>,
     ) -> Result<(FlowState<T>, StepInfo)> {
-        if self.splits() {
-            parallel::to_pool(|| self.forward_here(state, params))
-        } else {
-            self.forward_here(state, params)
-        }
+        self.on_pool(|| self.forward_here(state, params))
     }
 
     /// Whether the step's kernels split across threads: its advection does

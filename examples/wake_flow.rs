@@ -110,6 +110,8 @@ struct Model {
     seed: u64,
     trained: Trained<TrainedCorrector>,
     seconds: f64,
+    /// The kept parameters' validation error at each validation Re.
+    validation_per_re: Vec<f64>,
 }
 
 /// One training: a variant at a corrector size, a training seed, a learning
@@ -173,13 +175,24 @@ fn train_one(setup: &Setup<'_>, job: &Job) -> Result<Model, BoxError> {
     )?;
     bar.finish_and_clear();
     let seconds = start.elapsed().as_secs_f64();
+    let validation_per_re = per_trajectory(
+        &hybrid,
+        Some(&trained.model.params),
+        setup.validation,
+        setup.trainer.validation_steps,
+    )?;
     println!(
-        "  {:>6} {} seed {seed}, lr {lr:.0e}: {:.1} s, validation {:.5} (kept iteration {} of {iterations})",
+        "  {:>6} {} seed {seed}, lr {lr:.0e}: {:.1} s, validation {:.5} (kept iteration {} of {iterations}; per Re {})",
         variant.name(),
         size.label(),
         seconds,
         trained.model.validation,
         trained.model.best_iteration,
+        validation_per_re
+            .iter()
+            .map(|e| format!("{e:.4}"))
+            .collect::<Vec<_>>()
+            .join(", "),
     );
     Ok(Model {
         variant,
@@ -187,7 +200,22 @@ fn train_one(setup: &Setup<'_>, job: &Job) -> Result<Model, BoxError> {
         seed,
         trained,
         seconds,
+        validation_per_re,
     })
+}
+
+/// The rollout error on each trajectory on its own (the validation split
+/// holds one per Reynolds number).
+fn per_trajectory(
+    hybrid: &Wake,
+    params: Option<&Params<f64>>,
+    trajectories: &[Trajectory],
+    steps: usize,
+) -> Result<Vec<f64>, BoxError> {
+    trajectories
+        .iter()
+        .map(|t| Ok(rollout(hybrid, params, std::slice::from_ref(t), steps)?.mean()))
+        .collect()
 }
 
 /// Runs `f` on every job on `threads` worker threads (each training is
@@ -278,6 +306,8 @@ fn main() -> Result<(), BoxError> {
     let mut train_seconds: BTreeMap<String, Vec<f64>> = BTreeMap::new();
     // Per training: its validation curve and the iteration early stopping kept.
     let mut validation_curves: BTreeMap<String, Value> = BTreeMap::new();
+    // variant -> validation Re -> the error of every training (main size)
+    let mut validation_per_re: BTreeMap<String, BTreeMap<String, Vec<f64>>> = BTreeMap::new();
     let mut speed_inputs = None;
     let mut sigma_used = 0.0;
     let mut params_count = serde_json::Map::new();
@@ -353,7 +383,16 @@ fn main() -> Result<(), BoxError> {
         let hybrid: Wake = Hybrid::new(coarse.clone(), net0);
         let src_val = rollout(&hybrid, None, &validation, sizes.rollout)?.mean();
         validation_report.add("src", ds, None, src_val);
-        println!("  noise sigma (one-step RMS error of the coarse solver) {sigma:.2e}; src validation {src_val:.4}");
+        let src_per_re = per_trajectory(&hybrid, None, &validation, sizes.rollout)?;
+        for (re, e) in options.validation_re.iter().zip(&src_per_re) {
+            validation_per_re
+                .entry("src".into())
+                .or_default()
+                .entry(re.to_string())
+                .or_default()
+                .push(*e);
+        }
+        println!("  noise sigma (one-step RMS error of the coarse solver) {sigma:.2e}; src validation {src_val:.4} (per Re {src_per_re:.4?})");
 
         mem("src");
         // Phase 2: the learning rate, on validation (pilot runs at a quarter
@@ -493,6 +532,14 @@ fn main() -> Result<(), BoxError> {
                         Some(m.seed),
                         m.trained.model.validation,
                     );
+                    for (re, e) in options.validation_re.iter().zip(&m.validation_per_re) {
+                        validation_per_re
+                            .entry(variant.name())
+                            .or_default()
+                            .entry(re.to_string())
+                            .or_default()
+                            .push(*e);
+                    }
                     variant.name()
                 } else {
                     format!("{}_{}", variant.name(), size.label())
@@ -808,6 +855,21 @@ fn main() -> Result<(), BoxError> {
         "selected_by": "validation",
         "train_seconds": train_seconds,
         "validation_curves": validation_curves,
+        "validation_per_re": validation_per_re
+            .iter()
+            .map(|(v, per)| {
+                let stats: serde_json::Map<String, Value> = per
+                    .iter()
+                    .map(|(re, e)| {
+                        let mean = e.iter().sum::<f64>() / e.len() as f64;
+                        let min = e.iter().copied().fold(f64::INFINITY, f64::min);
+                        let max = e.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+                        (re.clone(), json!({"mean": mean, "min": min, "max": max, "runs": e.len()}))
+                    })
+                    .collect();
+                (v.clone(), Value::Object(stats))
+            })
+            .collect::<serde_json::Map<String, Value>>(),
         "speed": speed,
         "pressure": pressure,
         "floors_met": floors,

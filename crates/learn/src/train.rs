@@ -15,10 +15,6 @@ use crate::metrics::{batch_of, rollout, Trajectory};
 use crate::strategy::{Budget, LrSchedule, Strategy};
 use crate::{LearnError, Result};
 
-/// The least the training pool's limit is lowered to after the first
-/// iteration (see [`Trainer::train`]).
-const POOL_FLOOR_BYTES: usize = 16 << 20;
-
 /// One training batch: the (possibly perturbed) start states and the reference
 /// states after each of the unroll's steps.
 #[derive(Debug, Clone)]
@@ -218,7 +214,8 @@ impl Trainer {
         curve.push((0, initial));
         let mut best: (usize, f64, Params<f64>) = (0, initial, params.clone());
         // One buffer pool for the tapes of all iterations (each step records
-        // the same shapes), freed when training ends.
+        // the same shapes, so it holds what one step asks for), freed when
+        // training ends.
         let pool = BufferPool::new();
         for it in 0..iterations {
             let batch = self.draw(&strategy, train, &mut rng, &perturb)?;
@@ -229,14 +226,6 @@ impl Trainer {
             let grads = tape.backward(loss, p.vars())?;
             adam.lr = self.schedule.at(self.learning_rate, it, iterations);
             params.step(&mut adam, &grads, &p)?;
-            if it == 0 {
-                // What the next iteration reuses is this one's values and
-                // gradients, about twice the tape's peak; buffers beyond that
-                // are of lengths nobody asks for again, which the pool would
-                // otherwise keep up to its limit (512 MiB per training).
-                let need = 2 * tape.stats().peak_bytes;
-                pool.set_limit_bytes(pool.limit_bytes().min(need.max(POOL_FLOOR_BYTES)));
-            }
             tick();
             let done = it + 1;
             let due = self.validate_every > 0 && done % self.validate_every == 0;

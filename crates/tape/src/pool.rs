@@ -13,8 +13,15 @@
 //! caller passes ([`crate::Tape::with_pool`]) or installs for a scope
 //! ([`BufferPool::install`], [`BufferPool::scope`]): a training loop that makes a
 //! new tape per step keeps one pool alive across steps, and that pool's memory
-//! is returned to the allocator when the caller drops its last handle. Each
-//! pool holds at most its limit ([`DEFAULT_LIMIT_BYTES`] unless set).
+//! is returned to the allocator when the caller drops its last handle.
+//!
+//! **Bounds.** A pool keeps a buffer only for a length that is asked for: of
+//! each type and length it holds at most as many buffers as [`take`] has
+//! ever had out at once (its *demand*), so buffers of lengths only ever
+//! recycled (an op's output made without [`take`], a shape of the first
+//! iteration only) go back to the allocator, and a loop that records the same
+//! shapes every step holds what one step needs. On top of that, each pool
+//! holds at most its limit ([`DEFAULT_LIMIT_BYTES`] unless set).
 //!
 //! While a tape runs an op's forward or backward (and while it drops its
 //! values), its pool is the thread's *current* pool: [`take`] and [`recycle`],
@@ -58,9 +65,20 @@ pub const MIN_POOLED_LEN: usize = 1024;
 /// The most bytes a pool keeps unless told otherwise: 512 MiB.
 pub const DEFAULT_LIMIT_BYTES: usize = 512 << 20;
 
+/// The buffers of one type and length, and their demand.
+#[derive(Default)]
+struct Slot {
+    buffers: Vec<Box<dyn Any>>,
+    /// Buffers [`take`] handed out and not yet recycled (an estimate: a
+    /// recycled buffer that did not come from `take` counts it down too).
+    out: usize,
+    /// The most that were out at once: the most this slot keeps.
+    demand: usize,
+}
+
 #[derive(Default)]
 struct Free {
-    buffers: HashMap<(TypeId, usize), Vec<Box<dyn Any>>>,
+    slots: HashMap<(TypeId, usize), Slot>,
     bytes: usize,
 }
 
@@ -174,7 +192,10 @@ impl BufferPool {
         let buffers = {
             let mut free = self.shared.free.borrow_mut();
             free.bytes = 0;
-            std::mem::take(&mut free.buffers)
+            free.slots
+                .values_mut()
+                .map(|slot| std::mem::take(&mut slot.buffers))
+                .collect::<Vec<_>>()
         };
         drop(buffers);
     }
@@ -190,30 +211,39 @@ impl BufferPool {
         Rc::strong_count(&self.shared) == 1
     }
 
+    /// A held buffer of `len` elements, if any; counts the request towards
+    /// the length's demand either way (the caller allocates on `None`).
     fn take<T: Real>(&self, len: usize) -> Option<Vec<T>> {
         let v = {
             let mut free = self.shared.free.borrow_mut();
-            let v = free.buffers.get_mut(&(TypeId::of::<T>(), len))?.pop()?;
+            let slot = free.slots.entry((TypeId::of::<T>(), len)).or_default();
+            slot.out += 1;
+            slot.demand = slot.demand.max(slot.out);
+            let v = slot.buffers.pop()?;
             free.bytes -= len * std::mem::size_of::<T>();
             v
         };
         v.downcast::<Vec<T>>().ok().map(|v| *v)
     }
 
-    /// Keeps `buffer` (full-length, long enough) or gives it back if the pool
-    /// is at its limit.
+    /// Keeps `buffer` (full-length, long enough) or gives it back: if its
+    /// length already has as many buffers held as its demand, or the pool is
+    /// at its limit.
     fn keep<T: Real>(&self, buffer: Vec<T>) -> Option<Vec<T>> {
         let len = buffer.len();
         let bytes = len * std::mem::size_of::<T>();
+        let limit = self.limit_bytes();
         let mut free = self.shared.free.borrow_mut();
-        if free.bytes + bytes > self.limit_bytes() {
+        let held = free.bytes;
+        let Some(slot) = free.slots.get_mut(&(TypeId::of::<T>(), len)) else {
+            return Some(buffer);
+        };
+        slot.out = slot.out.saturating_sub(1);
+        if slot.buffers.len() >= slot.demand || held + bytes > limit {
             return Some(buffer);
         }
+        slot.buffers.push(Box::new(buffer));
         free.bytes += bytes;
-        free.buffers
-            .entry((TypeId::of::<T>(), len))
-            .or_default()
-            .push(Box::new(buffer));
         None
     }
 }
@@ -306,16 +336,42 @@ mod tests {
     }
 
     #[test]
+    fn a_pool_keeps_a_length_only_up_to_its_demand() {
+        let pool = BufferPool::new();
+        let _current = pool.install();
+        // A length nobody asked for is not kept.
+        recycle(vec![0.0f64; 2048]);
+        assert_eq!(pool.held_bytes(), 0);
+        // Three out at once: the demand is three.
+        let taken: Vec<Vec<f64>> = (0..3).map(|_| take(2048)).collect();
+        for v in taken {
+            recycle(v);
+        }
+        assert_eq!(pool.held_bytes(), 3 * 2048 * 8);
+        // More of that length recycled than were ever out: not kept.
+        recycle(vec![0.0f64; 2048]);
+        assert_eq!(pool.held_bytes(), 3 * 2048 * 8);
+        // The held buffers serve the next three requests; a fourth is fresh
+        // and raises the demand.
+        let again: Vec<Vec<f64>> = (0..4).map(|_| take(2048)).collect();
+        assert_eq!(pool.held_bytes(), 0);
+        for v in again {
+            recycle(v);
+        }
+        assert_eq!(pool.held_bytes(), 4 * 2048 * 8);
+    }
+
+    #[test]
     fn installs_nest_and_end_with_their_guard() {
         let (outer, inner) = (BufferPool::new(), BufferPool::new());
         assert!(BufferPool::current().is_none());
         let g = outer.install();
         inner.scope(|| {
             assert!(BufferPool::current().unwrap().same_as(&inner));
-            recycle(vec![0.0f32; 2048]);
+            recycle(take::<f32>(2048));
         });
         assert!(BufferPool::current().unwrap().same_as(&outer));
-        recycle(vec![0.0f32; 4096]);
+        recycle(take::<f32>(4096));
         drop(g);
         assert!(BufferPool::current().is_none());
         assert_eq!((inner.held_bytes(), outer.held_bytes()), (8192, 16384));

@@ -130,6 +130,8 @@ pub(super) struct Workspace {
     /// A fine row and a coarse row.
     row: Vec<f64>,
     tmp: Vec<f64>,
+    /// The parallel transfers' rows, one lane per block (grown on first use).
+    lanes: Vec<f64>,
     /// The coarsest solve's vector.
     y: Vec<f64>,
 }
@@ -153,6 +155,7 @@ impl Multigrid {
             },
             row: vec![0.0; ny],
             tmp: vec![0.0; ny.div_ceil(2)],
+            lanes: Vec::new(),
             y: vec![0.0; self.coarse.n],
         }
     }
@@ -205,10 +208,11 @@ impl Multigrid {
             projected,
             row,
             tmp,
+            lanes,
             y,
             ..
         } = work;
-        let mut scratch = Scratch { row, tmp, y };
+        let mut scratch = Scratch { row, tmp, lanes, y };
         if self.singular {
             projected.copy_from_slice(r);
             project_mean(projected, active);
@@ -238,9 +242,9 @@ impl Multigrid {
             level.sweep(x, b, false);
         }
         let ((bc, xc), rest) = coarse.split_first_mut().expect("a coarse level");
-        level.restrict_residual(x, b, (tx, ty), bc, scratch.row, scratch.tmp);
+        level.restrict_residual(x, b, (tx, ty), bc, scratch.row, scratch.tmp, scratch.lanes);
         self.cycle(l + 1, bc, xc, rest, scratch);
-        level.prolong_add(xc, (tx, ty), x, scratch.tmp);
+        level.prolong_add(xc, (tx, ty), x, scratch.tmp, scratch.lanes);
         for _ in 0..self.sweeps {
             level.sweep(x, b, true);
         }
@@ -251,6 +255,7 @@ impl Multigrid {
 struct Scratch<'a> {
     row: &'a mut Vec<f64>,
     tmp: &'a mut Vec<f64>,
+    lanes: &'a mut Vec<f64>,
     y: &'a mut Vec<f64>,
 }
 

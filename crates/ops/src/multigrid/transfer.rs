@@ -15,6 +15,16 @@ fn block_rows(n: usize) -> usize {
     block_cells().div_ceil(n).max(1)
 }
 
+/// `blocks` scratch lanes of `len` entries each, carved from `lanes` (grown
+/// once if it is short: the cycle's workspace keeps it between applications).
+fn lanes_of(lanes: &mut Vec<f64>, blocks: usize, len: usize) -> &mut [f64] {
+    let need = blocks * len.max(1);
+    if lanes.len() < need {
+        lanes.resize(need, 0.0);
+    }
+    &mut lanes[..need]
+}
+
 /// The sign a wall's ghost cell carries in the interpolation: `−1` Dirichlet,
 /// `+1` closed.
 fn ghost_sign(b: Boundary) -> f64 {
@@ -167,7 +177,8 @@ impl Level {
     /// of length `ny` and `tmp` of the coarse row length are scratch). On all
     /// cores for a large coarse level, in blocks of coarse rows (a fine row
     /// next to two blocks is computed by both), with the serial sums' order,
-    /// so the same result.
+    /// so the same result; `lanes` holds each block's two rows.
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn restrict_residual(
         &self,
         x: &[f64],
@@ -176,6 +187,7 @@ impl Level {
         coarse: &mut [f64],
         row: &mut [f64],
         tmp: &mut [f64],
+        lanes: &mut Vec<f64>,
     ) {
         let cny = ty.coarse;
         if cny == 0 {
@@ -186,12 +198,15 @@ impl Level {
             return;
         }
         let rows = block_rows(cny);
+        let len = self.ny + cny;
+        let blocks = coarse.len().div_ceil(rows * cny);
         coarse
             .par_chunks_mut(rows * cny)
+            .zip(lanes_of(lanes, blocks, len).par_chunks_mut(len))
             .enumerate()
-            .for_each(|(k, block)| {
-                let (mut row, mut tmp) = (vec![0.0; self.ny], vec![0.0; cny]);
-                self.restrict_block(x, b, (tx, ty), k * rows, block, &mut row, &mut tmp);
+            .for_each(|(k, (block, lane))| {
+                let (row, tmp) = lane.split_at_mut(self.ny);
+                self.restrict_block(x, b, (tx, ty), k * rows, block, row, tmp);
             });
     }
 
@@ -230,13 +245,14 @@ impl Level {
     }
 
     /// `x += P coarse`, row by row (`tmp` of the coarse row length is
-    /// scratch); on all cores for a large level.
+    /// scratch); on all cores for a large level, each block's row in `lanes`.
     pub(super) fn prolong_add(
         &self,
         coarse: &[f64],
         (tx, ty): (&Transfer1, &Transfer1),
         x: &mut [f64],
         tmp: &mut [f64],
+        lanes: &mut Vec<f64>,
     ) {
         let ny = self.ny;
         if ny == 0 {
@@ -247,11 +263,13 @@ impl Level {
             return;
         }
         let rows = block_rows(ny);
+        let len = ty.coarse;
+        let blocks = x.len().div_ceil(rows * ny);
         x.par_chunks_mut(rows * ny)
+            .zip(lanes_of(lanes, blocks, len).par_chunks_mut(len.max(1)))
             .enumerate()
-            .for_each(|(k, block)| {
-                let mut tmp = vec![0.0; ty.coarse];
-                self.prolong_block(coarse, (tx, ty), k * rows, block, &mut tmp);
+            .for_each(|(k, (block, tmp))| {
+                self.prolong_block(coarse, (tx, ty), k * rows, block, tmp);
             });
     }
 

@@ -3,31 +3,96 @@
 
 Inputs and outputs are Mosaic's canonical schemas: ``v0`` is a collocated
 velocity ``(N, N, 1, 2)``, ``result`` the same after ``steps`` steps, ``drag``
-the x-force on the obstacle. diffphys keeps the velocity on the faces of a MAC
-grid, so ``apply`` averages the cell velocities onto the faces
-(``u_f[a] = (u[a-1] + u[a]) / 2``, periodic) and the final face velocities
-back onto the cells (``u[i] = (u_f[i] + u_f[i+1]) / 2``); the VJP applies the
-transposes of both averages around diffphys' own VJP of the steps
+the x-force on the obstacle (``diffphys.FlowStep``'s ``force[0]``, unchanged
+from the periodic adapter). diffphys keeps the velocity on the faces of a MAC
+grid, so ``apply`` moves the cell velocities onto the faces and the final
+face velocities back onto the cells (the face convention below); the VJP
+applies the transposes of both around diffphys' own VJP of the steps
 (``diffphys.FlowStep.vjp``: the steps recorded on the tape, every step kept,
 hand-written adjoints, one pressure solve per step in the adjoint). The
-pressure is solved by FFT on the periodic box without obstacle, by a sparse
-Cholesky factor (MG-PCG above 128²) with one; the viscosity is explicit where
+pressure is solved by FFT on the periodic box without obstacle, otherwise by
+a sparse Cholesky factor (MG-PCG above 128²); the viscosity is explicit where
 that is stable at the requested dt and implicit beyond.
 
-Supported: the periodic box, with an optional cylinder obstacle (no-slip,
-a staircase mask of the cells whose centre lies inside). Not expressed here:
-Mosaic's non-periodic faces (inflow/outflow channels) and the inflow-profile
-input (diffphys has both, but the collocated ``(N, N)`` layout of Mosaic's
-channel needs a face convention this adapter does not yet define); a request
-with them raises.
+Boundary conditions (Mosaic's ``GridBC`` face -> diffphys side: ``x_lo`` left,
+``x_hi`` right, ``y_lo`` bottom, ``y_hi`` top):
 
-Differentiable: ``v0`` and ``viscosity`` in, ``result`` and ``drag`` out.
-The solver runs in float64 and returns float32, as the schema asks; set the
-environment variable ``DIFFPHYS_TESSERACT_DTYPE=float32`` (before the
-Tesseract is loaded) to run it in float32, as Mosaic's JAX-CFD entrant does
-(JAX's default precision). Measured at N = 128 (100 steps, 2026-11-26):
-float32 is no faster (VJP 0.32 s against 0.30 s), and at N = 64 its fd_check
-median relative error is 8.6e-4 against 2.2e-4 (threshold 1e-3).
+=================================================  ===========================
+Mosaic face                                        diffphys side
+=================================================  ===========================
+``periodic`` (both faces of the axis)              ``"periodic"``
+``no_slip``                                        ``"no_slip"``
+``dirichlet``, ``value`` None or ``(0, 0)``        ``"no_slip"``
+``dirichlet``, value tangential only ``(vt)``      ``("moving", vt)`` (the
+                                                   tangential component: vx on
+                                                   y faces, vy on x faces)
+``dirichlet``, value normal only ``(vn)``          ``"inflow"``, uniform profile
+                                                   ``vn`` (the normal component
+                                                   as a face velocity, so an
+                                                   inflow through x_hi is < 0)
+``neumann`` (zero normal derivative)               ``"outflow"`` (zero-gradient
+                                                   velocity, ``p = 0`` one cell
+                                                   outside)
+``inflow_profile`` (x_lo ``no_slip``/``dirichlet``)  ``"inflow"`` on the left,
+                                                   ``u_x(y)`` the profile,
+                                                   ``u_y = 0``
+=================================================  ===========================
+
+An ``inflow_profile`` whose length is not N is resampled linearly onto the N
+cells along x_lo (on ``linspace(0, 1)``, as Mosaic's JAX-CFD, PhiFlow and
+INS.jl entrants do); its gradient is the transpose of that resampling.
+
+Face convention (collocated ``(N, N)`` <-> MAC faces). The x-velocity lives
+on the x-faces, the y-velocity on the y-faces; along its own axis a component
+is averaged, along the other it is not moved. On a periodic axis (N faces,
+face ``a`` between cells ``a-1`` and ``a``, wrapped) nothing changes from the
+periodic adapter: ``u_f[a] = (u[a-1] + u[a]) / 2`` with ``u[-1] = u[N-1]``,
+``u[i] = (u_f[i] + u_f[i+1]) / 2`` with ``u_f[N] = u_f[0]``; the results on
+fully periodic inputs are bit-identical to the adapter before the
+non-periodic faces were added. On a non-periodic axis (N + 1 faces,
+``0`` and ``N`` on the two boundaries, no wrapping): interior faces
+``u_f[a] = (u[a-1] + u[a]) / 2`` for ``1 <= a <= N-1``; a boundary face takes
+the boundary's value: ``0`` on a wall (no-slip, moving), the profile on the
+inflow face, and the adjacent cell's value on an outflow face (zero normal
+gradient: ``u_f[0] = u[0]``, ``u_f[N] = u[N-1]``). Back to the cells,
+``u[i] = (u_f[i] + u_f[i+1]) / 2`` for every cell, the boundary faces
+included (so a cell next to a wall carries half its interior face). Faces
+touching a solid cell are zero (no-slip obstacle, a staircase mask of the
+cells whose centre lies inside the cylinder). diffphys sets the wall, inflow
+and obstacle faces again at the start of every step, so the VJP gives them no
+gradient to ``v0``; the inflow profile gets the gradient of every step's
+inflow faces.
+
+Not supported (each raises a ValueError naming the face and kind): a
+``dirichlet`` value with both a normal and a tangential component (diffphys'
+inflow has no tangential velocity, its moving wall no normal one); a value
+that is not 2 components; ``periodic`` on one face of an axis only; more than
+one inflow face (a normal ``dirichlet`` value or the profile) or an inflow
+without a ``neumann`` (outflow) face for the mass to leave by; an
+``inflow_profile`` with ``x_lo`` ``periodic`` (Mosaic's
+``optimization/drag_opt`` builds exactly that: diffphys' inflow is a side of
+a non-periodic axis, it has no forced column of faces inside a periodic box as
+JAX-CFD's and PhiFlow's entrants impose) or ``neumann``; non-periodic ``z``
+faces (the solver is 2-D); obstacles other than the cylinder; an obstacle
+that covers part of the inflow side (diffphys' scene check, re-raised as a
+ValueError). diffphys' free-slip side has no Mosaic face kind (``neumann`` is
+read as an open outflow, as PhiFlow's entrant reads it, not as a symmetry
+plane).
+
+Differentiable: ``v0``, ``viscosity`` and ``inflow_profile`` in, ``result``
+and ``drag`` out. The Dirichlet values (wall speeds, uniform inflow) are not
+array inputs of Mosaic's schema and get no gradient here, though diffphys
+has one for them. The solver runs in float64 and returns float32, as the
+schema asks; set the environment variable ``DIFFPHYS_TESSERACT_DTYPE=float32``
+(before the Tesseract is loaded) to run it in float32, as Mosaic's JAX-CFD
+entrant does (JAX's default precision). Measured at N = 128 (100 steps,
+2026-11-26, periodic): float32 is no faster (VJP 0.32 s against 0.30 s), and
+at N = 64 its fd_check median relative error is 8.6e-4 against 2.2e-4
+(threshold 1e-3). Non-periodic (2026-11-26): Mosaic's ``forward/cylinder``
+through its own runner (benches/mosaic/mosaic_run.py, N = 64, 500 steps)
+gives l2_error_rel 0.099 / 0.104 / 0.145 / 0.136 at nu = 0.05 / 0.02 / 0.01 /
+0.005 against Mosaic's precomputed reference; the VJP checks on walls,
+outflow and the inflow profile are in benches/mosaic/channel_check.py.
 """
 
 from __future__ import annotations
@@ -60,16 +125,118 @@ DTYPE = np.dtype(os.environ.get("DIFFPHYS_TESSERACT_DTYPE", "float64"))
 if DTYPE not in (np.float32, np.float64):
     raise ValueError(f"DIFFPHYS_TESSERACT_DTYPE must be float32 or float64, not {DTYPE}")
 
+# Mosaic's faces in diffphys' side order (left, right, bottom, top), with the
+# axis each is normal to.
+_FACES = (("x_lo", "left", 0), ("x_hi", "right", 0), ("y_lo", "bottom", 1), ("y_hi", "top", 1))
 
-class InputSchema(make_differentiable(_Base, ["v0", "viscosity"])):
-    """The canonical inputs; periodic boxes only (see the module docs)."""
+
+def _kind(face: dict) -> str:
+    t = face["type"]
+    return str(getattr(t, "value", t))
+
+
+@functools.lru_cache(maxsize=64)
+def _plan_cached(bc_key: tuple, has_profile: bool):
+    bc = {name: {"type": t, "value": None if v is None else list(v)} for name, t, v in bc_key}
+    return _plan_uncached(bc, has_profile)
+
+
+def _plan(bc: dict, has_profile: bool):
+    """The diffphys sides of Mosaic's ``boundary_conditions`` (a dict of face
+    dicts) and ``inflow_profile`` (given or not), checked (see the module
+    docs): ``None`` for the fully periodic box, else a tuple of
+    ``(face, side, spec, uniform)`` in the order left, right, bottom, top,
+    with ``spec`` diffphys' side condition and ``uniform`` the uniform inflow
+    speed of a normal Dirichlet value (None elsewhere, and for the profile)."""
+    key = tuple(
+        (name, _kind(bc[name]),
+         None if bc[name].get("value") is None else tuple(float(x) for x in bc[name]["value"]))
+        for name in ("x_lo", "x_hi", "y_lo", "y_hi", "z_lo", "z_hi")
+    )
+    return _plan_cached(key, bool(has_profile))
+
+
+def _plan_uncached(bc: dict, has_profile: bool):
+    for name in ("z_lo", "z_hi"):
+        if _kind(bc[name]) != "periodic":
+            raise ValueError(
+                f"diffphys' adapter: {name} is {_kind(bc[name])!r}; the solver is 2-D, "
+                "the z faces must stay 'periodic' (the default)")
+    for lo, hi in (("x_lo", "x_hi"), ("y_lo", "y_hi")):
+        if (_kind(bc[lo]) == "periodic") != (_kind(bc[hi]) == "periodic"):
+            raise ValueError(
+                f"diffphys' adapter: {lo} is {_kind(bc[lo])!r} and {hi} is {_kind(bc[hi])!r}; "
+                "diffphys makes an axis periodic on both faces or on neither")
+    if all(_kind(bc[name]) == "periodic" for name, _, _ in _FACES):
+        if has_profile:
+            raise ValueError(
+                "diffphys' adapter: inflow_profile with x_lo 'periodic': diffphys' inflow is a "
+                "side of a non-periodic axis (it needs a neumann/outflow face for the mass to "
+                "leave by) and has no forced column of faces inside a periodic box; give x_lo "
+                "'dirichlet' or 'no_slip' and a 'neumann' face")
+        return None
+    plan = []
+    for name, side, axis in _FACES:
+        kind = _kind(bc[name])
+        value = bc[name].get("value")
+        uniform = None
+        if kind == "periodic":
+            spec = "periodic"
+        elif kind == "no_slip":
+            spec = "no_slip"
+        elif kind == "neumann":
+            spec = "outflow"
+        elif kind == "dirichlet":
+            if value is None:
+                spec = "no_slip"
+            else:
+                if len(value) != 2:
+                    raise ValueError(
+                        f"diffphys' adapter: {name} 'dirichlet' value {list(value)} has "
+                        f"{len(value)} components; a 2-D velocity has 2")
+                vn, vt = float(value[axis]), float(value[1 - axis])
+                if vn == 0.0 and vt == 0.0:
+                    spec = "no_slip"
+                elif vn == 0.0:
+                    spec = ("moving", vt)
+                elif vt == 0.0:
+                    spec, uniform = "inflow", vn
+                else:
+                    raise ValueError(
+                        f"diffphys' adapter: {name} 'dirichlet' value {list(value)} has both a "
+                        "normal and a tangential component; diffphys' inflow side has no "
+                        "tangential velocity and its moving wall no normal one")
+        else:
+            raise ValueError(f"diffphys' adapter: {name} has the unknown kind {kind!r}")
+        if name == "x_lo" and has_profile:
+            if kind in ("periodic", "neumann"):
+                raise ValueError(
+                    f"diffphys' adapter: inflow_profile with x_lo {kind!r}: the profile "
+                    "overrides the x_lo Dirichlet condition, so x_lo must be 'dirichlet' or "
+                    "'no_slip'" + (
+                        " (diffphys' inflow is a side of a non-periodic axis; it has no forced "
+                        "column of faces inside a periodic box)" if kind == "periodic" else ""))
+            spec, uniform = "inflow", None
+        plan.append((name, side, spec, uniform))
+    inflows = [p[0] for p in plan if p[2] == "inflow"]
+    if len(inflows) > 1:
+        raise ValueError(
+            f"diffphys' adapter: {len(inflows)} inflow faces ({', '.join(inflows)}: a normal "
+            "'dirichlet' value or the inflow_profile); diffphys has at most one inflow side")
+    if inflows and not any(p[2] == "outflow" for p in plan):
+        raise ValueError(
+            f"diffphys' adapter: {inflows[0]} is an inflow but no face is 'neumann'; "
+            "diffphys' inflow needs an outflow side for the mass to leave by")
+    return tuple(plan)
+
+
+class InputSchema(make_differentiable(_Base, ["v0", "viscosity", "inflow_profile"])):
+    """The canonical inputs; the faces diffphys can represent (see the module
+    docs)."""
 
     @model_validator(mode="after")
-    def _check_periodic(self) -> "InputSchema":
-        if not self.boundary_conditions.is_fully_periodic:
-            raise ValueError("diffphys' adapter supports periodic boxes only")
-        if self.inflow_profile is not None:
-            raise ValueError("diffphys' adapter has no inflow profile (periodic boxes only)")
+    def _check_faces(self) -> "InputSchema":
+        _plan(self.boundary_conditions.model_dump(), self.inflow_profile is not None)
         return self
 
 
@@ -80,8 +247,9 @@ class OutputSchema(make_differentiable(_BaseOut, ["result", "drag"])):
 def _obstacle_mask(obstacle: dict | None, n: int) -> np.ndarray | None:
     if obstacle is None or not obstacle.get("shape"):
         return None
-    if obstacle["shape"] not in ("cylinder", "CYLINDER"):
-        raise ValueError(f"diffphys' adapter: unsupported obstacle {obstacle['shape']!r}")
+    shape = str(getattr(obstacle["shape"], "value", obstacle["shape"]))
+    if shape not in ("cylinder", "CYLINDER"):
+        raise ValueError(f"diffphys' adapter: unsupported obstacle {shape!r}")
     c = (np.arange(n) + 0.5) / n
     X, Y = np.meshgrid(c, c, indexing="ij")
     cx, cy = obstacle["center"][:2]
@@ -89,11 +257,12 @@ def _obstacle_mask(obstacle: dict | None, n: int) -> np.ndarray | None:
 
 
 @functools.lru_cache(maxsize=8)
-def _scene(n: int, extent: float, dt: float, nu: float, obstacle_key: bytes | None):
+def _scene(n: int, extent: float, dt: float, nu: float, obstacle_key: bytes | None,
+           plan: tuple | None = None):
     solid = None if obstacle_key is None else np.frombuffer(obstacle_key, bool).reshape(n, n)
     # the Fourier solve for the periodic box without obstacle (direct,
-    # O(n log n)); with an obstacle, the sparse Cholesky up to 128², MG-PCG above
-    if solid is None:
+    # O(n log n)); otherwise the sparse Cholesky up to 128², MG-PCG above
+    if solid is None and plan is None:
         solver = "fourier"
     else:
         solver = "cholesky" if n <= 128 else "multigrid"
@@ -103,9 +272,65 @@ def _scene(n: int, extent: float, dt: float, nu: float, obstacle_key: bytes | No
     # diffusion would need 4 substeps, and diverges without them)
     h = extent / n
     viscosity_mode = "explicit" if nu * dt * 2.0 / (h * h) <= 0.5 else "implicit"
-    return dp.FlowStep((n, n), (extent, extent), sides="periodic", obstacle=solid,
-                       viscosity=nu, dt=dt, pressure_solver=solver, substepping=True,
-                       viscosity_mode=viscosity_mode)
+    if plan is None:
+        return dp.FlowStep((n, n), (extent, extent), sides="periodic", obstacle=solid,
+                           viscosity=nu, dt=dt, pressure_solver=solver, substepping=True,
+                           viscosity_mode=viscosity_mode)
+    sides = {side: spec for _, side, spec, _ in plan}
+    # the scene's default profile is a placeholder: every call passes its own
+    inflow = [0.0] * n if any(spec == "inflow" for _, _, spec, _ in plan) else None
+    try:
+        return dp.FlowStep((n, n), (extent, extent), sides=sides, obstacle=solid,
+                           viscosity=nu, dt=dt, inflow=inflow, pressure_solver=solver,
+                           substepping=True, viscosity_mode=viscosity_mode)
+    except dp.DiffphysError as e:
+        faces = ", ".join(f"{name} -> {spec!r}" for name, _, spec, _ in plan)
+        raise ValueError(f"diffphys' adapter: diffphys cannot build this scene ({faces}): {e}") from e
+
+
+def _resample(m: int, n: int) -> np.ndarray | None:
+    """The (n, m) matrix of the linear resampling of a profile of m values on
+    linspace(0, 1, m) onto linspace(0, 1, n) (None when m == n)."""
+    if m == n:
+        return None
+    src, dst = np.linspace(0.0, 1.0, m), np.linspace(0.0, 1.0, n)
+    return np.stack([np.interp(dst, src, e) for e in np.eye(m)], axis=1)
+
+
+class _Layout:
+    """The boundary of each axis's two ends for the face conversions:
+    ``lo[axis]``, ``hi[axis]`` each ``("periodic" | "wall" | "outflow" |
+    "inflow", value along the face or None)``; ``q`` the inflow profile on the
+    cells along the inflow side (None without one), ``resample`` its
+    resampling matrix from ``inflow_profile`` (None if none or the identity)."""
+
+    def __init__(self, plan, n: int, profile):
+        self.periodic = plan is None
+        self.q = None
+        self.resample = None
+        self.profile_given = profile is not None
+        if plan is None:
+            self.lo = self.hi = (("periodic", None), ("periodic", None))
+            return
+        ends = {}
+        for name, _, spec, uniform in plan:
+            if spec == "periodic":
+                ends[name] = ("periodic", None)
+            elif spec == "outflow":
+                ends[name] = ("outflow", None)
+            elif spec == "inflow":
+                if uniform is not None:
+                    self.q = np.full(n, uniform, DTYPE)
+                else:
+                    p = np.asarray(profile, np.float64).reshape(-1)
+                    self.resample = _resample(p.shape[0], n)
+                    q = p if self.resample is None else self.resample @ p
+                    self.q = np.asarray(q, DTYPE)
+                ends[name] = ("inflow", self.q)
+            else:  # no-slip or moving wall: no normal velocity
+                ends[name] = ("wall", None)
+        self.lo = (ends["x_lo"], ends["y_lo"])
+        self.hi = (ends["x_hi"], ends["y_hi"])
 
 
 def _setup(inputs: dict):
@@ -117,49 +342,159 @@ def _setup(inputs: dict):
     nu = float(np.asarray(inputs["viscosity"]).reshape(-1)[0])
     dt = float(np.asarray(inputs["dt"]).reshape(-1)[0])
     key = None if solid is None else solid.tobytes()
-    return _scene(n, float(inputs["domain_extent"]), dt, nu, key), v0[:, :, 0, :], nu
+    profile = inputs.get("inflow_profile")
+    plan = _plan(inputs["boundary_conditions"], profile is not None)
+    extent = float(inputs["domain_extent"])
+    scene = _scene(n, extent, dt, nu, key) if plan is None else _scene(n, extent, dt, nu, key, plan)
+    return scene, v0[:, :, 0, :], nu, _Layout(plan, n, profile)
 
 
-# Collocated <-> faces (periodic) and the transposes.
-def _to_faces(u):
-    return 0.5 * (np.roll(u[..., 0], 1, axis=0) + u[..., 0]), 0.5 * (
-        np.roll(u[..., 1], 1, axis=1) + u[..., 1]
-    )
+def _along(a: np.ndarray, axis: int, s) -> tuple:
+    return tuple(s if k == axis else slice(None) for k in range(a.ndim))
 
 
-def _to_faces_t(gx, gy):
-    return np.stack([0.5 * (np.roll(gx, -1, axis=0) + gx), 0.5 * (np.roll(gy, -1, axis=1) + gy)],
-                    axis=-1)
+# Collocated <-> faces along one axis (the module docs' convention), and the
+# transposes. ``lo``/``hi`` are the ends of that axis (_Layout).
+def _faces_axis(c, axis, lo, hi):
+    if lo[0] == "periodic":
+        return 0.5 * (np.roll(c, 1, axis=axis) + c)
+    n = c.shape[axis]
+    shape = list(c.shape)
+    shape[axis] = n + 1
+    f = np.zeros(shape, c.dtype)
+    f[_along(f, axis, slice(1, n))] = 0.5 * (c[_along(c, axis, slice(0, n - 1))]
+                                             + c[_along(c, axis, slice(1, n))])
+    for face, cell, (kind, value) in ((0, 0, lo), (n, n - 1, hi)):
+        if kind == "outflow":
+            f[_along(f, axis, face)] = c[_along(c, axis, cell)]
+        elif kind == "inflow":
+            f[_along(f, axis, face)] = value
+        # a wall: 0
+    return f
 
 
-def _to_cells(ux, uy):
-    return np.stack([0.5 * (ux + np.roll(ux, -1, axis=0)), 0.5 * (uy + np.roll(uy, -1, axis=1))],
-                    axis=-1)
+def _faces_axis_t(g, axis, lo, hi):
+    if lo[0] == "periodic":
+        return 0.5 * (np.roll(g, -1, axis=axis) + g)
+    n = g.shape[axis] - 1
+    shape = list(g.shape)
+    shape[axis] = n
+    c = np.zeros(shape, g.dtype)
+    inner = 0.5 * g[_along(g, axis, slice(1, n))]  # faces 1..n-1
+    c[_along(c, axis, slice(0, n - 1))] += inner
+    c[_along(c, axis, slice(1, n))] += inner
+    # a boundary face depends on the cells only on an outflow (its adjacent
+    # cell's value); walls and the inflow get no gradient from v0
+    for face, cell, (kind, _) in ((0, 0, lo), (n, n - 1, hi)):
+        if kind == "outflow":
+            c[_along(c, axis, cell)] += g[_along(g, axis, face)]
+    return c
 
 
-def _to_cells_t(g):
-    return 0.5 * (g[..., 0] + np.roll(g[..., 0], 1, axis=0)), 0.5 * (
-        g[..., 1] + np.roll(g[..., 1], 1, axis=1)
-    )
+def _cells_axis(f, axis, periodic):
+    if periodic:
+        return 0.5 * (f + np.roll(f, -1, axis=axis))
+    n = f.shape[axis] - 1
+    return 0.5 * (f[_along(f, axis, slice(0, n))] + f[_along(f, axis, slice(1, n + 1))])
 
 
-def _zero_solid(scene, ux, uy):
+def _cells_axis_t(g, axis, periodic):
+    if periodic:
+        return 0.5 * (g + np.roll(g, 1, axis=axis))
+    n = g.shape[axis]
+    shape = list(g.shape)
+    shape[axis] = n + 1
+    f = np.zeros(shape, g.dtype)
+    f[_along(f, axis, slice(0, n))] += 0.5 * g
+    f[_along(f, axis, slice(1, n + 1))] += 0.5 * g
+    return f
+
+
+def _to_faces(u, lay: _Layout):
+    return (_faces_axis(u[..., 0], 0, lay.lo[0], lay.hi[0]),
+            _faces_axis(u[..., 1], 1, lay.lo[1], lay.hi[1]))
+
+
+def _to_faces_t(gx, gy, lay: _Layout):
+    return np.stack([_faces_axis_t(gx, 0, lay.lo[0], lay.hi[0]),
+                     _faces_axis_t(gy, 1, lay.lo[1], lay.hi[1])], axis=-1)
+
+
+def _to_cells(ux, uy, lay: _Layout):
+    return np.stack([_cells_axis(ux, 0, lay.lo[0][0] == "periodic"),
+                     _cells_axis(uy, 1, lay.lo[1][0] == "periodic")], axis=-1)
+
+
+def _to_cells_t(g, lay: _Layout):
+    return (_cells_axis_t(g[..., 0], 0, lay.lo[0][0] == "periodic"),
+            _cells_axis_t(g[..., 1], 1, lay.lo[1][0] == "periodic"))
+
+
+def _solid_faces(solid, axis, periodic):
+    """The faces along ``axis`` touching a solid cell."""
+    if periodic:
+        return solid | np.roll(solid, 1, axis=axis)
+    pad = np.zeros_like(solid[_along(solid, axis, slice(0, 1))])
+    return np.concatenate([solid, pad], axis=axis) | np.concatenate([pad, solid], axis=axis)
+
+
+def _zero_solid(scene, lay: _Layout, ux, uy):
     solid = scene.solid
     if solid.any():
         # Faces touching a solid cell carry no flow (no-slip obstacle).
-        ux = np.where(solid | np.roll(solid, 1, axis=0), 0.0, ux)
-        uy = np.where(solid | np.roll(solid, 1, axis=1), 0.0, uy)
+        ux = np.where(_solid_faces(solid, 0, lay.lo[0][0] == "periodic"), 0.0, ux)
+        uy = np.where(_solid_faces(solid, 1, lay.lo[1][0] == "periodic"), 0.0, uy)
     return ux, uy
+
+
+def _forward(raw: dict):
+    """The collocated result ``(N, N, 2)`` and ``[drag, lift]`` of the
+    (dumped) inputs ``raw``, in the solver's precision (``apply`` casts them
+    to float32; fd checks in float64 call this with float64 inputs)."""
+    scene, v0, nu, lay = _setup(raw)
+    ux, uy = _zero_solid(scene, lay, *_to_faces(v0, lay))
+    kw = {} if lay.q is None else {"inflow": lay.q}
+    vx, vy, _, force = scene.forward(ux, uy, steps=int(raw["steps"]), viscosity=nu, **kw)
+    return _to_cells(vx, vy, lay), force
+
+
+def _vjp(raw: dict, vjp_inputs, vjp_outputs, cotangent_vector) -> dict:
+    """The gradients of ``vector_jacobian_product`` in the solver's
+    precision (``v0`` as ``(N, N, 2)``, ``viscosity`` a float,
+    ``inflow_profile`` its own length)."""
+    scene, v0, nu, lay = _setup(raw)
+    if "inflow_profile" in vjp_inputs and not lay.profile_given:
+        raise ValueError("diffphys' adapter: a gradient for inflow_profile, which was not given")
+    ux, uy = _zero_solid(scene, lay, *_to_faces(v0, lay))
+    g_result = cotangent_vector.get("result") if "result" in vjp_outputs else None
+    g_drag = cotangent_vector.get("drag") if "drag" in vjp_outputs else None
+    gx = gy = gf = None
+    if g_result is not None:
+        gx, gy = _to_cells_t(np.asarray(g_result, DTYPE)[:, :, 0, :], lay)
+    if g_drag is not None:
+        gf = np.array([float(np.asarray(g_drag).reshape(-1)[0]), 0.0], DTYPE)
+    kw = {} if lay.q is None else {"inflow": lay.q}
+    # every step kept on the tape, as JAX's scan keeps its residuals (100
+    # steps at 256² in f64: about 1 GB); no recomputation in the reverse sweep
+    g = scene.vjp(ux, uy, gx, gy, None, gf, steps=int(raw["steps"]), viscosity=nu,
+                  checkpoint_every=1, **kw)
+    out = {}
+    if "v0" in vjp_inputs:
+        gux, guy = _zero_solid(scene, lay, g[0], g[1])
+        out["v0"] = _to_faces_t(gux, guy, lay)
+    if "viscosity" in vjp_inputs:
+        out["viscosity"] = g[3]
+    if "inflow_profile" in vjp_inputs:
+        gq = np.asarray(g[5], np.float64)
+        out["inflow_profile"] = gq if lay.resample is None else lay.resample.T @ gq
+    return out
 
 
 def apply(inputs: InputSchema) -> dict:
     """Run ``steps`` diffphys flow steps from ``v0``."""
-    raw = inputs.model_dump()
-    scene, v0, nu = _setup(raw)
-    ux, uy = _zero_solid(scene, *_to_faces(v0))
-    vx, vy, _, force = scene.forward(ux, uy, steps=int(raw["steps"]), viscosity=nu)
-    result = _to_cells(vx, vy)[:, :, None, :].astype(np.float32)
-    return {"result": result, "drag": np.array([force[0]], np.float32)}
+    result, force = _forward(inputs.model_dump())
+    return {"result": result[:, :, None, :].astype(np.float32),
+            "drag": np.array([force[0]], np.float32)}
 
 
 def vector_jacobian_product(
@@ -168,27 +503,16 @@ def vector_jacobian_product(
     vjp_outputs: set[str],
     cotangent_vector: dict[str, Any],
 ) -> dict:
-    """``(∂L/∂v0, ∂L/∂viscosity)`` from the cotangents of ``result`` and ``drag``."""
-    raw = inputs.model_dump()
-    scene, v0, nu = _setup(raw)
-    ux, uy = _zero_solid(scene, *_to_faces(v0))
-    g_result = cotangent_vector.get("result") if "result" in vjp_outputs else None
-    g_drag = cotangent_vector.get("drag") if "drag" in vjp_outputs else None
-    gx = gy = gf = None
-    if g_result is not None:
-        gx, gy = _to_cells_t(np.asarray(g_result, DTYPE)[:, :, 0, :])
-    if g_drag is not None:
-        gf = np.array([float(np.asarray(g_drag).reshape(-1)[0]), 0.0], DTYPE)
-    # every step kept on the tape, as JAX's scan keeps its residuals (100
-    # steps at 256² in f64: about 1 GB); no recomputation in the reverse sweep
-    g = scene.vjp(ux, uy, gx, gy, None, gf, steps=int(raw["steps"]), viscosity=nu,
-                  checkpoint_every=1)
+    """``(∂L/∂v0, ∂L/∂viscosity, ∂L/∂inflow_profile)`` from the cotangents of
+    ``result`` and ``drag``."""
+    g = _vjp(inputs.model_dump(), vjp_inputs, vjp_outputs, cotangent_vector)
     out = {}
-    if "v0" in vjp_inputs:
-        gux, guy = _zero_solid(scene, g[0], g[1])
-        out["v0"] = _to_faces_t(gux, guy)[:, :, None, :].astype(np.float32)
-    if "viscosity" in vjp_inputs:
-        out["viscosity"] = np.array([g[3]], np.float32)
+    if "v0" in g:
+        out["v0"] = g["v0"][:, :, None, :].astype(np.float32)
+    if "viscosity" in g:
+        out["viscosity"] = np.array([g["viscosity"]], np.float32)
+    if "inflow_profile" in g:
+        out["inflow_profile"] = g["inflow_profile"].astype(np.float32)
     return out
 
 

@@ -399,26 +399,28 @@ def main():
         ("drag_opt_walls", "v0", "result", True),
         ("closed_box", "v0", "result", False),
     ]
+    def base_points():
+        """Each check's inputs, its v0 described (see the module docs)."""
+        for name, wrt, out_key, wiggled in checks:
+            inp = dict(cfg[name], steps=args.fd_steps)
+            if wiggled:
+                inp["v0"] = (inp["v0"] + wiggle).astype(np.float32)
+            described = "uniform + 0.01 multimode" if wiggled else (
+                "multimode" if name == "closed_box" else "exactly uniform")
+            yield name, wrt, out_key, wiggled, inp, described
+
     summary["fd_check"] = []
-    for name, wrt, out_key, wiggled in checks:
-        inp = dict(cfg[name], steps=args.fd_steps)
-        if wiggled:
-            inp["v0"] = (inp["v0"] + wiggle).astype(np.float32)
+    for name, wrt, out_key, wiggled, inp, described in base_points():
         row = fd_check(ours, name, inp, wrt, out_key, args.directions, args.seed + 1)
-        row["v0"] = "uniform + 0.01 multimode" if wiggled else (
-            "multimode" if name == "closed_box" else "exactly uniform")
+        row["v0"] = described
         summary["fd_check"].append(row)
         print(json.dumps({"progress": f"fd {name} {wrt} {out_key} {wiggled}",
                           "s": time.perf_counter() - t_all}), file=sys.stderr, flush=True)
     mod = _load_ours()
     summary["fd_check_float64"] = []
-    for name, wrt, out_key, wiggled in checks:
-        inp = dict(cfg[name], steps=args.fd_steps)
-        if wiggled:
-            inp["v0"] = (inp["v0"] + wiggle).astype(np.float32)
+    for name, wrt, out_key, _, inp, described in base_points():
         row = fd_check_f64(mod, name, inp, wrt, out_key, args.directions, args.seed + 1)
-        row["v0"] = "uniform + 0.01 multimode" if wiggled else (
-            "multimode" if name == "closed_box" else "exactly uniform")
+        row["v0"] = described
         summary["fd_check_float64"].append(row)
     print(json.dumps({"progress": "fd float64 done", "s": time.perf_counter() - t_all}),
           file=sys.stderr, flush=True)

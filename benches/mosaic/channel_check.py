@@ -267,6 +267,12 @@ def _solid(inp, n):
     return (X - o["center"][0]) ** 2 + (Y - o["center"][1]) ** 2 < o["radius"] ** 2
 
 
+def directions(rng, g, n_dirs):
+    """`n_dirs` random unit directions of `g`'s shape and the VJP along each."""
+    dirs = [d / np.linalg.norm(d) for d in (rng.standard_normal(g.shape) for _ in range(n_dirs))]
+    return dirs, np.array([float(np.sum(g * d)) for d in dirs])
+
+
 def fd_check(t, name: str, inp: dict, wrt: str, out_key: str, n_dirs: int, seed: int) -> dict:
     """Mosaic's _fd_vjp_arrays with our Tesseract's VJP (cotangent of
     sum(result**2) is 2 result; of the drag, 1)."""
@@ -288,11 +294,7 @@ def fd_check(t, name: str, inp: dict, wrt: str, out_key: str, n_dirs: int, seed:
     g = np.asarray(t.vector_jacobian_product(inp, vjp_inputs=[wrt], vjp_outputs=[out_key],
                                              cotangent_vector=ct)[wrt], np.float64)
     vjp_s = time.perf_counter() - t0
-    dirs = []
-    for _ in range(n_dirs):
-        d = rng.standard_normal(base.shape)
-        dirs.append(d / np.linalg.norm(d))
-    vjp = np.array([float(np.sum(g * d)) for d in dirs])
+    dirs, vjp = directions(rng, g, n_dirs)
     per_eps = {}
     for eps in EPS:
         h = eps * scale
@@ -343,11 +345,7 @@ def fd_check_f64(mod, name: str, inp: dict, wrt: str, out_key: str, n_dirs: int,
     ct = ({"result": 2.0 * result[:, :, None, :]} if out_key == "result"
           else {"drag": np.array([1.0])})
     g = np.asarray(mod._vjp(raw, {wrt}, {out_key}, ct)[wrt], np.float64).reshape(base.shape)
-    dirs = []
-    for _ in range(n_dirs):
-        d = rng.standard_normal(base.shape)
-        dirs.append(d / np.linalg.norm(d))
-    vjp = np.array([float(np.sum(g * d)) for d in dirs])
+    dirs, vjp = directions(rng, g, n_dirs)
     per_eps = {}
     for eps in (1e-4, 1e-6):
         h = eps * scale

@@ -860,12 +860,7 @@ fn main() -> Result<(), BoxError> {
             .map(|(v, per)| {
                 let stats: serde_json::Map<String, Value> = per
                     .iter()
-                    .map(|(re, e)| {
-                        let mean = e.iter().sum::<f64>() / e.len() as f64;
-                        let min = e.iter().copied().fold(f64::INFINITY, f64::min);
-                        let max = e.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-                        (re.clone(), json!({"mean": mean, "min": min, "max": max, "runs": e.len()}))
-                    })
+                    .map(|(re, e)| (re.clone(), study::stats(e)))
                     .collect();
                 (v.clone(), Value::Object(stats))
             })

@@ -342,7 +342,8 @@ pub fn pressure_solves(sizes: &Sizes, re: f64) -> Result<Value> {
 /// steps, long) and the parameter count.
 pub type CapacityRun = (NetSize, Variant, u64, f64, f64, usize);
 
-fn stats(v: &[f64]) -> Value {
+/// Mean, min, max and count of `v` (null if empty).
+pub fn stats(v: &[f64]) -> Value {
     if v.is_empty() {
         return Value::Null;
     }

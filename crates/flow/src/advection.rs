@@ -233,6 +233,22 @@ struct LatticeStencils {
 }
 
 impl LatticeStencils {
+    /// `locate(x_ab).value(u, walls)` without building the stencil where
+    /// every corner is a plain lattice value (the same arithmetic, so the
+    /// same bits).
+    #[inline(always)]
+    fn value_at(&self, [a, b]: [usize; 2], u: &[f64], walls: &[f64; 4]) -> f64 {
+        let (hx, hy) = (&self.along_x[a], &self.along_y[b]);
+        if !(hx.inside && hy.inside) {
+            return self.at([a, b]).value(u, walls);
+        }
+        let (r0, r1) = (hx.idx[0] * self.nb, hx.idx[1] * self.nb);
+        let (j0, j1) = (hy.idx[0], hy.idx[1]);
+        let (wx, wy) = ([1.0 - hx.frac, hx.frac], [1.0 - hy.frac, hy.frac]);
+        wx[0] * (wy[0] * u[r0 + j0] + wy[1] * u[r0 + j1])
+            + wx[1] * (wy[0] * u[r1 + j0] + wy[1] * u[r1 + j1])
+    }
+
     /// The stencil of entry `(a, b)`: the one `locate` gives at its position.
     #[inline(always)]
     fn at(&self, [a, b]: [usize; 2]) -> Stencil {
@@ -479,8 +495,8 @@ impl Tracer<'_> {
             self.each_entry(field, off, out.len(), |k, ab, _| {
                 if field.free(k) {
                     out[k - off] = [
-                        tx.at(ab).value(self.ux, &self.walls),
-                        ty.at(ab).value(self.uy, &self.walls),
+                        tx.value_at(ab, self.ux, &self.walls),
+                        ty.value_at(ab, self.uy, &self.walls),
                     ];
                 }
             });

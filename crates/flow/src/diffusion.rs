@@ -25,6 +25,13 @@
 //! `∂L/∂u_F = s`, `∂L/∂u_X = g_X + ν dt L_FXᵀ s`, `∂L/∂U = ν dt ∂c/∂Uᵀ s` and
 //! `∂L/∂ν = dt ⟨s, (L u')_F⟩` (from `∂M/∂ν u' = −dt L_FF u'`).
 //!
+//! The explicit step and the adjoints apply `L` in face indices: a free face
+//! whose four lattice neighbours are all there (away from the non-periodic
+//! sides) has the plain five-point row, computed as a stencil (its fixed
+//! neighbours read with the same coefficient as free ones); the rows beside
+//! the sides (ghosts, zero gradient) are a small sparse matrix. `L_FF` itself
+//! stays assembled for the implicit operator.
+//!
 //! Explicit diffusion is stable for `ν dt (1/dx² + 1/dy²) ≤ ½`
 //! ([`explicit_diffusion_number`]); the step checks it.
 
@@ -38,6 +45,7 @@ use crate::boundaries::{scalar_of, view1, view2, FaceKind, Faces};
 use crate::grid::{FlowGrid, Lattice};
 use crate::sparse::Csr;
 use crate::{FlowError, Result, Scene};
+use diffphys_tape::parallel;
 
 /// How viscosity is stepped.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -61,6 +69,17 @@ pub(crate) struct ComponentLaplacian {
     free: Vec<usize>,
     /// Faces of the component.
     len: usize,
+    /// The component's lattice `[na, nb]` and the coefficients `(1/dx², 1/dy²)`.
+    shape: [usize; 2],
+    coeff: (f64, f64),
+    /// `regular[k]`: the free face `k` reads its four lattice neighbours
+    /// plainly (none missing, none itself, wrapping only along a periodic
+    /// axis), so its row is the plain five-point stencil in face indices
+    /// (fixed neighbours are read as they are, with the same coefficient).
+    regular: Vec<bool>,
+    /// The other free faces' rows in face indices (rows and columns over all
+    /// faces): the ghost and zero-gradient rows beside the sides.
+    edge: Csr,
 }
 
 /// The Laplacians of both components.
@@ -106,8 +125,12 @@ impl ComponentLaplacian {
         let mut ff = Vec::new();
         let mut fx = Vec::new();
         let mut walls = Vec::new();
+        let mut regular = vec![false; kinds.len()];
+        let mut edge = Vec::new();
         for (r, &k) in free.iter().enumerate() {
             let (a, b) = (k / nb, k % nb);
+            let mut row = Vec::new();
+            let mut plain = true;
             // (axis length, index, periodic, coefficient, is normal axis, sides low/high)
             let axes = [
                 (
@@ -145,25 +168,35 @@ impl ComponentLaplacian {
                         Some(j) => {
                             let nk = if along_a { j * nb + b } else { a * nb + j };
                             if nk == k {
+                                plain = false;
                                 continue;
                             }
                             ff.push((r, r, -c));
+                            row.push((k, k, -c));
+                            row.push((k, nk, c));
                             if index[nk] != usize::MAX {
                                 ff.push((r, index[nk], c));
                             } else {
                                 fx.push((r, nk, c));
                             }
                         }
-                        None if normal => {} // zero gradient through an open side
+                        None if normal => plain = false, // zero gradient through an open side
                         None => {
+                            plain = false;
                             let (factor, wall) = grid.sides.get(side).ghost();
                             ff.push((r, r, c * (factor - 1.0)));
+                            row.push((k, k, c * (factor - 1.0)));
                             if wall != 0.0 {
                                 walls.push((r, side.index(), c * wall));
                             }
                         }
                     }
                 }
+            }
+            if plain {
+                regular[k] = true;
+            } else {
+                edge.extend(row);
             }
         }
         ComponentLaplacian {
@@ -172,6 +205,10 @@ impl ComponentLaplacian {
             walls,
             free,
             len: kinds.len(),
+            shape: [na, nb],
+            coeff: (cx, cy),
+            regular,
+            edge: Csr::from_triplets(kinds.len(), kinds.len(), edge),
         }
     }
 
@@ -179,15 +216,80 @@ impl ComponentLaplacian {
         self.free.iter().map(|&k| u[k]).collect()
     }
 
-    /// `(L u)_F` on the free faces.
-    fn apply(&self, u: &[f64], walls: &[f64; 4]) -> Vec<f64> {
-        let mut out = vec![0.0; self.free.len()];
-        self.ff.mul_add(1.0, &self.gather(u), &mut out);
-        self.fx.mul_add(1.0, u, &mut out);
+    /// `(L u)_k` at every free face `k` of `u` (face indices), 0 at the
+    /// fixed faces: the five-point stencil on the regular rows (on all cores
+    /// for a large lattice), the edge rows and the wall terms beside.
+    fn apply_faces(&self, u: &[f64], walls: &[f64; 4]) -> Vec<f64> {
+        let mut out = vec![0.0; self.len];
+        self.stencil_add(u, Some(&self.regular), &mut out);
+        self.edge.mul_add(1.0, u, &mut out);
         for &(r, s, c) in &self.walls {
-            out[r] += c * walls[s];
+            out[self.free[r]] += c * walls[s];
         }
         out
+    }
+
+    /// `out_k += (S v)_k` where `mask` (all faces without one), `S` the
+    /// plain five-point stencil with wrapped neighbour indices: `S` is
+    /// symmetric, so with `v` zero off the regular rows this is also the
+    /// transpose of the regular rows.
+    fn stencil_add(&self, v: &[f64], mask: Option<&[bool]>, out: &mut [f64]) {
+        let [na, nb] = self.shape;
+        if na * nb == 0 {
+            return;
+        }
+        let (cx, cy) = self.coeff;
+        let centre = -2.0 * (cx + cy);
+        // whole rows of the lattice per task, so that no entry needs a division
+        let rows = parallel::CHUNK.div_ceil(nb);
+        parallel::map_chunks_mut_by(out, rows * nb, |off, block| {
+            for (r, o) in block.chunks_mut(nb).enumerate() {
+                let a = off / nb + r;
+                let am = if a == 0 { na - 1 } else { a - 1 };
+                let ap = if a + 1 == na { 0 } else { a + 1 };
+                let (row, below, above) = (
+                    &v[a * nb..(a + 1) * nb],
+                    &v[am * nb..(am + 1) * nb],
+                    &v[ap * nb..(ap + 1) * nb],
+                );
+                let m = mask.map(|m| &m[a * nb..(a + 1) * nb]);
+                for (b, ob) in o.iter_mut().enumerate() {
+                    let bm = if b == 0 { nb - 1 } else { b - 1 };
+                    let bp = if b + 1 == nb { 0 } else { b + 1 };
+                    let s = cx * (below[b] + above[b]) + cy * (row[bm] + row[bp]) + centre * row[b];
+                    if m.is_none_or(|m| m[b]) {
+                        *ob += s;
+                    }
+                }
+            }
+        });
+    }
+
+    /// Adds `alpha · ∂(L u)/∂(u, U)ᵀ g` to the gradients, `g` in face indices
+    /// (read at the free faces only): the transpose of [`Self::apply_faces`].
+    fn apply_faces_vjp(
+        &self,
+        alpha: f64,
+        g: &[f64],
+        grad_u: &mut [f64],
+        grad_walls: &mut [f64; 4],
+    ) {
+        let masked: Vec<f64> = g
+            .iter()
+            .zip(&self.regular)
+            .map(|(&v, &r)| if r { alpha * v } else { 0.0 })
+            .collect();
+        self.stencil_add(&masked, None, grad_u);
+        self.edge.mul_t_add(alpha, g, grad_u);
+        for &(r, s, c) in &self.walls {
+            grad_walls[s] += alpha * c * g[self.free[r]];
+        }
+    }
+
+    /// `(L u)_F` on the free faces.
+    fn apply(&self, u: &[f64], walls: &[f64; 4]) -> Vec<f64> {
+        let lu = self.apply_faces(u, walls);
+        self.gather(&lu)
     }
 
     /// `(L_FX u + c(U))_F`: what the fixed faces and walls add.
@@ -360,11 +462,10 @@ pub fn diffuse<T: Real>(
         let mut u = wide(u);
         let new_free = match mode {
             ViscosityMode::Explicit => {
-                let lu = l.apply(&u, &walls);
+                let lu = l.apply_faces(&u, &walls);
                 l.free
                     .iter()
-                    .zip(&lu)
-                    .map(|(&k, d)| u[k] + nu * dt * d)
+                    .map(|&k| u[k] + nu * dt * lu[k])
                     .collect::<Vec<_>>()
             }
             ViscosityMode::Implicit => {
@@ -434,9 +535,9 @@ pub fn diffuse_vjp<T: Real>(
                 for &k in &l.free {
                     gu[k] += g[k];
                 }
-                l.apply_vjp(nu * dt, &g_free, &mut gu, &mut g_walls, true);
-                let lu = l.apply(&u, &walls);
-                g_nu += dt * g_free.iter().zip(&lu).map(|(a, b)| a * b).sum::<f64>();
+                l.apply_faces_vjp(nu * dt, &g, &mut gu, &mut g_walls);
+                let lu = l.apply_faces(&u, &walls);
+                g_nu += dt * l.free.iter().map(|&k| g[k] * lu[k]).sum::<f64>();
             }
             ViscosityMode::Implicit => {
                 let s = helmholtz_solve(scene, l, nu * dt, g_free.clone(), g_free)?;
@@ -525,4 +626,78 @@ pub(crate) fn default_viscosity_solver() -> CgParams {
     CgParams::default()
         .with_rel_tol(1e-10)
         .with_preconditioner(Preconditioning::Jacobi)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{Boundary, Obstacle, Sides};
+
+    /// `(L u)_F` from the assembled blocks `L_FF u_F + L_FX u + c(U)`.
+    fn assembled(l: &ComponentLaplacian, u: &[f64], walls: &[f64; 4]) -> Vec<f64> {
+        let mut out = vec![0.0; l.free.len()];
+        l.ff.mul_add(1.0, &l.gather(u), &mut out);
+        l.fx.mul_add(1.0, u, &mut out);
+        for &(r, s, c) in &l.walls {
+            out[r] += c * walls[s];
+        }
+        out
+    }
+
+    fn scenes() -> Vec<Scene> {
+        let mixed = |n: usize, m: usize| {
+            Scene::builder(n, m, [1.0, 0.8])
+                .sides(Sides {
+                    left: Boundary::NoSlip,
+                    right: Boundary::Outflow,
+                    bottom: Boundary::MovingWall { speed: 0.5 },
+                    top: Boundary::FreeSlip,
+                })
+                .obstacle(Obstacle::rectangle([0.4, 0.3], [0.7, 0.65]))
+        };
+        let periodic_x = Scene::builder(9, 7, [1.0, 1.0]).sides(Sides {
+            left: Boundary::Periodic,
+            right: Boundary::Periodic,
+            bottom: Boundary::NoSlip,
+            top: Boundary::MovingWall { speed: -0.3 },
+        });
+        [
+            mixed(8, 7),
+            // large enough that the stencil splits across threads
+            mixed(300, 240),
+            Scene::builder(6, 5, [1.0, 1.0]).sides(Sides::periodic()),
+            Scene::builder(2, 3, [1.0, 1.0]).sides(Sides::periodic()),
+            periodic_x,
+        ]
+        .into_iter()
+        .map(|b| b.viscosity(0.01).dt(0.01).build().unwrap())
+        .collect()
+    }
+
+    /// The face-index path (five-point rows, edge rows, wall terms) is the
+    /// assembled Laplacian, and its transpose is the assembled transpose.
+    #[test]
+    fn stencil_rows_match_the_assembled_blocks() {
+        let walls = [0.3, -0.7, 1.1, 0.4];
+        for scene in scenes() {
+            for l in [&scene.laplacian().x, &scene.laplacian().y] {
+                let u: Vec<f64> = (0..l.len).map(|k| ((k * 37 % 101) as f64).sin()).collect();
+                let fast = l.apply(&u, &walls);
+                let slow = assembled(l, &u, &walls);
+                let scale = slow.iter().fold(1.0f64, |m, v| m.max(v.abs()));
+                for (a, b) in fast.iter().zip(&slow) {
+                    assert!((a - b).abs() <= 1e-12 * scale, "L u: {a} against {b}");
+                }
+                // transpose: the free rows' g against L_FFᵀ and L_FXᵀ
+                let g: Vec<f64> = (0..l.len).map(|k| ((k * 53 % 89) as f64).cos()).collect();
+                let (mut fast_u, mut fast_w) = (vec![0.0; l.len], [0.0; 4]);
+                l.apply_faces_vjp(0.7, &g, &mut fast_u, &mut fast_w);
+                let (mut slow_u, mut slow_w) = (vec![0.0; l.len], [0.0; 4]);
+                l.apply_vjp(0.7, &l.gather(&g), &mut slow_u, &mut slow_w, true);
+                for (a, b) in fast_u.iter().zip(&slow_u).chain(fast_w.iter().zip(&slow_w)) {
+                    assert!((a - b).abs() <= 1e-12 * scale, "Lᵀ g: {a} against {b}");
+                }
+            }
+        }
+    }
 }

@@ -821,9 +821,7 @@ impl Scene {
 
     /// `max |u_x| dt/dx + … `: the Courant number `max(|u_x|/dx, |u_y|/dy) · dt`.
     pub fn courant<T: Real>(&self, ux: ArrayView2<'_, T>, uy: ArrayView2<'_, T>, dt: f64) -> f64 {
-        let m = |a: ArrayView2<'_, T>, h: f64| {
-            a.iter().fold(0.0f64, |m, v| m.max(v.as_f64().abs())) / h
-        };
+        let m = |a: ArrayView2<'_, T>, h: f64| max_abs(a.iter()) / h;
         dt * m(ux, self.grid().dx).max(m(uy, self.grid().dy))
     }
 
@@ -845,8 +843,7 @@ impl Scene {
         }
         self.check_walls(STEP, p.wall_speed.view())?;
         self.check_inflow(STEP, p.inflow.view())?;
-        let finite = |quantity: &str, it: &mut dyn Iterator<Item = &T>| -> Result<()> {
-            let count = it.filter(|v| !v.is_finite()).count();
+        let finite = |quantity: &str, count: usize| -> Result<()> {
             if count == 0 {
                 Ok(())
             } else {
@@ -857,14 +854,14 @@ impl Scene {
                 })
             }
         };
-        finite("x-velocity", &mut s.ux.iter())?;
-        finite("y-velocity", &mut s.uy.iter())?;
-        finite("pressure", &mut s.pressure.iter())?;
+        finite("x-velocity", nonfinite(s.ux.iter()))?;
+        finite("y-velocity", nonfinite(s.uy.iter()))?;
+        finite("pressure", nonfinite(s.pressure.iter()))?;
         for a in &s.scalars {
-            finite("scalar", &mut a.iter())?;
+            finite("scalar", nonfinite(a.iter()))?;
         }
-        finite("wall speeds", &mut p.wall_speed.iter())?;
-        finite("inflow profile", &mut p.inflow.iter())?;
+        finite("wall speeds", nonfinite(p.wall_speed.iter()))?;
+        finite("inflow profile", nonfinite(p.inflow.iter()))?;
         let nu = p.viscosity.as_f64();
         if !(nu.is_finite() && nu > 0.0) {
             return Err(FlowError::parameter(
@@ -1094,6 +1091,21 @@ impl Scene {
         )?;
         FlowVars::from_slice(&out)
     }
+}
+
+/// How many of the values are NaN or infinite.
+fn nonfinite<'a, T: Real>(values: impl Iterator<Item = &'a T>) -> usize {
+    values.filter(|v| !v.is_finite()).count()
+}
+
+/// `max |v|` (0 for none), over four running maxima so that the loop is not
+/// one chain of dependent comparisons.
+fn max_abs<'a, T: Real>(values: impl Iterator<Item = &'a T>) -> f64 {
+    let mut m = [0.0f64; 4];
+    for (i, v) in values.enumerate() {
+        m[i % 4] = m[i % 4].max(v.as_f64().abs());
+    }
+    m[0].max(m[1]).max(m[2].max(m[3]))
 }
 
 /// The state as the executor's values.

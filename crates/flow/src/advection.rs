@@ -32,7 +32,9 @@
 //! - A. Selle, R. Fedkiw, B. Kim, Y. Liu, J. Rossignac, *An unconditionally
 //!   stable MacCormack method*, J. Sci. Comput. 35 (2008) 350–371.
 
-use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
+use std::borrow::Cow;
+
+use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, PerPrecision, Real, TapeError};
 use ndarray::{Array1, Array2, ArrayView1, ArrayView2};
 use rayon::prelude::*;
 
@@ -739,12 +741,32 @@ impl Grads {
     }
 }
 
-pub(crate) fn wide<T: Real>(a: ArrayView2<'_, T>) -> Vec<f64> {
-    a.iter().map(|v| v.as_f64()).collect()
+/// `f64` values of a slice: the slice itself in `f64`, none in `f32`.
+struct AsWide;
+impl PerPrecision for AsWide {
+    type Of<T: Real> = for<'b> fn(&'b [T]) -> Option<&'b [f64]>;
 }
 
-pub(crate) fn narrow<T: Real>(shape: [usize; 2], v: &[f64]) -> Array2<T> {
-    crate::boundaries::array2(shape, v.iter().map(|&x| T::from_f64(x)).collect())
+/// Values from `f64`: the vector itself in `f64`, converted in `f32`.
+struct FromWide;
+impl PerPrecision for FromWide {
+    type Of<T: Real> = fn(Vec<f64>) -> Vec<T>;
+}
+
+/// The entries of `a` in `f64`, row-major: borrowed when `a` is a
+/// standard-layout `f64` array, converted otherwise.
+pub(crate) fn wide<T: Real>(a: ArrayView2<'_, T>) -> Cow<'_, [f64]> {
+    let borrow = T::pick::<AsWide>(|_| None, |s| Some(s));
+    match a.to_slice().and_then(borrow) {
+        Some(s) => Cow::Borrowed(s),
+        None => Cow::Owned(a.iter().map(|v| v.as_f64()).collect()),
+    }
+}
+
+/// `v` as an array of `T` of `shape` (moved, not copied, in `f64`).
+pub(crate) fn narrow<T: Real>(shape: [usize; 2], v: Vec<f64>) -> Array2<T> {
+    let convert = T::pick::<FromWide>(|v| v.into_iter().map(|x| x as f32).collect(), |v| v);
+    crate::boundaries::array2(shape, convert(v))
 }
 
 pub(crate) fn walls_of<T: Real>(w: ArrayView1<'_, T>) -> [f64; 4] {
@@ -828,7 +850,7 @@ pub fn advect_velocity<T: Real>(
         || tr.step(&field_of(scene, Lattice::FaceX), &wide(field.0), dt, scheme),
         || tr.step(&field_of(scene, Lattice::FaceY), &wide(field.1), dt, scheme),
     );
-    Ok((narrow(g.shape_x(), &ox), narrow(g.shape_y(), &oy)))
+    Ok((narrow(g.shape_x(), ox), narrow(g.shape_y(), oy)))
 }
 
 /// The vector–Jacobian product of [`advect_velocity`] with the gradients
@@ -852,32 +874,32 @@ pub fn advect_velocity_vjp<T: Real>(
     let (ux, uy) = (wide(velocity.0), wide(velocity.1));
     let tr = tracer(scene, &ux, &uy, walls_of(wall_speed));
     let (nx, ny) = (ux.len(), uy.len());
-    let mut gx = Grads::zeros(nx, nx, ny);
-    tr.step_vjp(
-        &field_of(scene, Lattice::FaceX),
-        &wide(field.0),
-        dt,
-        scheme,
-        &wide(grad.0),
-        &mut gx,
-    );
-    let mut gy = Grads::zeros(ny, nx, ny);
-    tr.step_vjp(
-        &field_of(scene, Lattice::FaceY),
-        &wide(field.1),
-        dt,
-        scheme,
-        &wide(grad.1),
-        &mut gy,
+    // each component's products land in gradients of its own, added after
+    // in a fixed order: on two threads, the same bits as on one
+    let component = |lattice: Lattice, q: ArrayView2<'_, T>, g: ArrayView2<'_, T>, nq: usize| {
+        let mut grads = Grads::zeros(nq, nx, ny);
+        tr.step_vjp(
+            &field_of(scene, lattice),
+            &wide(q),
+            dt,
+            scheme,
+            &wide(g),
+            &mut grads,
+        );
+        grads
+    };
+    let (gx, gy) = rayon::join(
+        || component(Lattice::FaceX, field.0, grad.0, nx),
+        || component(Lattice::FaceY, field.1, grad.1, ny),
     );
     // the velocity traces both components
     let sum = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x + y).collect::<Vec<_>>();
     let g = scene.grid();
     Ok(VelocityAdvectionGrads {
-        field_x: narrow(g.shape_x(), &gx.q),
-        field_y: narrow(g.shape_y(), &gy.q),
-        ux: narrow(g.shape_x(), &sum(&gx.ux, &gy.ux)),
-        uy: narrow(g.shape_y(), &sum(&gx.uy, &gy.uy)),
+        field_x: narrow(g.shape_x(), gx.q),
+        field_y: narrow(g.shape_y(), gy.q),
+        ux: narrow(g.shape_x(), sum(&gx.ux, &gy.ux)),
+        uy: narrow(g.shape_y(), sum(&gx.uy, &gy.uy)),
         wall_speed: (0..4)
             .map(|s| T::from_f64(gx.walls[s] + gy.walls[s]))
             .collect(),
@@ -904,7 +926,7 @@ pub fn advect_scalar<T: Real>(
     let (ux, uy) = (wide(ux), wide(uy));
     let tr = tracer(scene, &ux, &uy, walls_of(wall_speed));
     let out = tr.step(&field_of(scene, Lattice::Cell), &wide(s), dt, scheme);
-    Ok(narrow(scene.grid().cell_shape(), &out))
+    Ok(narrow(scene.grid().cell_shape(), out))
 }
 
 /// The vector–Jacobian product of [`advect_scalar`] with the gradient `grad`
@@ -941,9 +963,9 @@ pub fn advect_scalar_vjp<T: Real>(
     );
     let grid = scene.grid();
     Ok(ScalarAdvectionGrads {
-        scalar: narrow(grid.cell_shape(), &g.q),
-        ux: narrow(grid.shape_x(), &g.ux),
-        uy: narrow(grid.shape_y(), &g.uy),
+        scalar: narrow(grid.cell_shape(), g.q),
+        ux: narrow(grid.shape_x(), g.ux),
+        uy: narrow(grid.shape_y(), g.uy),
         wall_speed: (0..4).map(|s| T::from_f64(g.walls[s])).collect(),
     })
 }

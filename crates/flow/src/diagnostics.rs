@@ -40,7 +40,7 @@ pub fn divergence<T: Real>(
 ) -> Result<Array2<T>> {
     scene.check_velocity("divergence", ux, uy)?;
     let d = divergence_wide(scene, &wide(ux), &wide(uy), false);
-    Ok(narrow(scene.grid().cell_shape(), &d))
+    Ok(narrow(scene.grid().cell_shape(), d))
 }
 
 /// The vector–Jacobian product of [`divergence`]: `Dᵀ g = −G g`.
@@ -55,7 +55,7 @@ pub fn divergence_vjp<T: Real>(
     let (gx, gy) = gradient_wide(scene, &wide(grad), false);
     let g = scene.grid();
     let neg = |v: Vec<f64>| v.into_iter().map(|x| -x).collect::<Vec<_>>();
-    Ok((narrow(g.shape_x(), &neg(gx)), narrow(g.shape_y(), &neg(gy))))
+    Ok((narrow(g.shape_x(), neg(gx)), narrow(g.shape_y(), neg(gy))))
 }
 
 /// `max |D u|` over the fluid cells.
@@ -125,7 +125,7 @@ pub fn vorticity<T: Real>(
     for (n, c, f, k) in terms {
         w[n] += k * u[c][f];
     }
-    Ok(narrow(shape, &w))
+    Ok(narrow(shape, w))
 }
 
 /// The vector–Jacobian product of [`vorticity`]: `(∂L/∂u_x, ∂L/∂u_y)`.
@@ -147,10 +147,8 @@ pub fn vorticity_vjp<T: Real>(
     for (n, c, f, k) in terms {
         out[c][f] += k * g[n];
     }
-    Ok((
-        narrow(grid.shape_x(), &out[0]),
-        narrow(grid.shape_y(), &out[1]),
-    ))
+    let [ox, oy] = out;
+    Ok((narrow(grid.shape_x(), ox), narrow(grid.shape_y(), oy)))
 }
 
 /// The weights of the obstacle force: `F_d = Σ P_c wp + ν Σ u_f wu`.
@@ -290,10 +288,11 @@ pub fn obstacle_force_vjp<T: Real>(
         gu[c][face] += nu.as_f64() * k * g[d];
         gnu += k * u[c][face] * g[d];
     }
+    let [gx, gy] = gu;
     Ok(ForceGrads {
-        ux: narrow(grid.shape_x(), &gu[0]),
-        uy: narrow(grid.shape_y(), &gu[1]),
-        pressure: narrow(grid.cell_shape(), &gp),
+        ux: narrow(grid.shape_x(), gx),
+        uy: narrow(grid.shape_y(), gy),
+        pressure: narrow(grid.cell_shape(), gp),
         viscosity: T::from_f64(gnu),
     })
 }

@@ -459,7 +459,7 @@ pub fn diffuse<T: Real>(
     let mut out = Vec::with_capacity(2);
     for (lat, u) in [(Lattice::FaceX, ux), (Lattice::FaceY, uy)] {
         let l = lap.of(lat);
-        let mut u = wide(u);
+        let mut u = wide(u).into_owned();
         let new_free = match mode {
             ViscosityMode::Explicit => {
                 let lu = l.apply_faces(&u, &walls);
@@ -480,7 +480,7 @@ pub fn diffuse<T: Real>(
         for (&k, v) in l.free.iter().zip(new_free) {
             u[k] = v;
         }
-        out.push(narrow::<T>(grid.shape(lat), &u));
+        out.push(narrow::<T>(grid.shape(lat), u));
     }
     let uy = out.pop().expect("two");
     let ux = out.pop().expect("two");
@@ -526,7 +526,7 @@ pub fn diffuse_vjp<T: Real>(
         let g = wide(g);
         let g_free = l.gather(&g);
         // Fixed faces pass through; free faces are replaced.
-        let mut gu = g.clone();
+        let mut gu = g.to_vec();
         for &k in &l.free {
             gu[k] = 0.0;
         }
@@ -550,7 +550,7 @@ pub fn diffuse_vjp<T: Real>(
             }
         }
         debug_assert_eq!(gu.len(), l.len);
-        grads.push(narrow::<T>(grid.shape(lat), &gu));
+        grads.push(narrow::<T>(grid.shape(lat), gu));
     }
     let uy = grads.pop().expect("two");
     let ux = grads.pop().expect("two");

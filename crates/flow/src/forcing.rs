@@ -63,12 +63,12 @@ pub fn buoyancy<T: Real>(
 ) -> Result<Array2<T>> {
     scene.check_component(NAME, "y-velocity", scene.grid().shape_y(), uy)?;
     scene.check_cells(NAME, "scalar", s)?;
-    let mut u = wide(uy);
+    let mut u = wide(uy).into_owned();
     let s = wide(s);
     for (k, c, w) in terms(scene) {
         u[k] += dt * beta * w * s[c];
     }
-    Ok(narrow(scene.grid().shape_y(), &u))
+    Ok(narrow(scene.grid().shape_y(), u))
 }
 
 /// The vector–Jacobian product of [`buoyancy`]: `(∂L/∂u_y, ∂L/∂s)`.
@@ -87,7 +87,7 @@ pub fn buoyancy_vjp<T: Real>(
     for (k, c, w) in terms(scene) {
         gs[c] += dt * beta * w * g[k];
     }
-    Ok((grad.to_owned(), narrow(scene.grid().cell_shape(), &gs)))
+    Ok((grad.to_owned(), narrow(scene.grid().cell_shape(), gs)))
 }
 
 /// [`buoyancy`] as a tape op: inputs `[u_y, s]`, output `[u_y']`.

@@ -446,7 +446,7 @@ pub fn project<T: Real>(
     if let Some(p) = pressure_guess {
         scene.check_cells(NAME, "pressure guess", p)?;
     }
-    let (mut ux, mut uy) = (wide(ux), wide(uy));
+    let (mut ux, mut uy) = (wide(ux).into_owned(), wide(uy).into_owned());
     let b: Vec<f64> = divergence_wide(scene, &ux, &uy, false)
         .iter()
         .map(|d| -d)
@@ -459,9 +459,9 @@ pub fn project<T: Real>(
     let grid = scene.grid();
     let pressure: Vec<f64> = p.iter().map(|v| v / tau).collect();
     Ok(Projected {
-        ux: narrow(grid.shape_x(), &ux),
-        uy: narrow(grid.shape_y(), &uy),
-        pressure: narrow(grid.cell_shape(), &pressure),
+        ux: narrow(grid.shape_x(), ux),
+        uy: narrow(grid.shape_y(), uy),
+        pressure: narrow(grid.cell_shape(), pressure),
         iterations,
     })
 }
@@ -479,7 +479,7 @@ pub fn project_vjp<T: Real>(
     grad_pressure: Option<ArrayView2<'_, T>>,
 ) -> Result<(Array2<T>, Array2<T>)> {
     scene.check_velocity(NAME, grad_x, grad_y)?;
-    let (mut gx, mut gy) = (wide(grad_x), wide(grad_y));
+    let (mut gx, mut gy) = (wide(grad_x).into_owned(), wide(grad_y).into_owned());
     let mut rhs: Vec<f64> = divergence_wide(scene, &gx, &gy, true)
         .iter()
         .map(|d| -d)
@@ -495,7 +495,7 @@ pub fn project_vjp<T: Real>(
     gx.iter_mut().zip(&sx).for_each(|(g, s)| *g -= s);
     gy.iter_mut().zip(&sy).for_each(|(g, s)| *g -= s);
     let grid = scene.grid();
-    Ok((narrow(grid.shape_x(), &gx), narrow(grid.shape_y(), &gy)))
+    Ok((narrow(grid.shape_x(), gx), narrow(grid.shape_y(), gy)))
 }
 
 /// Iteration counts of the pressure solves, shared between a step and its ops.
@@ -594,12 +594,12 @@ pub fn subtract_pressure_gradient<T: Real>(
     const STEP: &str = "pressure gradient";
     scene.check_velocity(STEP, ux, uy)?;
     scene.check_cells(STEP, "pressure", pressure)?;
-    let (mut ux, mut uy) = (wide(ux), wide(uy));
+    let (mut ux, mut uy) = (wide(ux).into_owned(), wide(uy).into_owned());
     let (gx, gy) = gradient_wide(scene, &wide(pressure), true);
     ux.iter_mut().zip(&gx).for_each(|(u, g)| *u -= c * g);
     uy.iter_mut().zip(&gy).for_each(|(u, g)| *u -= c * g);
     let grid = scene.grid();
-    Ok((narrow(grid.shape_x(), &ux), narrow(grid.shape_y(), &uy)))
+    Ok((narrow(grid.shape_x(), ux), narrow(grid.shape_y(), uy)))
 }
 
 /// The vector–Jacobian product of [`subtract_pressure_gradient`]:
@@ -619,7 +619,7 @@ pub fn subtract_pressure_gradient_vjp<T: Real>(
     Ok((
         grad_x.to_owned(),
         grad_y.to_owned(),
-        narrow(scene.grid().cell_shape(), &gp),
+        narrow(scene.grid().cell_shape(), gp),
     ))
 }
 

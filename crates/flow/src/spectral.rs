@@ -30,6 +30,8 @@ use std::sync::Arc;
 use rustfft::num_complex::Complex;
 use rustfft::{Fft, FftPlanner};
 
+use diffphys_tape::parallel;
+
 use crate::{FlowError, Result};
 
 /// `A⁺` of the periodic five-point Laplacian on an `nx × ny` box.
@@ -94,37 +96,41 @@ impl PeriodicPoisson {
     }
 
     /// `F⁻¹ (m(λ) · F rhs)`.
-    fn solve_symbol(&self, rhs: &[f64], multiplier: impl Fn(f64) -> f64) -> Vec<f64> {
+    fn solve_symbol(&self, rhs: &[f64], multiplier: impl Fn(f64) -> f64 + Sync) -> Vec<f64> {
         let (nx, ny) = (self.nx, self.ny);
         debug_assert_eq!(rhs.len(), nx * ny, "one value per cell");
-        let scratch_len = [
-            &self.along_y,
-            &self.along_y_inv,
-            &self.along_x,
-            &self.along_x_inv,
-        ]
-        .iter()
-        .map(|f| f.get_inplace_scratch_len())
-        .max()
-        .unwrap_or(0);
-        let mut scratch = vec![Complex::default(); scratch_len];
         let mut rows: Vec<Complex<f64>> = rhs.iter().map(|&v| Complex::new(v, 0.0)).collect();
-        self.along_y.process_with_scratch(&mut rows, &mut scratch);
+        each_row(&self.along_y, &mut rows, ny);
         let mut cols = vec![Complex::default(); nx * ny];
         transpose(&rows, &mut cols, nx, ny);
-        self.along_x.process_with_scratch(&mut cols, &mut scratch);
+        each_row(&self.along_x, &mut cols, nx);
         // λ(0, 0) = 0 exactly (cos 0 = 1), the one mode a pseudo-inverse drops
         let scale = 1.0 / (nx * ny) as f64;
-        cols.iter_mut()
-            .zip(&self.eigenvalues)
-            .for_each(|(c, &lambda)| *c *= scale * multiplier(lambda));
-        self.along_x_inv
-            .process_with_scratch(&mut cols, &mut scratch);
+        parallel::for_each_chunk_mut(&mut cols, |off, block| {
+            block
+                .iter_mut()
+                .zip(&self.eigenvalues[off..])
+                .for_each(|(c, &lambda)| *c *= scale * multiplier(lambda));
+        });
+        each_row(&self.along_x_inv, &mut cols, nx);
         transpose(&cols, &mut rows, ny, nx);
-        self.along_y_inv
-            .process_with_scratch(&mut rows, &mut scratch);
+        each_row(&self.along_y_inv, &mut rows, ny);
         rows.iter().map(|c| c.re).collect()
     }
+}
+
+/// `fft` applied to each row of `len` entries of `data`: blocks of rows on
+/// all cores for a large array (each row transformed alone, so the same bits
+/// on any number of threads).
+fn each_row(fft: &Arc<dyn Fft<f64>>, data: &mut [Complex<f64>], len: usize) {
+    if len == 0 {
+        return;
+    }
+    let rows = parallel::CHUNK.div_ceil(len);
+    parallel::map_chunks_mut_by(data, rows * len, |_, block| {
+        let mut scratch = vec![Complex::default(); fft.get_inplace_scratch_len()];
+        fft.process_with_scratch(block, &mut scratch);
+    });
 }
 
 /// [`FlowError::NonFinite`] naming `step` and `quantity` if `v` holds NaN or
@@ -142,16 +148,23 @@ pub(crate) fn check_finite(step: &str, quantity: &str, v: &[f64]) -> Result<()> 
     }
 }
 
-/// `to[b · na + a] = from[a · nb + b]` for an `na × nb` array, in tiles.
+/// `to[b · na + a] = from[a · nb + b]` for an `na × nb` array, in tiles;
+/// blocks of `to`'s rows on all cores for a large array.
 fn transpose(from: &[Complex<f64>], to: &mut [Complex<f64>], na: usize, nb: usize) {
     const TILE: usize = 16;
-    for a0 in (0..na).step_by(TILE) {
-        for b0 in (0..nb).step_by(TILE) {
-            for a in a0..(a0 + TILE).min(na) {
-                for b in b0..(b0 + TILE).min(nb) {
-                    to[b * na + a] = from[a * nb + b];
+    if na == 0 {
+        return;
+    }
+    let rows = parallel::CHUNK.div_ceil(na);
+    parallel::map_chunks_mut_by(to, rows * na, |off, block| {
+        let (b_lo, b_hi) = (off / na, off / na + block.len() / na);
+        for a0 in (0..na).step_by(TILE) {
+            for b in b_lo..b_hi {
+                let out = &mut block[(b - b_lo) * na..(b - b_lo + 1) * na];
+                for a in a0..(a0 + TILE).min(na) {
+                    out[a] = from[a * nb + b];
                 }
             }
         }
-    }
+    });
 }

@@ -486,20 +486,27 @@ impl Tracer<'_> {
     /// `v(x_k) = (I_ux(x_k), I_uy(x_k))` at every free entry of `field`
     /// (zero at fixed entries, which are not traced). Computed once per step
     /// and shared by its passes; the stencils come from the per-axis tables
-    /// of [`Sampler::on_lattice`].
+    /// of [`Sampler::on_lattice`]. On a face lattice the component that lives
+    /// there is read, not interpolated: `I_ux` at an x-face is `u_x` there
+    /// (the bilinear weights of a lattice point are 1 and 0 up to rounding).
     fn velocities(&self, field: &Field<'_>, len: usize) -> Vec<[f64; 2]> {
         let (tx, ty) = (
             self.sx.on_lattice(self.grid, field.lattice),
             self.sy.on_lattice(self.grid, field.lattice),
         );
+        let own = field.lattice;
         let mut v = vec![[0.0; 2]; len];
         for_blocks(&mut v, |off, out| {
             self.each_entry(field, off, out.len(), |k, ab, _| {
                 if field.free(k) {
-                    out[k - off] = [
-                        tx.value_at(ab, self.ux, &self.walls),
-                        ty.value_at(ab, self.uy, &self.walls),
-                    ];
+                    out[k - off] = match own {
+                        Lattice::FaceX => [self.ux[k], ty.value_at(ab, self.uy, &self.walls)],
+                        Lattice::FaceY => [tx.value_at(ab, self.ux, &self.walls), self.uy[k]],
+                        Lattice::Cell => [
+                            tx.value_at(ab, self.ux, &self.walls),
+                            ty.value_at(ab, self.uy, &self.walls),
+                        ],
+                    };
                 }
             });
         });
@@ -513,13 +520,22 @@ impl Tracer<'_> {
             self.sx.on_lattice(self.grid, field.lattice),
             self.sy.on_lattice(self.grid, field.lattice),
         );
+        let own = field.lattice;
         self.each_entry(field, 0, g_v.len(), |k, ab, _| {
             let g = g_v[k];
             if g[0] != 0.0 {
-                tx.at(ab).scatter(g[0], &mut grads.ux, &mut grads.walls);
+                if own == Lattice::FaceX {
+                    grads.ux[k] += g[0];
+                } else {
+                    tx.at(ab).scatter(g[0], &mut grads.ux, &mut grads.walls);
+                }
             }
             if g[1] != 0.0 {
-                ty.at(ab).scatter(g[1], &mut grads.uy, &mut grads.walls);
+                if own == Lattice::FaceY {
+                    grads.uy[k] += g[1];
+                } else {
+                    ty.at(ab).scatter(g[1], &mut grads.uy, &mut grads.walls);
+                }
             }
         });
     }

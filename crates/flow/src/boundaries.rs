@@ -305,6 +305,14 @@ pub(crate) struct Faces {
 }
 
 impl Faces {
+    /// Whether every face is free (a periodic box without obstacle): then
+    /// [`enforce_boundaries`] is the identity.
+    pub(crate) fn all_free(&self) -> bool {
+        self.x.iter().chain(&self.y).all(|k| *k == FaceKind::Free)
+    }
+}
+
+impl Faces {
     /// Classifies the faces of `grid` with the solid cells `solid` (`[nx, ny]`).
     pub(crate) fn classify(grid: &FlowGrid, solid: &Array2<bool>) -> Faces {
         let (nx, ny) = (grid.nx, grid.ny);

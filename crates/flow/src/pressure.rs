@@ -42,7 +42,7 @@ use diffphys_ops::mac::MacGrid;
 use diffphys_ops::multigrid::Multigrid;
 use diffphys_ops::reference::SparseCholesky;
 use diffphys_ops::{Boundary as OpsBoundary, CellMask, Grid2, LinearOperator};
-use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
+use diffphys_tape::{parallel, ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
 use ndarray::{Array2, ArrayView2, ArrayViewMutD, IxDyn};
 
 use crate::advection::{narrow, wide};
@@ -340,76 +340,109 @@ pub(crate) fn divergence_wide(scene: &Scene, ux: &[f64], uy: &[f64], free_only: 
     let g = scene.grid();
     let faces = scene.faces();
     let (nx, ny) = (g.nx, g.ny);
-    let mut d = vec![0.0; nx * ny];
     let [nfx, _] = g.shape_x();
-    for f in 0..nfx {
-        let (lo, hi) = g.x_face_cells(f);
-        for j in 0..ny {
-            let k = f * ny + j;
-            if free_only && faces.x[k] != FaceKind::Free {
-                continue;
-            }
-            let flow = ux[k] / g.dx;
-            if let Some(i) = lo {
-                d[i * ny + j] += flow;
-            }
-            if let Some(i) = hi {
-                d[i * ny + j] -= flow;
-            }
-        }
-    }
     let [_, nfy] = g.shape_y();
-    for i in 0..nx {
-        for f in 0..nfy {
-            let k = i * nfy + f;
-            if free_only && faces.y[k] != FaceKind::Free {
-                continue;
+    // Each cell's faces in ascending face order with the sign of their flow
+    // (+ where the cell is the face's low side): the order in which a loop
+    // over the faces would add them, so the sums are those of that loop.
+    let touching =
+        |n: usize, nf: usize, cells: &dyn Fn(usize) -> (Option<usize>, Option<usize>)| {
+            let mut of: Vec<Vec<(usize, bool)>> = vec![Vec::with_capacity(2); n];
+            for f in 0..nf {
+                let (lo, hi) = cells(f);
+                if let Some(c) = lo {
+                    of[c].push((f, true));
+                }
+                if let Some(c) = hi {
+                    of[c].push((f, false));
+                }
             }
-            let (lo, hi) = g.y_face_cells(f);
-            let flow = uy[k] / g.dy;
-            if let Some(j) = lo {
-                d[i * ny + j] += flow;
+            of
+        };
+    let x_of = touching(nx, nfx, &|f| g.x_face_cells(f));
+    let y_of = touching(ny, nfy, &|f| g.y_face_cells(f));
+    let mut d = vec![0.0; nx * ny];
+    if ny == 0 {
+        return d;
+    }
+    let rows = parallel::CHUNK.div_ceil(ny);
+    parallel::map_chunks_mut_by(&mut d, rows * ny, |off, block| {
+        for (r, row) in block.chunks_mut(ny).enumerate() {
+            let i = off / ny + r;
+            for (j, dij) in row.iter_mut().enumerate() {
+                let mut acc = 0.0;
+                for &(f, low) in &x_of[i] {
+                    let k = f * ny + j;
+                    if free_only && faces.x[k] != FaceKind::Free {
+                        continue;
+                    }
+                    let flow = ux[k] / g.dx;
+                    acc = if low { acc + flow } else { acc - flow };
+                }
+                *dij = acc;
             }
-            if let Some(j) = hi {
-                d[i * ny + j] -= flow;
+            for (j, dij) in row.iter_mut().enumerate() {
+                let mut acc = *dij;
+                for &(f, low) in &y_of[j] {
+                    let k = i * nfy + f;
+                    if free_only && faces.y[k] != FaceKind::Free {
+                        continue;
+                    }
+                    let flow = uy[k] / g.dy;
+                    acc = if low { acc + flow } else { acc - flow };
+                }
+                *dij = acc;
             }
         }
-    }
+    });
     d
 }
 
 /// `G p` on the faces (`(p_hi − p_lo)/h`, zero outside); with `free_only`, on
-/// the free faces only (`G_F`).
+/// the free faces only (`G_F`). Rows of faces on all cores for a large grid.
 pub(crate) fn gradient_wide(scene: &Scene, p: &[f64], free_only: bool) -> (Vec<f64>, Vec<f64>) {
     let g = scene.grid();
     let faces = scene.faces();
     let (nx, ny) = (g.nx, g.ny);
     let [nfx, _] = g.shape_x();
-    let mut gx = vec![0.0; nfx * ny];
-    for f in 0..nfx {
-        let (lo, hi) = g.x_face_cells(f);
-        for j in 0..ny {
-            let k = f * ny + j;
-            if free_only && faces.x[k] != FaceKind::Free {
-                continue;
-            }
-            let at = |c: Option<usize>| c.map_or(0.0, |i| p[i * ny + j]);
-            gx[k] = (at(hi) - at(lo)) / g.dx;
-        }
-    }
     let [_, nfy] = g.shape_y();
+    let mut gx = vec![0.0; nfx * ny];
     let mut gy = vec![0.0; nx * nfy];
-    for i in 0..nx {
-        for f in 0..nfy {
-            let k = i * nfy + f;
-            if free_only && faces.y[k] != FaceKind::Free {
-                continue;
-            }
-            let (lo, hi) = g.y_face_cells(f);
-            let at = |c: Option<usize>| c.map_or(0.0, |j| p[i * ny + j]);
-            gy[k] = (at(hi) - at(lo)) / g.dy;
-        }
+    if ny == 0 || nfy == 0 {
+        return (gx, gy);
     }
+    let rows = parallel::CHUNK.div_ceil(ny);
+    parallel::map_chunks_mut_by(&mut gx, rows * ny, |off, block| {
+        for (r, row) in block.chunks_mut(ny).enumerate() {
+            let f = off / ny + r;
+            let (lo, hi) = g.x_face_cells(f);
+            for (j, out) in row.iter_mut().enumerate() {
+                let k = f * ny + j;
+                if free_only && faces.x[k] != FaceKind::Free {
+                    continue;
+                }
+                let at = |c: Option<usize>| c.map_or(0.0, |i| p[i * ny + j]);
+                *out = (at(hi) - at(lo)) / g.dx;
+            }
+        }
+    });
+    let cells: Vec<_> = (0..nfy).map(|f| g.y_face_cells(f)).collect();
+    let rows = parallel::CHUNK.div_ceil(nfy);
+    parallel::map_chunks_mut_by(&mut gy, rows * nfy, |off, block| {
+        for (r, row) in block.chunks_mut(nfy).enumerate() {
+            let i = off / nfy + r;
+            let pi = &p[i * ny..(i + 1) * ny];
+            for (f, out) in row.iter_mut().enumerate() {
+                let k = i * nfy + f;
+                if free_only && faces.y[k] != FaceKind::Free {
+                    continue;
+                }
+                let (lo, hi) = cells[f];
+                let at = |c: Option<usize>| c.map_or(0.0, |j| pi[j]);
+                *out = (at(hi) - at(lo)) / g.dy;
+            }
+        }
+    });
     (gx, gy)
 }
 

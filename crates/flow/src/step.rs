@@ -17,7 +17,9 @@
 //!
 //! written once in `substep` over an [`Exec`]utor: on a tape every piece is
 //! recorded as an op ([`Scene::step`]); without one the same ops' forwards run
-//! directly and no tape memory is allocated ([`Scene::forward`]).
+//! directly and no tape memory is allocated ([`Scene::forward`]). On a scene
+//! without a fixed face (a periodic box without obstacle) the first line is
+//! the identity and is not run (nothing recorded for it).
 //!
 //! **Splitting.** [`Splitting::Plain`] is Chorin's projection: advect, diffuse,
 //! project (`P = p/dt`); first order in time. [`Splitting::Incremental`] (the
@@ -107,6 +109,9 @@ struct SceneInner {
     grid: FlowGrid,
     solid: Array2<bool>,
     faces: Faces,
+    /// Some face is fixed (a wall, an inflow, an obstacle): the step sets
+    /// them; otherwise enforcing the boundaries is the identity and skipped.
+    constrained: bool,
     laplacian: VectorLaplacian,
     pressure: PressureSystem,
     forces: ForceWeights,
@@ -430,10 +435,12 @@ impl SceneBuilder {
             spectral.as_ref(),
         )?;
         let forces = ForceWeights::new(&grid, &solid);
+        let constrained = !faces.all_free();
         Ok(Scene(Arc::new(SceneInner {
             spectral,
             grid,
             solid,
+            constrained,
             faces,
             laplacian,
             pressure,
@@ -1172,10 +1179,14 @@ fn substep<T: Real, E: Exec<T>>(
     counter: &SolveCounter,
 ) -> Result<StateOf<E::V>> {
     let (settings, sc) = (scene.settings(), scene.clone());
-    let (ux, uy) = two(e.run(
-        EnforceBoundaries { scene: sc.clone() },
-        &[&s.ux, &s.uy, &p.inflow],
-    )?);
+    let (ux, uy) = if scene.0.constrained {
+        two(e.run(
+            EnforceBoundaries { scene: sc.clone() },
+            &[&s.ux, &s.uy, &p.inflow],
+        )?)
+    } else {
+        (s.ux, s.uy)
+    };
     let advect = AdvectScalar {
         scene: sc.clone(),
         scheme: settings.advection,

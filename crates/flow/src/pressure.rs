@@ -367,31 +367,39 @@ pub(crate) fn divergence_wide(scene: &Scene, ux: &[f64], uy: &[f64], free_only: 
     }
     let rows = parallel::CHUNK.div_ceil(ny);
     parallel::map_chunks_mut_by(&mut d, rows * ny, |off, block| {
+        let mut flows = vec![0.0; nfy];
         for (r, row) in block.chunks_mut(ny).enumerate() {
             let i = off / ny + r;
-            for (j, dij) in row.iter_mut().enumerate() {
-                let mut acc = 0.0;
-                for &(f, low) in &x_of[i] {
-                    let k = f * ny + j;
-                    if free_only && faces.x[k] != FaceKind::Free {
+            // the x-faces of the row, whole face rows at a time
+            for &(f, low) in &x_of[i] {
+                let (u, kinds) = (&ux[f * ny..(f + 1) * ny], &faces.x[f * ny..(f + 1) * ny]);
+                for ((acc, &v), kind) in row.iter_mut().zip(u).zip(kinds) {
+                    if free_only && *kind != FaceKind::Free {
                         continue;
                     }
-                    let flow = ux[k] / g.dx;
-                    acc = if low { acc + flow } else { acc - flow };
+                    let flow = v / g.dx;
+                    *acc = if low { *acc + flow } else { *acc - flow };
                 }
-                *dij = acc;
             }
-            for (j, dij) in row.iter_mut().enumerate() {
-                let mut acc = *dij;
+            // the y-faces of the row: their flows, then each cell's two
+            let (u, kinds) = (
+                &uy[i * nfy..(i + 1) * nfy],
+                &faces.y[i * nfy..(i + 1) * nfy],
+            );
+            for (flow, &v) in flows.iter_mut().zip(u) {
+                *flow = v / g.dy;
+            }
+            for (j, acc) in row.iter_mut().enumerate() {
                 for &(f, low) in &y_of[j] {
-                    let k = i * nfy + f;
-                    if free_only && faces.y[k] != FaceKind::Free {
+                    if free_only && kinds[f] != FaceKind::Free {
                         continue;
                     }
-                    let flow = uy[k] / g.dy;
-                    acc = if low { acc + flow } else { acc - flow };
+                    *acc = if low {
+                        *acc + flows[f]
+                    } else {
+                        *acc - flows[f]
+                    };
                 }
-                *dij = acc;
             }
         }
     });

@@ -828,7 +828,7 @@ impl Scene {
 
     /// `max |u_x| dt/dx + … `: the Courant number `max(|u_x|/dx, |u_y|/dy) · dt`.
     pub fn courant<T: Real>(&self, ux: ArrayView2<'_, T>, uy: ArrayView2<'_, T>, dt: f64) -> f64 {
-        let m = |a: ArrayView2<'_, T>, h: f64| max_abs(a.iter()) / h;
+        let m = |a: ArrayView2<'_, T>, h: f64| max_abs(a) / h;
         dt * m(ux, self.grid().dx).max(m(uy, self.grid().dy))
     }
 
@@ -1105,14 +1105,20 @@ fn nonfinite<'a, T: Real>(values: impl Iterator<Item = &'a T>) -> usize {
     values.filter(|v| !v.is_finite()).count()
 }
 
-/// `max |v|` (0 for none), over four running maxima so that the loop is not
+/// `max |v|` (0 for none), over eight running maxima so that the loop is not
 /// one chain of dependent comparisons.
-fn max_abs<'a, T: Real>(values: impl Iterator<Item = &'a T>) -> f64 {
-    let mut m = [0.0f64; 4];
-    for (i, v) in values.enumerate() {
-        m[i % 4] = m[i % 4].max(v.as_f64().abs());
+fn max_abs<T: Real>(a: ArrayView2<'_, T>) -> f64 {
+    let mut m = [0.0f64; 8];
+    let mut fold = |chunk: &[T]| {
+        for (mi, v) in m.iter_mut().zip(chunk) {
+            *mi = mi.max(v.as_f64().abs());
+        }
+    };
+    match a.as_slice_memory_order() {
+        Some(s) => s.chunks(8).for_each(&mut fold),
+        None => a.iter().for_each(|v| fold(std::slice::from_ref(v))),
     }
-    m[0].max(m[1]).max(m[2].max(m[3]))
+    m.iter().fold(0.0f64, |x, &y| x.max(y))
 }
 
 /// The state as the executor's values.

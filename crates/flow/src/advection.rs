@@ -34,7 +34,9 @@
 
 use std::borrow::Cow;
 
-use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, PerPrecision, Real, TapeError};
+use diffphys_tape::{
+    parallel, ArrayD, ArrayViewD, BackwardArgs, Op, PerPrecision, Real, TapeError,
+};
 use ndarray::{Array1, Array2, ArrayView1, ArrayView2};
 use rayon::prelude::*;
 
@@ -444,6 +446,33 @@ const BLOCK: usize = 1024;
 /// entry costs a few bilinear interpolations, about a hundred times a CG
 /// kernel's element).
 pub(crate) const PARALLEL_FROM: usize = 8192;
+
+/// Runs `f(offset, block)` on blocks of whole rows of `row` entries of `out`
+/// (about [`parallel::CHUNK`] entries each, at least one row), on all cores
+/// where [`parallel::is_parallel`] says an array of its length splits: the
+/// step's per-row loops (stencils, the Fourier solve's transforms), whose rows
+/// are computed alone, so the same bits on any number of threads. (Splitting
+/// them from [`PARALLEL_FROM`] entries, as the advection does, was slower at
+/// 128² on two cores: the wake-ups cost more than the halved rows.)
+pub(crate) fn for_row_blocks<V: Send>(
+    out: &mut [V],
+    row: usize,
+    f: impl Fn(usize, &mut [V]) + Sync + Send,
+) {
+    if row == 0 {
+        return;
+    }
+    let len = parallel::CHUNK.div_ceil(row) * row;
+    if parallel::is_parallel(out.len()) {
+        out.par_chunks_mut(len)
+            .enumerate()
+            .for_each(|(c, o)| f(c * len, o));
+    } else {
+        out.chunks_mut(len)
+            .enumerate()
+            .for_each(|(c, o)| f(c * len, o));
+    }
+}
 
 /// Runs `f(offset, block)` on the [`BLOCK`]-sized blocks of `out`.
 fn for_blocks<V: Send>(out: &mut [V], f: impl Fn(usize, &mut [V]) + Sync + Send) {

@@ -40,12 +40,11 @@ use diffphys_ops::LinearOperator;
 use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
 use ndarray::{Array1, Array2, ArrayView1, ArrayView2, ArrayViewMutD, IxDyn};
 
-use crate::advection::{narrow, walls_of, wide};
+use crate::advection::{for_row_blocks, narrow, walls_of, wide};
 use crate::boundaries::{scalar_of, view1, view2, FaceKind, Faces};
 use crate::grid::{FlowGrid, Lattice};
 use crate::sparse::Csr;
 use crate::{FlowError, Result, Scene};
-use diffphys_tape::parallel;
 
 /// How viscosity is stepped.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -241,8 +240,7 @@ impl ComponentLaplacian {
         let (cx, cy) = self.coeff;
         let centre = -2.0 * (cx + cy);
         // whole rows of the lattice per task, so that no entry needs a division
-        let rows = parallel::CHUNK.div_ceil(nb);
-        parallel::map_chunks_mut_by(out, rows * nb, |off, block| {
+        for_row_blocks(out, nb, |off, block| {
             for (r, o) in block.chunks_mut(nb).enumerate() {
                 let a = off / nb + r;
                 let am = if a == 0 { na - 1 } else { a - 1 };

@@ -42,10 +42,10 @@ use diffphys_ops::mac::MacGrid;
 use diffphys_ops::multigrid::Multigrid;
 use diffphys_ops::reference::SparseCholesky;
 use diffphys_ops::{Boundary as OpsBoundary, CellMask, Grid2, LinearOperator};
-use diffphys_tape::{parallel, ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
+use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
 use ndarray::{Array2, ArrayView2, ArrayViewMutD, IxDyn};
 
-use crate::advection::{narrow, wide};
+use crate::advection::{for_row_blocks, narrow, wide};
 use crate::boundaries::{view2, FaceKind, Faces};
 use crate::grid::FlowGrid;
 use crate::sparse::Csr;
@@ -342,19 +342,21 @@ pub(crate) fn divergence_wide(scene: &Scene, ux: &[f64], uy: &[f64], free_only: 
     let (nx, ny) = (g.nx, g.ny);
     let [nfx, _] = g.shape_x();
     let [_, nfy] = g.shape_y();
-    // Each cell's faces in ascending face order with the sign of their flow
-    // (+ where the cell is the face's low side): the order in which a loop
-    // over the faces would add them, so the sums are those of that loop.
+    // Each cell's faces (at most two) in ascending face order with the sign
+    // of their flow (+ where the cell is the face's low side): the order in
+    // which a loop over the faces would add them, so the sums are that loop's.
+    type Touching = ([(usize, bool); 2], usize);
     let touching =
         |n: usize, nf: usize, cells: &dyn Fn(usize) -> (Option<usize>, Option<usize>)| {
-            let mut of: Vec<Vec<(usize, bool)>> = vec![Vec::with_capacity(2); n];
+            let mut of: Vec<Touching> = vec![([(0, false); 2], 0); n];
             for f in 0..nf {
                 let (lo, hi) = cells(f);
-                if let Some(c) = lo {
-                    of[c].push((f, true));
-                }
-                if let Some(c) = hi {
-                    of[c].push((f, false));
+                for (cell, low) in [(lo, true), (hi, false)] {
+                    if let Some(c) = cell {
+                        let (faces, len) = &mut of[c];
+                        faces[*len] = (f, low);
+                        *len += 1;
+                    }
                 }
             }
             of
@@ -365,40 +367,36 @@ pub(crate) fn divergence_wide(scene: &Scene, ux: &[f64], uy: &[f64], free_only: 
     if ny == 0 {
         return d;
     }
-    let rows = parallel::CHUNK.div_ceil(ny);
-    parallel::map_chunks_mut_by(&mut d, rows * ny, |off, block| {
-        let mut flows = vec![0.0; nfy];
+    // `acc − flow` is `acc + (−flow)` exactly, and adding −0 leaves any sum
+    // as it is (a skipped face)
+    let term = |v: f64, h: f64, low: bool, skip: bool| {
+        if skip {
+            -0.0
+        } else if low {
+            v / h
+        } else {
+            -(v / h)
+        }
+    };
+    for_row_blocks(&mut d, ny, |off, block| {
         for (r, row) in block.chunks_mut(ny).enumerate() {
             let i = off / ny + r;
             // the x-faces of the row, whole face rows at a time
-            for &(f, low) in &x_of[i] {
+            let (faces_x, len) = &x_of[i];
+            for &(f, low) in &faces_x[..*len] {
                 let (u, kinds) = (&ux[f * ny..(f + 1) * ny], &faces.x[f * ny..(f + 1) * ny]);
                 for ((acc, &v), kind) in row.iter_mut().zip(u).zip(kinds) {
-                    if free_only && *kind != FaceKind::Free {
-                        continue;
-                    }
-                    let flow = v / g.dx;
-                    *acc = if low { *acc + flow } else { *acc - flow };
+                    *acc += term(v, g.dx, low, free_only && *kind != FaceKind::Free);
                 }
             }
-            // the y-faces of the row: their flows, then each cell's two
+            // the y-faces of the row
             let (u, kinds) = (
                 &uy[i * nfy..(i + 1) * nfy],
                 &faces.y[i * nfy..(i + 1) * nfy],
             );
-            for (flow, &v) in flows.iter_mut().zip(u) {
-                *flow = v / g.dy;
-            }
-            for (j, acc) in row.iter_mut().enumerate() {
-                for &(f, low) in &y_of[j] {
-                    if free_only && kinds[f] != FaceKind::Free {
-                        continue;
-                    }
-                    *acc = if low {
-                        *acc + flows[f]
-                    } else {
-                        *acc - flows[f]
-                    };
+            for (acc, (faces_y, len)) in row.iter_mut().zip(&y_of) {
+                for &(f, low) in &faces_y[..*len] {
+                    *acc += term(u[f], g.dy, low, free_only && kinds[f] != FaceKind::Free);
                 }
             }
         }
@@ -419,8 +417,7 @@ pub(crate) fn gradient_wide(scene: &Scene, p: &[f64], free_only: bool) -> (Vec<f
     if ny == 0 || nfy == 0 {
         return (gx, gy);
     }
-    let rows = parallel::CHUNK.div_ceil(ny);
-    parallel::map_chunks_mut_by(&mut gx, rows * ny, |off, block| {
+    for_row_blocks(&mut gx, ny, |off, block| {
         for (r, row) in block.chunks_mut(ny).enumerate() {
             let f = off / ny + r;
             let (lo, hi) = g.x_face_cells(f);
@@ -435,8 +432,7 @@ pub(crate) fn gradient_wide(scene: &Scene, p: &[f64], free_only: bool) -> (Vec<f
         }
     });
     let cells: Vec<_> = (0..nfy).map(|f| g.y_face_cells(f)).collect();
-    let rows = parallel::CHUNK.div_ceil(nfy);
-    parallel::map_chunks_mut_by(&mut gy, rows * nfy, |off, block| {
+    for_row_blocks(&mut gy, nfy, |off, block| {
         for (r, row) in block.chunks_mut(nfy).enumerate() {
             let i = off / nfy + r;
             let pi = &p[i * ny..(i + 1) * ny];

@@ -30,7 +30,7 @@ use std::sync::Arc;
 use rustfft::num_complex::Complex;
 use rustfft::{Fft, FftPlanner};
 
-use diffphys_tape::parallel;
+use crate::advection::for_row_blocks;
 
 use crate::{FlowError, Result};
 
@@ -106,7 +106,7 @@ impl PeriodicPoisson {
         each_row(&self.along_x, &mut cols, nx);
         // λ(0, 0) = 0 exactly (cos 0 = 1), the one mode a pseudo-inverse drops
         let scale = 1.0 / (nx * ny) as f64;
-        parallel::for_each_chunk_mut(&mut cols, |off, block| {
+        for_row_blocks(&mut cols, nx, |off, block| {
             block
                 .iter_mut()
                 .zip(&self.eigenvalues[off..])
@@ -126,8 +126,7 @@ fn each_row(fft: &Arc<dyn Fft<f64>>, data: &mut [Complex<f64>], len: usize) {
     if len == 0 {
         return;
     }
-    let rows = parallel::CHUNK.div_ceil(len);
-    parallel::map_chunks_mut_by(data, rows * len, |_, block| {
+    for_row_blocks(data, len, |_, block| {
         let mut scratch = vec![Complex::default(); fft.get_inplace_scratch_len()];
         fft.process_with_scratch(block, &mut scratch);
     });
@@ -155,8 +154,7 @@ fn transpose(from: &[Complex<f64>], to: &mut [Complex<f64>], na: usize, nb: usiz
     if na == 0 {
         return;
     }
-    let rows = parallel::CHUNK.div_ceil(na);
-    parallel::map_chunks_mut_by(to, rows * na, |off, block| {
+    for_row_blocks(to, na, |off, block| {
         let (b_lo, b_hi) = (off / na, off / na + block.len() / na);
         for a0 in (0..na).step_by(TILE) {
             for b in b_lo..b_hi {

@@ -43,7 +43,7 @@ use diffphys_ops::cg::CgParams;
 use diffphys_tape::{
     checkpointed_steps, parallel, ArrayD, Op, Real, Schedule, StepFn, Tape, TapeError, Var,
 };
-use ndarray::{Array1, Array2, ArrayView1, ArrayView2, IxDyn};
+use ndarray::{Array1, Array2, ArrayView1, ArrayView2, Ix2, IxDyn};
 
 use crate::advection::{AdvectScalar, AdvectVelocity, Advection};
 use crate::boundaries::{EnforceBoundaries, Faces, Obstacle, Side, Sides};
@@ -833,10 +833,10 @@ impl Scene {
     }
 
     /// Checks a state and parameters and picks the number of substeps.
-    fn plan<T: Real>(&self, s: &FlowState<T>, p: &FlowParams<T>) -> Result<(usize, f64)> {
+    fn plan<T: Real>(&self, s: &StateView<'_, T>, p: &FlowParams<T>) -> Result<(usize, f64)> {
         const STEP: &str = "flow step";
-        self.check_velocity(STEP, s.ux.view(), s.uy.view())?;
-        self.check_cells(STEP, "pressure", s.pressure.view())?;
+        self.check_velocity(STEP, s.ux, s.uy)?;
+        self.check_cells(STEP, "pressure", s.pressure)?;
         if s.scalars.len() != self.scalars() {
             return Err(FlowError::shape(
                 STEP,
@@ -846,7 +846,7 @@ impl Scene {
             ));
         }
         for a in &s.scalars {
-            self.check_cells(STEP, "scalar", a.view())?;
+            self.check_cells(STEP, "scalar", *a)?;
         }
         self.check_walls(STEP, p.wall_speed.view())?;
         self.check_inflow(STEP, p.inflow.view())?;
@@ -881,9 +881,7 @@ impl Scene {
         // The inflow enters the domain too.
         let inflow_max = p.inflow.iter().fold(0.0f64, |m, v| m.max(v.as_f64().abs()));
         let h = self.grid().dx.min(self.grid().dy);
-        let courant = self
-            .courant(s.ux.view(), s.uy.view(), dt)
-            .max(inflow_max * dt / h);
+        let courant = self.courant(s.ux, s.uy, dt).max(inflow_max * dt / h);
         let limit = self.settings().max_courant;
         let mut n = 1;
         if courant > limit {
@@ -927,7 +925,26 @@ impl Scene {
         state: &FlowVars<'t, T>,
         params: &ParamVars<'t, T>,
     ) -> Result<(FlowVars<'t, T>, StepInfo)> {
-        let s = state.values()?;
+        // the tape's values, viewed (not copied) for the checks
+        let held: Vec<_> = [state.ux, state.uy, state.pressure]
+            .iter()
+            .chain(&state.scalars)
+            .map(|v| v.value())
+            .collect();
+        fn two<'a, T>(a: &'a ArrayD<T>, what: &str) -> Result<ArrayView2<'a, T>> {
+            a.view()
+                .into_dimensionality::<Ix2>()
+                .map_err(|_| FlowError::shape("flow step", what, &[0, 0], a.shape()))
+        }
+        let s = StateView {
+            ux: two(&held[0], "x-velocity")?,
+            uy: two(&held[1], "y-velocity")?,
+            pressure: two(&held[2], "pressure")?,
+            scalars: held[3..]
+                .iter()
+                .map(|a| two(a, "scalar"))
+                .collect::<Result<_>>()?,
+        };
         let p = FlowParams {
             viscosity: params.viscosity.item().map_err(|_| {
                 FlowError::shape("flow step", "viscosity", &[], &params.viscosity.shape())
@@ -1027,7 +1044,7 @@ impl Scene {
         state: &FlowState<T>,
         params: &FlowParams<T>,
     ) -> Result<(FlowState<T>, StepInfo)> {
-        let (n, courant) = self.plan(state, params)?;
+        let (n, courant) = self.plan(&state.view(), params)?;
         let counter = SolveCounter::new();
         let d = |a: &Array2<T>| a.clone().into_dyn();
         let mut st = StateOf {
@@ -1119,6 +1136,25 @@ fn max_abs<T: Real>(a: ArrayView2<'_, T>) -> f64 {
         None => a.iter().for_each(|v| fold(std::slice::from_ref(v))),
     }
     m.iter().fold(0.0f64, |x, &y| x.max(y))
+}
+
+/// A state's arrays, viewed.
+struct StateView<'a, T> {
+    ux: ArrayView2<'a, T>,
+    uy: ArrayView2<'a, T>,
+    pressure: ArrayView2<'a, T>,
+    scalars: Vec<ArrayView2<'a, T>>,
+}
+
+impl<T: Real> FlowState<T> {
+    fn view(&self) -> StateView<'_, T> {
+        StateView {
+            ux: self.ux.view(),
+            uy: self.uy.view(),
+            pressure: self.pressure.view(),
+            scalars: self.scalars.iter().map(|a| a.view()).collect(),
+        }
+    }
 }
 
 /// The state as the executor's values.

@@ -46,6 +46,9 @@ impl Csr {
     /// (each row's sum in column order wherever it runs: the same bits on any
     /// number of threads).
     pub(crate) fn mul_add(&self, alpha: f64, x: &[f64], y: &mut [f64]) {
+        if self.values.is_empty() {
+            return;
+        }
         let rows = self.rows.min(y.len());
         parallel::for_each_chunk_mut(&mut y[..rows], |off, block| {
             for (i, yr) in block.iter_mut().enumerate() {
@@ -61,6 +64,9 @@ impl Csr {
 
     /// `y += alpha · Aᵀ x`.
     pub(crate) fn mul_t_add(&self, alpha: f64, x: &[f64], y: &mut [f64]) {
+        if self.values.is_empty() {
+            return;
+        }
         for (r, &xr) in x.iter().enumerate().take(self.rows) {
             if xr == 0.0 {
                 continue;

@@ -113,21 +113,8 @@ impl AxisRule {
                 plain(i0, i0 + 1, sc - i0 as f64, moves)
             }
             AxisRule::Wrap { n } => {
-                let fl = s.floor();
-                // one wrap covers any Courant number below n; no division then
-                let mut i0 = fl as i64;
-                let n64 = n as i64;
-                if i0 < 0 {
-                    i0 += n64;
-                } else if i0 >= n64 {
-                    i0 -= n64;
-                }
-                if !(0..n64).contains(&i0) {
-                    i0 = i0.rem_euclid(n64);
-                }
-                let i0 = i0 as usize;
-                let i1 = if i0 + 1 == n { 0 } else { i0 + 1 };
-                plain(i0, i1, s - fl, true)
+                let (i0, i1, frac) = wrap(s, n);
+                plain(i0, i1, frac, true)
             }
             AxisRule::Ghost { n, lo, hi } => {
                 let top = n as f64;
@@ -156,6 +143,54 @@ impl AxisRule {
                 }
             }
         }
+    }
+}
+
+/// The entries `(i0, i1)` bracketing `s` on a periodic axis of `n` entries
+/// and the fraction of the way from `i0` to `i1`.
+#[inline(always)]
+fn wrap(s: f64, n: usize) -> (usize, usize, f64) {
+    let fl = s.floor();
+    // one wrap covers any Courant number below n; no division then
+    let mut i0 = fl as i64;
+    let n64 = n as i64;
+    if i0 < 0 {
+        i0 += n64;
+    } else if i0 >= n64 {
+        i0 -= n64;
+    }
+    if !(0..n64).contains(&i0) {
+        i0 = i0.rem_euclid(n64);
+    }
+    let i0 = i0 as usize;
+    let i1 = if i0 + 1 == n { 0 } else { i0 + 1 };
+    (i0, i1, s - fl)
+}
+
+/// A sampler both of whose axes wrap (a periodic box): every corner is a
+/// plain lattice value, so a departure point needs only its two brackets per
+/// axis. The arithmetic is [`Sampler::locate`]'s and [`Stencil`]'s, term for
+/// term, so the same bits.
+#[derive(Debug, Clone, Copy)]
+struct Periodic {
+    n: [usize; 2],
+    h: (f64, f64),
+    offsets: (f64, f64),
+}
+
+impl Periodic {
+    /// The corners' indices `[[k00, k01], [k10, k11]]` and the weights along
+    /// x and y of the point `p`.
+    #[inline(always)]
+    fn locate(&self, p: [f64; 2]) -> ([[usize; 2]; 2], [f64; 2], [f64; 2]) {
+        let (i0, i1, fx) = wrap(p[0] / self.h.0 - self.offsets.0, self.n[0]);
+        let (j0, j1, fy) = wrap(p[1] / self.h.1 - self.offsets.1, self.n[1]);
+        let nb = self.n[1];
+        (
+            [[i0 * nb + j0, i0 * nb + j1], [i1 * nb + j0, i1 * nb + j1]],
+            [1.0 - fx, fx],
+            [1.0 - fy, fy],
+        )
     }
 }
 
@@ -213,6 +248,18 @@ impl Sampler {
         }
     }
 
+    /// The sampler's lean form when both axes wrap.
+    fn periodic(&self) -> Option<Periodic> {
+        match (self.rx, self.ry) {
+            (AxisRule::Wrap { n: na }, AxisRule::Wrap { n: nb }) => Some(Periodic {
+                n: [na, nb],
+                h: self.h,
+                offsets: self.offsets,
+            }),
+            _ => None,
+        }
+    }
+
     /// The stencil of the point `p`.
     #[inline(always)]
     pub(crate) fn locate(&self, p: [f64; 2]) -> Stencil {
@@ -251,6 +298,30 @@ impl LatticeStencils {
         let (wx, wy) = ([1.0 - hx.frac, hx.frac], [1.0 - hy.frac, hy.frac]);
         wx[0] * (wy[0] * u[r0 + j0] + wy[1] * u[r0 + j1])
             + wx[1] * (wy[0] * u[r1 + j0] + wy[1] * u[r1 + j1])
+    }
+
+    /// `locate(x_ab).scatter(c, grad_u, grad_walls)` without building the
+    /// stencil where every corner is a plain lattice value (the same
+    /// arithmetic, so the same bits).
+    #[inline(always)]
+    fn scatter_at(
+        &self,
+        [a, b]: [usize; 2],
+        c: f64,
+        grad_u: &mut [f64],
+        grad_walls: &mut [f64; 4],
+    ) {
+        let (hx, hy) = (&self.along_x[a], &self.along_y[b]);
+        if !(hx.inside && hy.inside) {
+            self.at([a, b]).scatter(c, grad_u, grad_walls);
+            return;
+        }
+        let (wx, wy) = ([1.0 - hx.frac, hx.frac], [1.0 - hy.frac, hy.frac]);
+        for (ia, wa) in hx.idx.iter().zip(wx) {
+            for (jb, wb) in hy.idx.iter().zip(wy) {
+                grad_u[ia * self.nb + jb] += c * wa * wb;
+            }
+        }
     }
 
     /// The stencil of entry `(a, b)`: the one `locate` gives at its position.
@@ -459,11 +530,27 @@ pub(crate) fn for_row_blocks<V: Send>(
     row: usize,
     f: impl Fn(usize, &mut [V]) + Sync + Send,
 ) {
-    if row == 0 {
-        return;
+    if row > 0 {
+        let len = parallel::CHUNK.div_ceil(row) * row;
+        in_blocks(out, len, parallel::is_parallel(out.len()), f);
     }
-    let len = parallel::CHUNK.div_ceil(row) * row;
-    if parallel::is_parallel(out.len()) {
+}
+
+/// Runs `f(offset, block)` on the [`BLOCK`]-sized blocks of `out`.
+fn for_blocks<V: Send>(out: &mut [V], f: impl Fn(usize, &mut [V]) + Sync + Send) {
+    let split = out.len() >= PARALLEL_FROM && rayon::current_num_threads() > 1;
+    in_blocks(out, BLOCK, split, f);
+}
+
+/// Runs `f(offset, block)` on the blocks of `len` entries of `out`, on all
+/// cores where `split`.
+fn in_blocks<V: Send>(
+    out: &mut [V],
+    len: usize,
+    split: bool,
+    f: impl Fn(usize, &mut [V]) + Sync + Send,
+) {
+    if split {
         out.par_chunks_mut(len)
             .enumerate()
             .for_each(|(c, o)| f(c * len, o));
@@ -471,19 +558,6 @@ pub(crate) fn for_row_blocks<V: Send>(
         out.chunks_mut(len)
             .enumerate()
             .for_each(|(c, o)| f(c * len, o));
-    }
-}
-
-/// Runs `f(offset, block)` on the [`BLOCK`]-sized blocks of `out`.
-fn for_blocks<V: Send>(out: &mut [V], f: impl Fn(usize, &mut [V]) + Sync + Send) {
-    if out.len() >= PARALLEL_FROM && rayon::current_num_threads() > 1 {
-        out.par_chunks_mut(BLOCK)
-            .enumerate()
-            .for_each(|(c, o)| f(c * BLOCK, o));
-    } else {
-        out.chunks_mut(BLOCK)
-            .enumerate()
-            .for_each(|(c, o)| f(c * BLOCK, o));
     }
 }
 
@@ -556,14 +630,14 @@ impl Tracer<'_> {
                 if own == Lattice::FaceX {
                     grads.ux[k] += g[0];
                 } else {
-                    tx.at(ab).scatter(g[0], &mut grads.ux, &mut grads.walls);
+                    tx.scatter_at(ab, g[0], &mut grads.ux, &mut grads.walls);
                 }
             }
             if g[1] != 0.0 {
                 if own == Lattice::FaceY {
                     grads.uy[k] += g[1];
                 } else {
-                    ty.at(ab).scatter(g[1], &mut grads.uy, &mut grads.walls);
+                    ty.scatter_at(ab, g[1], &mut grads.uy, &mut grads.walls);
                 }
             }
         });
@@ -599,7 +673,23 @@ impl Tracer<'_> {
     /// `A q`: one semi-Lagrangian step of `q` with the tracing velocities
     /// `vel` (fixed entries copied).
     fn semi_lagrangian(&self, field: &Field<'_>, q: &[f64], vel: &[[f64; 2]], dt: f64) -> Vec<f64> {
-        self.at_departures(field, vel, dt, |k| q[k], |s| s.value(q, &self.walls))
+        let Some(lean) = field.sampler.periodic() else {
+            return self.at_departures(field, vel, dt, |k| q[k], |s| s.value(q, &self.walls));
+        };
+        let mut out = vec![0.0; vel.len()];
+        for_blocks(&mut out, |off, block| {
+            self.each_entry(field, off, block.len(), |k, _, p| {
+                block[k - off] = if field.free(k) {
+                    let v = vel[k];
+                    let (c, wx, wy) = lean.locate([p[0] - dt * v[0], p[1] - dt * v[1]]);
+                    wx[0] * (wy[0] * q[c[0][0]] + wy[1] * q[c[0][1]])
+                        + wx[1] * (wy[0] * q[c[1][0]] + wy[1] * q[c[1][1]])
+                } else {
+                    q[k]
+                };
+            });
+        });
+        out
     }
 
     /// `A q` and, at each free entry, the smallest and largest of the four
@@ -652,6 +742,7 @@ impl Tracer<'_> {
         g_v: &mut [[f64; 2]],
     ) {
         let (hx, hy) = (self.grid.dx, self.grid.dy);
+        let lean = field.sampler.periodic();
         self.each_entry(field, 0, g.len(), |k, _, p| {
             let gk = g[k];
             if !field.free(k) {
@@ -659,6 +750,22 @@ impl Tracer<'_> {
                 return;
             }
             if gk == 0.0 {
+                return;
+            }
+            if let Some(lean) = lean {
+                // Stencil::scatter and Stencil::slopes, term for term
+                let v = vel[k];
+                let (c, wx, wy) = lean.locate([p[0] - dt * v[0], p[1] - dt * v[1]]);
+                for (a, wa) in wx.iter().enumerate() {
+                    for (b, wb) in wy.iter().enumerate() {
+                        grads.q[c[a][b]] += gk * wa * wb;
+                    }
+                }
+                let u = [[q[c[0][0]], q[c[0][1]]], [q[c[1][0]], q[c[1][1]]]];
+                let slx = wy[0] * (u[1][0] - u[0][0]) + wy[1] * (u[1][1] - u[0][1]);
+                let sly = wx[0] * (u[0][1] - u[0][0]) + wx[1] * (u[1][1] - u[1][0]);
+                g_v[k][0] += -dt * gk * slx / hx;
+                g_v[k][1] += -dt * gk * sly / hy;
                 return;
             }
             let dep = Self::departure(field, p, vel[k], dt);
@@ -1121,5 +1228,109 @@ impl<T: Real> Op<T> for AdvectScalar {
             args.needs(2).then(|| g.uy.into_dyn()),
             args.needs(3).then(|| g.wall_speed.into_dyn()),
         ])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::Sides;
+
+    /// A value in [-1, 1) from an index, deterministic.
+    fn wobble(k: usize, a: usize, b: usize) -> f64 {
+        ((k * a % b) as f64 / b as f64) * 2.0 - 1.0
+    }
+
+    /// The lattice tables' direct scatter is the stencil's, bit for bit, at
+    /// every entry of every lattice, beside walls and a moving lid too.
+    #[test]
+    fn table_scatter_matches_the_stencils() {
+        let lid = Scene::builder(7, 6, [1.0, 1.0])
+            .sides(Sides::cavity(0.8))
+            .build()
+            .unwrap();
+        let periodic = Scene::builder(6, 5, [1.0, 1.0])
+            .sides(Sides::periodic())
+            .build()
+            .unwrap();
+        for scene in [lid, periodic] {
+            let g = scene.grid();
+            for lattice in [Lattice::FaceX, Lattice::FaceY, Lattice::Cell] {
+                let [na, nb] = g.shape(lattice);
+                for sampled in [Lattice::FaceX, Lattice::FaceY] {
+                    let sampler = Sampler::new(g, sampled);
+                    let table = sampler.on_lattice(g, lattice);
+                    let len = g.shape(sampled).iter().product::<usize>();
+                    let (mut fast, mut slow) = (vec![0.0; len], vec![0.0; len]);
+                    let (mut fast_w, mut slow_w) = ([0.0; 4], [0.0; 4]);
+                    for a in 0..na {
+                        for b in 0..nb {
+                            let c = wobble(a * nb + b, 31, 97);
+                            table.scatter_at([a, b], c, &mut fast, &mut fast_w);
+                            table.at([a, b]).scatter(c, &mut slow, &mut slow_w);
+                        }
+                    }
+                    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                    assert_eq!(bits(&fast), bits(&slow));
+                    assert_eq!(bits(&fast_w), bits(&slow_w));
+                }
+            }
+        }
+    }
+
+    /// The periodic box's lean path gives the bits of the stencils it
+    /// replaces: the semi-Lagrangian values and its vector–Jacobian product,
+    /// for displacements of several cells either way (wraps included).
+    #[test]
+    fn periodic_path_matches_the_stencils() {
+        let scene = Scene::builder(13, 9, [1.3, 0.7])
+            .sides(Sides::periodic())
+            .build()
+            .unwrap();
+        let g = scene.grid();
+        let (nx, ny) = (
+            g.shape_x().iter().product::<usize>(),
+            g.shape_y().iter().product::<usize>(),
+        );
+        let ux: Vec<f64> = (0..nx).map(|k| 3.0 * wobble(k, 37, 101)).collect();
+        let uy: Vec<f64> = (0..ny).map(|k| 3.0 * wobble(k, 53, 89)).collect();
+        let walls = [0.0; 4];
+        let tr = tracer(&scene, &ux, &uy, walls);
+        for lattice in [Lattice::FaceX, Lattice::FaceY, Lattice::Cell] {
+            let field = field_of(&scene, lattice);
+            assert!(field.sampler.periodic().is_some());
+            let n = g.shape(lattice).iter().product::<usize>();
+            let q: Vec<f64> = (0..n).map(|k| wobble(k, 17, 71)).collect();
+            let gq: Vec<f64> = (0..n).map(|k| wobble(k, 29, 83)).collect();
+            let vel = tr.velocities(&field, n);
+            for dt in [0.05, -0.4, 1.7] {
+                let fast = tr.semi_lagrangian(&field, &q, &vel, dt);
+                let slow = tr.at_departures(&field, &vel, dt, |k| q[k], |s| s.value(&q, &walls));
+                assert!(fast
+                    .iter()
+                    .zip(&slow)
+                    .all(|(a, b)| a.to_bits() == b.to_bits()));
+                let mut fast_g = Grads::zeros(n, 0, 0);
+                let mut fast_v = vec![[0.0; 2]; n];
+                tr.semi_lagrangian_vjp(&field, &q, &vel, dt, &gq, &mut fast_g, &mut fast_v);
+                let mut slow_g = Grads::zeros(n, 0, 0);
+                let mut slow_v = vec![[0.0; 2]; n];
+                tr.each_entry(&field, 0, n, |k, _, p| {
+                    let dep = Tracer::departure(&field, p, vel[k], dt);
+                    dep.scatter(gq[k], &mut slow_g.q, &mut slow_g.walls);
+                    let (slx, sly) = dep.slopes(&q, &walls);
+                    slow_v[k][0] += -dt * gq[k] * slx / g.dx;
+                    slow_v[k][1] += -dt * gq[k] * sly / g.dy;
+                });
+                assert!(fast_g
+                    .q
+                    .iter()
+                    .zip(&slow_g.q)
+                    .all(|(a, b)| a.to_bits() == b.to_bits()));
+                let flat =
+                    |v: &[[f64; 2]]| v.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(flat(&fast_v), flat(&slow_v));
+            }
+        }
     }
 }

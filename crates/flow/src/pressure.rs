@@ -379,6 +379,7 @@ pub(crate) fn divergence_wide(scene: &Scene, ux: &[f64], uy: &[f64], free_only: 
         }
     };
     for_row_blocks(&mut d, ny, |off, block| {
+        let (mut plus, mut minus) = (vec![0.0; nfy], vec![0.0; nfy]);
         for (r, row) in block.chunks_mut(ny).enumerate() {
             let i = off / ny + r;
             // the x-faces of the row, whole face rows at a time
@@ -389,14 +390,20 @@ pub(crate) fn divergence_wide(scene: &Scene, ux: &[f64], uy: &[f64], free_only: 
                     *acc += term(v, g.dx, low, free_only && *kind != FaceKind::Free);
                 }
             }
-            // the y-faces of the row
+            // the y-faces of the row: each face's term for the cell on its
+            // low side and on its high side, then each cell's two
             let (u, kinds) = (
                 &uy[i * nfy..(i + 1) * nfy],
                 &faces.y[i * nfy..(i + 1) * nfy],
             );
+            for (((lo, hi), &v), kind) in plus.iter_mut().zip(minus.iter_mut()).zip(u).zip(kinds) {
+                let skip = free_only && *kind != FaceKind::Free;
+                *lo = term(v, g.dy, true, skip);
+                *hi = term(v, g.dy, false, skip);
+            }
             for (acc, (faces_y, len)) in row.iter_mut().zip(&y_of) {
                 for &(f, low) in &faces_y[..*len] {
-                    *acc += term(u[f], g.dy, low, free_only && kinds[f] != FaceKind::Free);
+                    *acc += if low { plus[f] } else { minus[f] };
                 }
             }
         }
@@ -417,33 +424,42 @@ pub(crate) fn gradient_wide(scene: &Scene, p: &[f64], free_only: bool) -> (Vec<f
     if ny == 0 || nfy == 0 {
         return (gx, gy);
     }
+    // `at(c)` is the pressure of cell c, 0 outside: the difference of the
+    // two, divided by h, written out per case so that a row is one loop
+    let zeros = vec![0.0; ny];
+    let row_of = |c: Option<usize>| c.map_or(&zeros[..], |i| &p[i * ny..(i + 1) * ny]);
     for_row_blocks(&mut gx, ny, |off, block| {
         for (r, row) in block.chunks_mut(ny).enumerate() {
             let f = off / ny + r;
             let (lo, hi) = g.x_face_cells(f);
-            for (j, out) in row.iter_mut().enumerate() {
-                let k = f * ny + j;
-                if free_only && faces.x[k] != FaceKind::Free {
-                    continue;
+            let (pl, ph) = (row_of(lo), row_of(hi));
+            let kinds = &faces.x[f * ny..(f + 1) * ny];
+            for (((out, &a), &b), kind) in row.iter_mut().zip(ph).zip(pl).zip(kinds) {
+                if !(free_only && *kind != FaceKind::Free) {
+                    *out = (a - b) / g.dx;
                 }
-                let at = |c: Option<usize>| c.map_or(0.0, |i| p[i * ny + j]);
-                *out = (at(hi) - at(lo)) / g.dx;
             }
         }
     });
-    let cells: Vec<_> = (0..nfy).map(|f| g.y_face_cells(f)).collect();
+    // along y: the cells of each face as indices into the row with a zero
+    // appended (index ny), the same differences
+    let index = |c: Option<usize>| c.unwrap_or(ny);
+    let (lo_of, hi_of): (Vec<usize>, Vec<usize>) = (0..nfy)
+        .map(|f| {
+            let (lo, hi) = g.y_face_cells(f);
+            (index(lo), index(hi))
+        })
+        .unzip();
     for_row_blocks(&mut gy, nfy, |off, block| {
+        let mut pi = vec![0.0; ny + 1];
         for (r, row) in block.chunks_mut(nfy).enumerate() {
             let i = off / nfy + r;
-            let pi = &p[i * ny..(i + 1) * ny];
-            for (f, out) in row.iter_mut().enumerate() {
-                let k = i * nfy + f;
-                if free_only && faces.y[k] != FaceKind::Free {
-                    continue;
+            pi[..ny].copy_from_slice(&p[i * ny..(i + 1) * ny]);
+            let kinds = &faces.y[i * nfy..(i + 1) * nfy];
+            for (f, (out, kind)) in row.iter_mut().zip(kinds).enumerate() {
+                if !(free_only && *kind != FaceKind::Free) {
+                    *out = (pi[hi_of[f]] - pi[lo_of[f]]) / g.dy;
                 }
-                let (lo, hi) = cells[f];
-                let at = |c: Option<usize>| c.map_or(0.0, |j| pi[j]);
-                *out = (at(hi) - at(lo)) / g.dy;
             }
         }
     });

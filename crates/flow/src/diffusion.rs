@@ -66,6 +66,8 @@ pub(crate) struct ComponentLaplacian {
     walls: Vec<(usize, usize, f64)>,
     /// The face of each free unknown.
     free: Vec<usize>,
+    /// Whether each face is free.
+    is_free: Vec<bool>,
     /// Faces of the component.
     len: usize,
     /// The component's lattice `[na, nb]` and the coefficients `(1/dx², 1/dy²)`.
@@ -202,6 +204,7 @@ impl ComponentLaplacian {
             ff: Csr::from_triplets(free.len(), free.len(), ff),
             fx: Csr::from_triplets(free.len(), kinds.len(), fx),
             walls,
+            is_free: kinds.iter().map(|k| *k == FaceKind::Free).collect(),
             free,
             len: kinds.len(),
             shape: [na, nb],
@@ -457,27 +460,31 @@ pub fn diffuse<T: Real>(
     let mut out = Vec::with_capacity(2);
     for (lat, u) in [(Lattice::FaceX, ux), (Lattice::FaceY, uy)] {
         let l = lap.of(lat);
-        let mut u = wide(u).into_owned();
-        let new_free = match mode {
+        let u = match mode {
             ViscosityMode::Explicit => {
-                let lu = l.apply_faces(&u, &walls);
-                l.free
-                    .iter()
-                    .map(|&k| u[k] + nu * dt * lu[k])
-                    .collect::<Vec<_>>()
+                // L u into the output, then u + ν dt L u on the free faces
+                // and u itself on the fixed ones, in place
+                let u = wide(u);
+                let mut next = l.apply_faces(&u, &walls);
+                for ((n, &v), &free) in next.iter_mut().zip(u.iter()).zip(&l.is_free) {
+                    *n = if free { v + nu * dt * *n } else { v };
+                }
+                next
             }
             ViscosityMode::Implicit => {
+                let mut u = wide(u).into_owned();
                 let uf = l.gather(&u);
                 let mut r = l.boundary_terms(&u, &walls);
                 r.iter_mut()
                     .zip(&uf)
                     .for_each(|(r, u)| *r = u + nu * dt * *r);
-                helmholtz_solve(scene, l, nu * dt, r, uf)?
+                let new_free = helmholtz_solve(scene, l, nu * dt, r, uf)?;
+                for (&k, v) in l.free.iter().zip(new_free) {
+                    u[k] = v;
+                }
+                u
             }
         };
-        for (&k, v) in l.free.iter().zip(new_free) {
-            u[k] = v;
-        }
         out.push(narrow::<T>(grid.shape(lat), u));
     }
     let uy = out.pop().expect("two");
@@ -522,22 +529,21 @@ pub fn diffuse_vjp<T: Real>(
         let l = lap.of(lat);
         let u = wide(u);
         let g = wide(g);
-        let g_free = l.gather(&g);
-        // Fixed faces pass through; free faces are replaced.
+        // The identity part: every face's gradient passes through (the free
+        // faces' as `g`, the fixed faces' unchanged), plus ν dt Lᵀ g_F.
         let mut gu = g.to_vec();
-        for &k in &l.free {
-            gu[k] = 0.0;
-        }
         match mode {
             ViscosityMode::Explicit => {
-                for &k in &l.free {
-                    gu[k] += g[k];
-                }
                 l.apply_faces_vjp(nu * dt, &g, &mut gu, &mut g_walls);
                 let lu = l.apply_faces(&u, &walls);
                 g_nu += dt * l.free.iter().map(|&k| g[k] * lu[k]).sum::<f64>();
             }
             ViscosityMode::Implicit => {
+                // free faces are replaced by the solve's adjoint
+                for &k in &l.free {
+                    gu[k] = 0.0;
+                }
+                let g_free = l.gather(&g);
                 let s = helmholtz_solve(scene, l, nu * dt, g_free.clone(), g_free)?;
                 for (&k, &sv) in l.free.iter().zip(&s) {
                     gu[k] += sv;

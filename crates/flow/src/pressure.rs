@@ -337,6 +337,8 @@ fn push_face(t: &mut Vec<(usize, usize, f64)>, lo: Option<usize>, hi: Option<usi
 /// `D u` on the cells, over all faces: `(u_x[i+1,j] − u_x[i,j])/dx + (u_y[i,j+1] − u_y[i,j])/dy`.
 /// With `free_only`, fixed faces count as zero (`D_F`).
 pub(crate) fn divergence_wide(scene: &Scene, ux: &[f64], uy: &[f64], free_only: bool) -> Vec<f64> {
+    // with every face free there is nothing to leave out
+    let free_only = free_only && scene.constrained();
     let g = scene.grid();
     let faces = scene.faces();
     let (nx, ny) = (g.nx, g.ny);
@@ -414,6 +416,7 @@ pub(crate) fn divergence_wide(scene: &Scene, ux: &[f64], uy: &[f64], free_only: 
 /// `G p` on the faces (`(p_hi − p_lo)/h`, zero outside); with `free_only`, on
 /// the free faces only (`G_F`). Rows of faces on all cores for a large grid.
 pub(crate) fn gradient_wide(scene: &Scene, p: &[f64], free_only: bool) -> (Vec<f64>, Vec<f64>) {
+    let free_only = free_only && scene.constrained();
     let g = scene.grid();
     let faces = scene.faces();
     let (nx, ny) = (g.nx, g.ny);

@@ -741,6 +741,11 @@ impl Scene {
         &self.0.faces
     }
 
+    /// Whether some face is fixed (a wall, an inflow, an obstacle).
+    pub(crate) fn constrained(&self) -> bool {
+        self.0.constrained
+    }
+
     /// The Fourier solves, on a box periodic in both axes without obstacle.
     pub(crate) fn spectral(&self) -> Option<&PeriodicPoisson> {
         self.0.spectral.as_deref()
@@ -1221,7 +1226,7 @@ fn substep<T: Real, E: Exec<T>>(
     counter: &SolveCounter,
 ) -> Result<StateOf<E::V>> {
     let (settings, sc) = (scene.settings(), scene.clone());
-    let (ux, uy) = if scene.0.constrained {
+    let (ux, uy) = if scene.constrained() {
         two(e.run(
             EnforceBoundaries { scene: sc.clone() },
             &[&s.ux, &s.uy, &p.inflow],

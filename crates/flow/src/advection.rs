@@ -167,6 +167,43 @@ fn wrap(s: f64, n: usize) -> (usize, usize, f64) {
     (i0, i1, s - fl)
 }
 
+/// The bilinear value of the corner values `v` with the weights `wx`, `wy`
+/// along x and y: the one formula every interpolation here uses.
+#[inline(always)]
+fn bilinear(v: [[f64; 2]; 2], wx: [f64; 2], wy: [f64; 2]) -> f64 {
+    wx[0] * (wy[0] * v[0][0] + wy[1] * v[0][1]) + wx[1] * (wy[0] * v[1][0] + wy[1] * v[1][1])
+}
+
+/// `∂ bilinear / ∂s` along x and along y, in lattice units.
+#[inline(always)]
+fn bilinear_slopes(v: [[f64; 2]; 2], wx: [f64; 2], wy: [f64; 2]) -> (f64, f64) {
+    (
+        wy[0] * (v[1][0] - v[0][0]) + wy[1] * (v[1][1] - v[0][1]),
+        wx[0] * (v[0][1] - v[0][0]) + wx[1] * (v[1][1] - v[1][0]),
+    )
+}
+
+/// The values of `u` at the plain lattice entries `k`.
+#[inline(always)]
+fn corner_values(u: &[f64], k: [[usize; 2]; 2]) -> [[f64; 2]; 2] {
+    [[u[k[0][0]], u[k[0][1]]], [u[k[1][0]], u[k[1][1]]]]
+}
+
+/// Adds `c · wx[a] · wy[b]` to the plain lattice entry `k[a][b]` (the
+/// transpose of [`bilinear`]), corners in the order `Stencil::scatter` takes.
+#[inline(always)]
+fn bilinear_scatter(k: [[usize; 2]; 2], wx: [f64; 2], wy: [f64; 2], c: f64, grad: &mut [f64]) {
+    for (ka, wa) in k.iter().zip(wx) {
+        for (&kab, wb) in ka.iter().zip(wy) {
+            grad[kab] += c * wa * wb;
+        }
+    }
+}
+
+/// Four plain lattice entries `[[k00, k01], [k10, k11]]` and the bilinear
+/// weights along x and y.
+type PlainCorners = ([[usize; 2]; 2], [f64; 2], [f64; 2]);
+
 /// A sampler both of whose axes wrap (a periodic box): every corner is a
 /// plain lattice value, so a departure point needs only its two brackets per
 /// axis. The arithmetic is [`Sampler::locate`]'s and [`Stencil`]'s, term for
@@ -182,7 +219,7 @@ impl Periodic {
     /// The corners' indices `[[k00, k01], [k10, k11]]` and the weights along
     /// x and y of the point `p`.
     #[inline(always)]
-    fn locate(&self, p: [f64; 2]) -> ([[usize; 2]; 2], [f64; 2], [f64; 2]) {
+    fn locate(&self, p: [f64; 2]) -> PlainCorners {
         let (i0, i1, fx) = wrap(p[0] / self.h.0 - self.offsets.0, self.n[0]);
         let (j0, j1, fy) = wrap(p[1] / self.h.1 - self.offsets.1, self.n[1]);
         let nb = self.n[1];
@@ -284,43 +321,40 @@ struct LatticeStencils {
 }
 
 impl LatticeStencils {
-    /// `locate(x_ab).value(u, walls)` without building the stencil where
-    /// every corner is a plain lattice value (the same arithmetic, so the
-    /// same bits).
+    /// The plain lattice entries and the weights of entry `(a, b)`'s
+    /// stencil where all four corners are plain values (no ghost, no wall).
     #[inline(always)]
-    fn value_at(&self, [a, b]: [usize; 2], u: &[f64], walls: &[f64; 4]) -> f64 {
+    fn plain(&self, [a, b]: [usize; 2]) -> Option<PlainCorners> {
         let (hx, hy) = (&self.along_x[a], &self.along_y[b]);
         if !(hx.inside && hy.inside) {
-            return self.at([a, b]).value(u, walls);
+            return None;
         }
         let (r0, r1) = (hx.idx[0] * self.nb, hx.idx[1] * self.nb);
         let (j0, j1) = (hy.idx[0], hy.idx[1]);
-        let (wx, wy) = ([1.0 - hx.frac, hx.frac], [1.0 - hy.frac, hy.frac]);
-        wx[0] * (wy[0] * u[r0 + j0] + wy[1] * u[r0 + j1])
-            + wx[1] * (wy[0] * u[r1 + j0] + wy[1] * u[r1 + j1])
+        Some((
+            [[r0 + j0, r0 + j1], [r1 + j0, r1 + j1]],
+            Stencil::weights(hx),
+            Stencil::weights(hy),
+        ))
     }
 
-    /// `locate(x_ab).scatter(c, grad_u, grad_walls)` without building the
-    /// stencil where every corner is a plain lattice value (the same
-    /// arithmetic, so the same bits).
+    /// `at(ab).value(u, walls)`, without building the stencil where its
+    /// corners are plain (the same arithmetic, so the same bits).
     #[inline(always)]
-    fn scatter_at(
-        &self,
-        [a, b]: [usize; 2],
-        c: f64,
-        grad_u: &mut [f64],
-        grad_walls: &mut [f64; 4],
-    ) {
-        let (hx, hy) = (&self.along_x[a], &self.along_y[b]);
-        if !(hx.inside && hy.inside) {
-            self.at([a, b]).scatter(c, grad_u, grad_walls);
-            return;
+    fn value_at(&self, ab: [usize; 2], u: &[f64], walls: &[f64; 4]) -> f64 {
+        match self.plain(ab) {
+            Some((k, wx, wy)) => bilinear(corner_values(u, k), wx, wy),
+            None => self.at(ab).value(u, walls),
         }
-        let (wx, wy) = ([1.0 - hx.frac, hx.frac], [1.0 - hy.frac, hy.frac]);
-        for (ia, wa) in hx.idx.iter().zip(wx) {
-            for (jb, wb) in hy.idx.iter().zip(wy) {
-                grad_u[ia * self.nb + jb] += c * wa * wb;
-            }
+    }
+
+    /// `at(ab).scatter(c, grad_u, grad_walls)`, without building the stencil
+    /// where its corners are plain (the same arithmetic, so the same bits).
+    #[inline(always)]
+    fn scatter_at(&self, ab: [usize; 2], c: f64, grad_u: &mut [f64], grad_walls: &mut [f64; 4]) {
+        match self.plain(ab) {
+            Some((k, wx, wy)) => bilinear_scatter(k, wx, wy, c, grad_u),
+            None => self.at(ab).scatter(c, grad_u, grad_walls),
         }
     }
 
@@ -389,27 +423,19 @@ impl Stencil {
     /// The interpolated value.
     #[inline(always)]
     pub(crate) fn value(&self, u: &[f64], walls: &[f64; 4]) -> f64 {
-        let v = self.corners(u, walls);
         let (wx, wy) = (Self::weights(&self.hx), Self::weights(&self.hy));
-        wx[0] * (wy[0] * v[0][0] + wy[1] * v[0][1]) + wx[1] * (wy[0] * v[1][0] + wy[1] * v[1][1])
+        bilinear(self.corners(u, walls), wx, wy)
     }
 
     /// `∂value/∂s` along x and y in lattice units (zero where clamped).
     #[inline(always)]
     fn slopes(&self, u: &[f64], walls: &[f64; 4]) -> (f64, f64) {
-        let v = self.corners(u, walls);
         let (wx, wy) = (Self::weights(&self.hx), Self::weights(&self.hy));
-        let sx = if self.hx.moves {
-            wy[0] * (v[1][0] - v[0][0]) + wy[1] * (v[1][1] - v[0][1])
-        } else {
-            0.0
-        };
-        let sy = if self.hy.moves {
-            wx[0] * (v[0][1] - v[0][0]) + wx[1] * (v[1][1] - v[1][0])
-        } else {
-            0.0
-        };
-        (sx, sy)
+        let (sx, sy) = bilinear_slopes(self.corners(u, walls), wx, wy);
+        (
+            if self.hx.moves { sx } else { 0.0 },
+            if self.hy.moves { sy } else { 0.0 },
+        )
     }
 
     /// Adds `c · ∂value/∂u` to `grad_u` and `c · ∂value/∂U` to `grad_walls`.
@@ -454,8 +480,7 @@ impl Stencil {
     fn value_and_range(&self, u: &[f64], walls: &[f64; 4]) -> (f64, [f64; 2]) {
         let v = self.corners(u, walls);
         let (wx, wy) = (Self::weights(&self.hx), Self::weights(&self.hy));
-        let value = wx[0] * (wy[0] * v[0][0] + wy[1] * v[0][1])
-            + wx[1] * (wy[0] * v[1][0] + wy[1] * v[1][1]);
+        let value = bilinear(v, wx, wy);
         let lo = v[0][0].min(v[0][1]).min(v[1][0]).min(v[1][1]);
         let hi = v[0][0].max(v[0][1]).max(v[1][0]).max(v[1][1]);
         (value, [lo, hi])
@@ -682,8 +707,7 @@ impl Tracer<'_> {
                 block[k - off] = if field.free(k) {
                     let v = vel[k];
                     let (c, wx, wy) = lean.locate([p[0] - dt * v[0], p[1] - dt * v[1]]);
-                    wx[0] * (wy[0] * q[c[0][0]] + wy[1] * q[c[0][1]])
-                        + wx[1] * (wy[0] * q[c[1][0]] + wy[1] * q[c[1][1]])
+                    bilinear(corner_values(q, c), wx, wy)
                 } else {
                     q[k]
                 };
@@ -756,14 +780,8 @@ impl Tracer<'_> {
                 // Stencil::scatter and Stencil::slopes, term for term
                 let v = vel[k];
                 let (c, wx, wy) = lean.locate([p[0] - dt * v[0], p[1] - dt * v[1]]);
-                for (a, wa) in wx.iter().enumerate() {
-                    for (b, wb) in wy.iter().enumerate() {
-                        grads.q[c[a][b]] += gk * wa * wb;
-                    }
-                }
-                let u = [[q[c[0][0]], q[c[0][1]]], [q[c[1][0]], q[c[1][1]]]];
-                let slx = wy[0] * (u[1][0] - u[0][0]) + wy[1] * (u[1][1] - u[0][1]);
-                let sly = wx[0] * (u[0][1] - u[0][0]) + wx[1] * (u[1][1] - u[1][0]);
+                bilinear_scatter(c, wx, wy, gk, &mut grads.q);
+                let (slx, sly) = bilinear_slopes(corner_values(q, c), wx, wy);
                 g_v[k][0] += -dt * gk * slx / hx;
                 g_v[k][1] += -dt * gk * sly / hy;
                 return;

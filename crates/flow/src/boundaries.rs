@@ -310,9 +310,7 @@ impl Faces {
     pub(crate) fn all_free(&self) -> bool {
         self.x.iter().chain(&self.y).all(|k| *k == FaceKind::Free)
     }
-}
 
-impl Faces {
     /// Classifies the faces of `grid` with the solid cells `solid` (`[nx, ny]`).
     pub(crate) fn classify(grid: &FlowGrid, solid: &Array2<bool>) -> Faces {
         let (nx, ny) = (grid.nx, grid.ny);

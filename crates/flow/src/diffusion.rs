@@ -66,8 +66,6 @@ pub(crate) struct ComponentLaplacian {
     walls: Vec<(usize, usize, f64)>,
     /// The face of each free unknown.
     free: Vec<usize>,
-    /// Whether each face is free.
-    is_free: Vec<bool>,
     /// Faces of the component.
     len: usize,
     /// The component's lattice `[na, nb]` and the coefficients `(1/dx², 1/dy²)`.
@@ -204,7 +202,6 @@ impl ComponentLaplacian {
             ff: Csr::from_triplets(free.len(), free.len(), ff),
             fx: Csr::from_triplets(free.len(), kinds.len(), fx),
             walls,
-            is_free: kinds.iter().map(|k| *k == FaceKind::Free).collect(),
             free,
             len: kinds.len(),
             shape: [na, nb],
@@ -462,12 +459,12 @@ pub fn diffuse<T: Real>(
         let l = lap.of(lat);
         let u = match mode {
             ViscosityMode::Explicit => {
-                // L u into the output, then u + ν dt L u on the free faces
-                // and u itself on the fixed ones, in place
+                // u + ν dt L u written over L u, which is 0 at the fixed
+                // faces (so they keep u)
                 let u = wide(u);
                 let mut next = l.apply_faces(&u, &walls);
-                for ((n, &v), &free) in next.iter_mut().zip(u.iter()).zip(&l.is_free) {
-                    *n = if free { v + nu * dt * *n } else { v };
+                for (n, &v) in next.iter_mut().zip(u.iter()) {
+                    *n = v + nu * dt * *n;
                 }
                 next
             }

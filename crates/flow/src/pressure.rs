@@ -503,10 +503,8 @@ pub fn project<T: Real>(
         scene.check_cells(NAME, "pressure guess", p)?;
     }
     let (mut ux, mut uy) = (wide(ux).into_owned(), wide(uy).into_owned());
-    let b: Vec<f64> = divergence_wide(scene, &ux, &uy, false)
-        .iter()
-        .map(|d| -d)
-        .collect();
+    let mut b = divergence_wide(scene, &ux, &uy, false);
+    b.iter_mut().for_each(|d| *d = -*d);
     let guess = pressure_guess.map(|p| p.iter().map(|v| v.as_f64() * tau).collect());
     let (p, iterations) = scene.pressure_system().solve(b, guess)?;
     let (gx, gy) = gradient_wide(scene, &p, true);
@@ -536,10 +534,8 @@ pub fn project_vjp<T: Real>(
 ) -> Result<(Array2<T>, Array2<T>)> {
     scene.check_velocity(NAME, grad_x, grad_y)?;
     let (mut gx, mut gy) = (wide(grad_x).into_owned(), wide(grad_y).into_owned());
-    let mut rhs: Vec<f64> = divergence_wide(scene, &gx, &gy, true)
-        .iter()
-        .map(|d| -d)
-        .collect();
+    let mut rhs = divergence_wide(scene, &gx, &gy, true);
+    rhs.iter_mut().for_each(|d| *d = -*d);
     if let Some(gp) = grad_pressure {
         scene.check_cells(NAME, "pressure gradient", gp)?;
         rhs.iter_mut()

@@ -32,15 +32,13 @@
 //! - A. Selle, R. Fedkiw, B. Kim, Y. Liu, J. Rossignac, *An unconditionally
 //!   stable MacCormack method*, J. Sci. Comput. 35 (2008) 350–371.
 
-use std::borrow::Cow;
-
-use diffphys_tape::{
-    parallel, ArrayD, ArrayViewD, BackwardArgs, Op, PerPrecision, Real, TapeError,
-};
+use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
 use ndarray::{Array1, Array2, ArrayView1, ArrayView2};
-use rayon::prelude::*;
 
 use crate::boundaries::{view1, view2, FaceKind};
+use crate::buffers::{
+    give_back, in_blocks, join, narrow, scratch, walls_of, wide, zero_pairs, zeros,
+};
 use crate::grid::{FlowGrid, Lattice};
 use crate::{Result, Scene};
 
@@ -543,47 +541,10 @@ const BLOCK: usize = 1024;
 /// kernel's element).
 pub(crate) const PARALLEL_FROM: usize = 8192;
 
-/// Runs `f(offset, block)` on blocks of whole rows of `row` entries of `out`
-/// (about [`parallel::CHUNK`] entries each, at least one row), on all cores
-/// where [`parallel::is_parallel`] says an array of its length splits: the
-/// step's per-row loops (stencils, the Fourier solve's transforms), whose rows
-/// are computed alone, so the same bits on any number of threads. (Splitting
-/// them from [`PARALLEL_FROM`] entries, as the advection does, was slower at
-/// 128² on two cores: the wake-ups cost more than the halved rows.)
-pub(crate) fn for_row_blocks<V: Send>(
-    out: &mut [V],
-    row: usize,
-    f: impl Fn(usize, &mut [V]) + Sync + Send,
-) {
-    if row > 0 {
-        let len = parallel::CHUNK.div_ceil(row) * row;
-        in_blocks(out, len, parallel::is_parallel(out.len()), f);
-    }
-}
-
 /// Runs `f(offset, block)` on the [`BLOCK`]-sized blocks of `out`.
 fn for_blocks<V: Send>(out: &mut [V], f: impl Fn(usize, &mut [V]) + Sync + Send) {
     let split = out.len() >= PARALLEL_FROM && rayon::current_num_threads() > 1;
     in_blocks(out, BLOCK, split, f);
-}
-
-/// Runs `f(offset, block)` on the blocks of `len` entries of `out`, on all
-/// cores where `split`.
-fn in_blocks<V: Send>(
-    out: &mut [V],
-    len: usize,
-    split: bool,
-    f: impl Fn(usize, &mut [V]) + Sync + Send,
-) {
-    if split {
-        out.par_chunks_mut(len)
-            .enumerate()
-            .for_each(|(c, o)| f(c * len, o));
-    } else {
-        out.chunks_mut(len)
-            .enumerate()
-            .for_each(|(c, o)| f(c * len, o));
-    }
 }
 
 impl Tracer<'_> {
@@ -623,7 +584,7 @@ impl Tracer<'_> {
             self.sy.on_lattice(self.grid, field.lattice),
         );
         let own = field.lattice;
-        let mut v = vec![[0.0; 2]; len];
+        let mut v = zero_pairs(len);
         for_blocks(&mut v, |off, out| {
             self.each_entry(field, off, out.len(), |k, ab, _| {
                 if field.free(k) {
@@ -701,7 +662,8 @@ impl Tracer<'_> {
         let Some(lean) = field.sampler.periodic() else {
             return self.at_departures(field, vel, dt, |k| q[k], |s| s.value(q, &self.walls));
         };
-        let mut out = vec![0.0; vel.len()];
+        // every entry is written
+        let mut out = scratch(vel.len());
         for_blocks(&mut out, |off, block| {
             self.each_entry(field, off, block.len(), |k, _, p| {
                 block[k - off] = if field.free(k) {
@@ -798,7 +760,9 @@ impl Tracer<'_> {
     fn step(&self, field: &Field<'_>, q: &[f64], dt: f64, scheme: Advection) -> Vec<f64> {
         let vel = self.velocities(field, q.len());
         let Advection::MacCormack { limiter } = scheme else {
-            return self.semi_lagrangian(field, q, &vel, dt);
+            let out = self.semi_lagrangian(field, q, &vel, dt);
+            give_back(vel);
+            return out;
         };
         let (qh, range) = self.first_pass(field, q, &vel, dt, limiter);
         let qt = self.semi_lagrangian(field, &qh, &vel, -dt);
@@ -817,6 +781,9 @@ impl Tracer<'_> {
                 };
             }
         });
+        give_back(vel);
+        give_back(qh);
+        give_back(qt);
         out
     }
 
@@ -832,16 +799,18 @@ impl Tracer<'_> {
     ) {
         let n = q.len();
         let vel = self.velocities(field, n);
-        let mut g_v = vec![[0.0; 2]; n];
+        let mut g_v = zero_pairs(n);
         let Advection::MacCormack { limiter } = scheme else {
             self.semi_lagrangian_vjp(field, q, &vel, dt, g, grads, &mut g_v);
             self.velocities_vjp(field, &g_v, grads);
+            give_back(vel);
+            give_back(g_v);
             return;
         };
         let (qh, range) = self.first_pass(field, q, &vel, dt, limiter);
         let qt = self.semi_lagrangian(field, &qh, &vel, -dt);
-        let mut g_hat = vec![0.0; n];
-        let mut g_tilde = vec![0.0; n];
+        let mut g_hat = zeros(n);
+        let mut g_tilde = zeros(n);
         self.each_entry(field, 0, n, |k, _, p| {
             let gk = g[k];
             if !field.free(k) {
@@ -875,6 +844,11 @@ impl Tracer<'_> {
         self.semi_lagrangian_vjp(field, q, &vel, dt, &g_hat, &mut inner, &mut g_v);
         grads.add(&inner);
         self.velocities_vjp(field, &g_v, grads);
+        for v in [qh, qt, g_hat, g_tilde, inner.q, inner.ux, inner.uy] {
+            give_back(v);
+        }
+        give_back(vel);
+        give_back(g_v);
     }
 }
 
@@ -889,9 +863,9 @@ struct Grads {
 impl Grads {
     fn zeros(nq: usize, nx: usize, ny: usize) -> Self {
         Grads {
-            q: vec![0.0; nq],
-            ux: vec![0.0; nx],
-            uy: vec![0.0; ny],
+            q: zeros(nq),
+            ux: zeros(nx),
+            uy: zeros(ny),
             walls: [0.0; 4],
         }
     }
@@ -909,38 +883,6 @@ impl Grads {
             self.walls[s] += o.walls[s];
         }
     }
-}
-
-/// `f64` values of a slice: the slice itself in `f64`, none in `f32`.
-struct AsWide;
-impl PerPrecision for AsWide {
-    type Of<T: Real> = for<'b> fn(&'b [T]) -> Option<&'b [f64]>;
-}
-
-/// Values from `f64`: the vector itself in `f64`, converted in `f32`.
-struct FromWide;
-impl PerPrecision for FromWide {
-    type Of<T: Real> = fn(Vec<f64>) -> Vec<T>;
-}
-
-/// The entries of `a` in `f64`, row-major: borrowed when `a` is a
-/// standard-layout `f64` array, converted otherwise.
-pub(crate) fn wide<T: Real>(a: ArrayView2<'_, T>) -> Cow<'_, [f64]> {
-    let borrow = T::pick::<AsWide>(|_| None, |s| Some(s));
-    match a.to_slice().and_then(borrow) {
-        Some(s) => Cow::Borrowed(s),
-        None => Cow::Owned(a.iter().map(|v| v.as_f64()).collect()),
-    }
-}
-
-/// `v` as an array of `T` of `shape` (moved, not copied, in `f64`).
-pub(crate) fn narrow<T: Real>(shape: [usize; 2], v: Vec<f64>) -> Array2<T> {
-    let convert = T::pick::<FromWide>(|v| v.into_iter().map(|x| x as f32).collect(), |v| v);
-    crate::boundaries::array2(shape, convert(v))
-}
-
-pub(crate) fn walls_of<T: Real>(w: ArrayView1<'_, T>) -> [f64; 4] {
-    [w[0].as_f64(), w[1].as_f64(), w[2].as_f64(), w[3].as_f64()]
 }
 
 fn field_of<'a>(scene: &'a Scene, lattice: Lattice) -> Field<'a> {
@@ -1016,7 +958,7 @@ pub fn advect_velocity<T: Real>(
     let tr = tracer(scene, &ux, &uy, walls_of(wall_speed));
     let g = scene.grid();
     // the two components are independent: on two threads when there are
-    let (ox, oy) = rayon::join(
+    let (ox, oy) = join(
         || tr.step(&field_of(scene, Lattice::FaceX), &wide(field.0), dt, scheme),
         || tr.step(&field_of(scene, Lattice::FaceY), &wide(field.1), dt, scheme),
     );
@@ -1058,18 +1000,22 @@ pub fn advect_velocity_vjp<T: Real>(
         );
         grads
     };
-    let (gx, gy) = rayon::join(
+    let (mut gx, gy) = join(
         || component(Lattice::FaceX, field.0, grad.0, nx),
         || component(Lattice::FaceY, field.1, grad.1, ny),
     );
     // the velocity traces both components
-    let sum = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x + y).collect::<Vec<_>>();
+    for (a, b) in [(&mut gx.ux, &gy.ux), (&mut gx.uy, &gy.uy)] {
+        a.iter_mut().zip(b.iter()).for_each(|(x, y)| *x += y);
+    }
+    give_back(gy.ux);
+    give_back(gy.uy);
     let g = scene.grid();
     Ok(VelocityAdvectionGrads {
         field_x: narrow(g.shape_x(), gx.q),
         field_y: narrow(g.shape_y(), gy.q),
-        ux: narrow(g.shape_x(), sum(&gx.ux, &gy.ux)),
-        uy: narrow(g.shape_y(), sum(&gx.uy, &gy.uy)),
+        ux: narrow(g.shape_x(), gx.ux),
+        uy: narrow(g.shape_y(), gx.uy),
         wall_speed: (0..4)
             .map(|s| T::from_f64(gx.walls[s] + gy.walls[s]))
             .collect(),

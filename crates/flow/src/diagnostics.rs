@@ -24,8 +24,8 @@
 use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
 use ndarray::{Array1, Array2, ArrayView2, IxDyn};
 
-use crate::advection::{narrow, wide};
 use crate::boundaries::{scalar_of, view2};
+use crate::buffers::{narrow, wide};
 use crate::pressure::{divergence_wide, gradient_wide};
 use crate::{Result, Scene};
 

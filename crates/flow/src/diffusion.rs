@@ -40,8 +40,8 @@ use diffphys_ops::LinearOperator;
 use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
 use ndarray::{Array1, Array2, ArrayView1, ArrayView2, ArrayViewMutD, IxDyn};
 
-use crate::advection::{for_row_blocks, narrow, walls_of, wide};
 use crate::boundaries::{scalar_of, view1, view2, FaceKind, Faces};
+use crate::buffers::{copied, for_row_blocks, give_back, narrow, owned, walls_of, wide, zeros};
 use crate::grid::{FlowGrid, Lattice};
 use crate::sparse::Csr;
 use crate::{FlowError, Result, Scene};
@@ -219,7 +219,7 @@ impl ComponentLaplacian {
     /// fixed faces: the five-point stencil on the regular rows (on all cores
     /// for a large lattice), the edge rows and the wall terms beside.
     fn apply_faces(&self, u: &[f64], walls: &[f64; 4]) -> Vec<f64> {
-        let mut out = vec![0.0; self.len];
+        let mut out = zeros(self.len);
         self.stencil_add(u, Some(&self.regular), &mut out);
         self.edge.mul_add(1.0, u, &mut out);
         for &(r, s, c) in &self.walls {
@@ -469,7 +469,7 @@ pub fn diffuse<T: Real>(
                 next
             }
             ViscosityMode::Implicit => {
-                let mut u = wide(u).into_owned();
+                let mut u = owned(wide(u));
                 let uf = l.gather(&u);
                 let mut r = l.boundary_terms(&u, &walls);
                 r.iter_mut()
@@ -528,12 +528,13 @@ pub fn diffuse_vjp<T: Real>(
         let g = wide(g);
         // The identity part: every face's gradient passes through (the free
         // faces' as `g`, the fixed faces' unchanged), plus ν dt Lᵀ g_F.
-        let mut gu = g.to_vec();
+        let mut gu = copied(&g);
         match mode {
             ViscosityMode::Explicit => {
                 l.apply_faces_vjp(nu * dt, &g, &mut gu, &mut g_walls);
                 let lu = l.apply_faces(&u, &walls);
                 g_nu += dt * l.free.iter().map(|&k| g[k] * lu[k]).sum::<f64>();
+                give_back(lu);
             }
             ViscosityMode::Implicit => {
                 // free faces are replaced by the solve's adjoint

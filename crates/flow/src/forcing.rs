@@ -13,8 +13,8 @@
 use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
 use ndarray::{Array2, ArrayView2};
 
-use crate::advection::{narrow, wide};
 use crate::boundaries::{view2, FaceKind};
+use crate::buffers::{narrow, wide};
 use crate::{Result, Scene};
 
 /// Buoyancy of one of the state's scalars.

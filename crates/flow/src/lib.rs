@@ -53,6 +53,7 @@
 
 pub mod advection;
 pub mod boundaries;
+mod buffers;
 pub mod diagnostics;
 pub mod diffusion;
 mod error;

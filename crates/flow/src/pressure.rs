@@ -45,8 +45,8 @@ use diffphys_ops::{Boundary as OpsBoundary, CellMask, Grid2, LinearOperator};
 use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
 use ndarray::{Array2, ArrayView2, ArrayViewMutD, IxDyn};
 
-use crate::advection::{for_row_blocks, narrow, wide};
 use crate::boundaries::{view2, FaceKind, Faces};
+use crate::buffers::{for_row_blocks, give_back, narrow, owned, wide, zeros};
 use crate::grid::FlowGrid;
 use crate::sparse::Csr;
 use crate::spectral::PeriodicPoisson;
@@ -239,6 +239,11 @@ impl PressureSystem {
         })
     }
 
+    /// Whether the solve iterates (CG or MG-PCG: a guess helps), not direct.
+    pub(crate) fn iterates(&self) -> bool {
+        self.direct.is_none()
+    }
+
     /// `S rhs` from `guess`; returns the solution and the CG iterations (0 for
     /// the direct solve).
     fn solve(&self, mut rhs: Vec<f64>, guess: Option<Vec<f64>>) -> Result<(Vec<f64>, usize)> {
@@ -260,6 +265,7 @@ impl PressureSystem {
                 crate::spectral::check_finite("pressure solve", "right-hand side", rhs)?;
                 let x =
                     ArrayD::from_shape_vec(IxDyn(&shape), fft.solve(rhs)).expect("one per cell");
+                give_back(b.into_raw_vec_and_offset().0);
                 (x, 0)
             }
             None => {
@@ -365,7 +371,7 @@ pub(crate) fn divergence_wide(scene: &Scene, ux: &[f64], uy: &[f64], free_only: 
         };
     let x_of = touching(nx, nfx, &|f| g.x_face_cells(f));
     let y_of = touching(ny, nfy, &|f| g.y_face_cells(f));
-    let mut d = vec![0.0; nx * ny];
+    let mut d = zeros(nx * ny);
     if ny == 0 {
         return d;
     }
@@ -422,8 +428,8 @@ pub(crate) fn gradient_wide(scene: &Scene, p: &[f64], free_only: bool) -> (Vec<f
     let (nx, ny) = (g.nx, g.ny);
     let [nfx, _] = g.shape_x();
     let [_, nfy] = g.shape_y();
-    let mut gx = vec![0.0; nfx * ny];
-    let mut gy = vec![0.0; nx * nfy];
+    let mut gx = zeros(nfx * ny);
+    let mut gy = zeros(nx * nfy);
     if ny == 0 || nfy == 0 {
         return (gx, gy);
     }
@@ -502,16 +508,23 @@ pub fn project<T: Real>(
     if let Some(p) = pressure_guess {
         scene.check_cells(NAME, "pressure guess", p)?;
     }
-    let (mut ux, mut uy) = (wide(ux).into_owned(), wide(uy).into_owned());
+    let (mut ux, mut uy) = (owned(wide(ux)), owned(wide(uy)));
     let mut b = divergence_wide(scene, &ux, &uy, false);
     b.iter_mut().for_each(|d| *d = -*d);
-    let guess = pressure_guess.map(|p| p.iter().map(|v| v.as_f64() * tau).collect());
-    let (p, iterations) = scene.pressure_system().solve(b, guess)?;
+    let system = scene.pressure_system();
+    // a guess only where the solve iterates
+    let guess = pressure_guess
+        .filter(|_| system.iterates())
+        .map(|p| p.iter().map(|v| v.as_f64() * tau).collect());
+    let (p, iterations) = system.solve(b, guess)?;
     let (gx, gy) = gradient_wide(scene, &p, true);
     ux.iter_mut().zip(&gx).for_each(|(u, g)| *u -= g);
     uy.iter_mut().zip(&gy).for_each(|(u, g)| *u -= g);
+    give_back(gx);
+    give_back(gy);
     let grid = scene.grid();
-    let pressure: Vec<f64> = p.iter().map(|v| v / tau).collect();
+    let mut pressure = p;
+    pressure.iter_mut().for_each(|v| *v /= tau);
     Ok(Projected {
         ux: narrow(grid.shape_x(), ux),
         uy: narrow(grid.shape_y(), uy),
@@ -533,7 +546,7 @@ pub fn project_vjp<T: Real>(
     grad_pressure: Option<ArrayView2<'_, T>>,
 ) -> Result<(Array2<T>, Array2<T>)> {
     scene.check_velocity(NAME, grad_x, grad_y)?;
-    let (mut gx, mut gy) = (wide(grad_x).into_owned(), wide(grad_y).into_owned());
+    let (mut gx, mut gy) = (owned(wide(grad_x)), owned(wide(grad_y)));
     let mut rhs = divergence_wide(scene, &gx, &gy, true);
     rhs.iter_mut().for_each(|d| *d = -*d);
     if let Some(gp) = grad_pressure {
@@ -546,6 +559,9 @@ pub fn project_vjp<T: Real>(
     let (sx, sy) = gradient_wide(scene, &s, false);
     gx.iter_mut().zip(&sx).for_each(|(g, s)| *g -= s);
     gy.iter_mut().zip(&sy).for_each(|(g, s)| *g -= s);
+    for v in [s, sx, sy] {
+        give_back(v);
+    }
     let grid = scene.grid();
     Ok((narrow(grid.shape_x(), gx), narrow(grid.shape_y(), gy)))
 }
@@ -646,10 +662,12 @@ pub fn subtract_pressure_gradient<T: Real>(
     const STEP: &str = "pressure gradient";
     scene.check_velocity(STEP, ux, uy)?;
     scene.check_cells(STEP, "pressure", pressure)?;
-    let (mut ux, mut uy) = (wide(ux).into_owned(), wide(uy).into_owned());
+    let (mut ux, mut uy) = (owned(wide(ux)), owned(wide(uy)));
     let (gx, gy) = gradient_wide(scene, &wide(pressure), true);
     ux.iter_mut().zip(&gx).for_each(|(u, g)| *u -= c * g);
     uy.iter_mut().zip(&gy).for_each(|(u, g)| *u -= c * g);
+    give_back(gx);
+    give_back(gy);
     let grid = scene.grid();
     Ok((narrow(grid.shape_x(), ux), narrow(grid.shape_y(), uy)))
 }
@@ -666,8 +684,8 @@ pub fn subtract_pressure_gradient_vjp<T: Real>(
     grad_y: ArrayView2<'_, T>,
 ) -> Result<(Array2<T>, Array2<T>, Array2<T>)> {
     scene.check_velocity("pressure gradient", grad_x, grad_y)?;
-    let d = divergence_wide(scene, &wide(grad_x), &wide(grad_y), true);
-    let gp: Vec<f64> = d.iter().map(|v| c * v).collect();
+    let mut gp = divergence_wide(scene, &wide(grad_x), &wide(grad_y), true);
+    gp.iter_mut().for_each(|v| *v *= c);
     Ok((
         grad_x.to_owned(),
         grad_y.to_owned(),

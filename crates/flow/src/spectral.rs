@@ -30,7 +30,8 @@ use std::sync::Arc;
 use rustfft::num_complex::Complex;
 use rustfft::{Fft, FftPlanner};
 
-use crate::advection::for_row_blocks;
+use crate::buffers::{for_row_blocks, give_back, scratch};
+use diffphys_tape::pool;
 
 use crate::{FlowError, Result};
 
@@ -99,9 +100,13 @@ impl PeriodicPoisson {
     fn solve_symbol(&self, rhs: &[f64], multiplier: impl Fn(f64) -> f64 + Sync) -> Vec<f64> {
         let (nx, ny) = (self.nx, self.ny);
         debug_assert_eq!(rhs.len(), nx * ny, "one value per cell");
-        let mut rows: Vec<Complex<f64>> = rhs.iter().map(|&v| Complex::new(v, 0.0)).collect();
+        let mut rows: Vec<Complex<f64>> = pool::take_or(nx * ny, Complex::default());
+        rows.iter_mut()
+            .zip(rhs)
+            .for_each(|(r, &v)| *r = Complex::new(v, 0.0));
         each_row(&self.along_y, &mut rows, ny);
-        let mut cols = vec![Complex::default(); nx * ny];
+        // overwritten by the transpose
+        let mut cols = pool::take_or(nx * ny, Complex::default());
         transpose(&rows, &mut cols, nx, ny);
         each_row(&self.along_x, &mut cols, nx);
         // λ(0, 0) = 0 exactly (cos 0 = 1), the one mode a pseudo-inverse drops
@@ -115,7 +120,11 @@ impl PeriodicPoisson {
         each_row(&self.along_x_inv, &mut cols, nx);
         transpose(&cols, &mut rows, ny, nx);
         each_row(&self.along_y_inv, &mut rows, ny);
-        rows.iter().map(|c| c.re).collect()
+        let mut out = scratch(nx * ny);
+        out.iter_mut().zip(&rows).for_each(|(o, c)| *o = c.re);
+        give_back(rows);
+        give_back(cols);
+        out
     }
 }
 

@@ -50,9 +50,10 @@
 //! ```
 
 use std::any::{Any, TypeId};
-use std::cell::{Cell, RefCell};
+use std::cell::RefCell;
 use std::collections::HashMap;
-use std::rc::Rc;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
 
 use ndarray::{ArrayD, IxDyn};
 
@@ -68,7 +69,7 @@ pub const DEFAULT_LIMIT_BYTES: usize = 512 << 20;
 /// The buffers of one type and length, and their demand.
 #[derive(Default)]
 struct Slot {
-    buffers: Vec<Box<dyn Any>>,
+    buffers: Vec<Box<dyn Any + Send>>,
     /// Buffers [`take`] handed out and not yet recycled (an estimate: a
     /// recycled buffer that did not come from `take` counts it down too).
     out: usize,
@@ -83,17 +84,19 @@ struct Free {
 }
 
 struct Shared {
-    free: RefCell<Free>,
-    limit: Cell<usize>,
+    free: Mutex<Free>,
+    limit: AtomicUsize,
 }
 
 /// A pool of array buffers, keyed by element type and length. A handle:
 /// clones share one pool, whose buffers go back to the allocator when the last
-/// handle is dropped. Not `Send`: a pool belongs to one thread, like the tapes
-/// that use it.
+/// handle is dropped. `Send` and `Sync`: one job may hand its pool to the
+/// threads it splits onto (each installs it, [`BufferPool::scope`]), and an
+/// object that runs jobs on a thread pool (a solver called from Python) may
+/// own one across calls.
 #[derive(Clone)]
 pub struct BufferPool {
-    shared: Rc<Shared>,
+    shared: Arc<Shared>,
 }
 
 impl Default for BufferPool {
@@ -141,9 +144,9 @@ impl BufferPool {
     /// An empty pool holding at most `bytes` (0: nothing is kept).
     pub fn with_limit_bytes(bytes: usize) -> Self {
         BufferPool {
-            shared: Rc::new(Shared {
-                free: RefCell::new(Free::default()),
-                limit: Cell::new(bytes),
+            shared: Arc::new(Shared {
+                free: Mutex::new(Free::default()),
+                limit: AtomicUsize::new(bytes),
             }),
         }
     }
@@ -172,25 +175,31 @@ impl BufferPool {
 
     /// The most bytes this pool keeps.
     pub fn limit_bytes(&self) -> usize {
-        self.shared.limit.get()
+        self.shared.limit.load(Ordering::Relaxed)
     }
 
     /// Sets the most bytes this pool keeps; buffers beyond it go back to the
     /// allocator as they are recycled ([`BufferPool::clear`] empties the pool
     /// now).
     pub fn set_limit_bytes(&self, bytes: usize) {
-        self.shared.limit.set(bytes);
+        self.shared.limit.store(bytes, Ordering::Relaxed);
     }
 
     /// Bytes this pool holds now.
     pub fn held_bytes(&self) -> usize {
-        self.shared.free.borrow().bytes
+        self.free().bytes
+    }
+
+    /// The free lists, locked (a panic elsewhere while they were held left
+    /// them consistent: every update is a push or a pop and a count).
+    fn free(&self) -> MutexGuard<'_, Free> {
+        self.shared.free.lock().unwrap_or_else(|e| e.into_inner())
     }
 
     /// Returns every buffer this pool holds to the allocator.
     pub fn clear(&self) {
         let buffers = {
-            let mut free = self.shared.free.borrow_mut();
+            let mut free = self.free();
             free.bytes = 0;
             free.slots
                 .values_mut()
@@ -202,20 +211,20 @@ impl BufferPool {
 
     /// Whether `other` is a handle to the same pool.
     pub fn same_as(&self, other: &BufferPool) -> bool {
-        Rc::ptr_eq(&self.shared, &other.shared)
+        Arc::ptr_eq(&self.shared, &other.shared)
     }
 
     /// Whether this is the only handle to the pool (so what it would keep is
     /// freed with it).
     pub(crate) fn is_unshared(&self) -> bool {
-        Rc::strong_count(&self.shared) == 1
+        Arc::strong_count(&self.shared) == 1
     }
 
     /// A held buffer of `len` elements, if any; counts the request towards
     /// the length's demand either way (the caller allocates on `None`).
-    fn take<T: Real>(&self, len: usize) -> Option<Vec<T>> {
+    fn take<T: Copy + Send + 'static>(&self, len: usize) -> Option<Vec<T>> {
         let v = {
-            let mut free = self.shared.free.borrow_mut();
+            let mut free = self.free();
             let slot = free.slots.entry((TypeId::of::<T>(), len)).or_default();
             slot.out += 1;
             slot.demand = slot.demand.max(slot.out);
@@ -229,11 +238,11 @@ impl BufferPool {
     /// Keeps `buffer` (full-length, long enough) or gives it back: if its
     /// length already has as many buffers held as its demand, or the pool is
     /// at its limit.
-    fn keep<T: Real>(&self, buffer: Vec<T>) -> Option<Vec<T>> {
+    fn keep<T: Copy + Send + 'static>(&self, buffer: Vec<T>) -> Option<Vec<T>> {
         let len = buffer.len();
         let bytes = len * std::mem::size_of::<T>();
         let limit = self.limit_bytes();
-        let mut free = self.shared.free.borrow_mut();
+        let mut free = self.free();
         let held = free.bytes;
         let Some(slot) = free.slots.get_mut(&(TypeId::of::<T>(), len)) else {
             return Some(buffer);
@@ -252,18 +261,32 @@ impl BufferPool {
 /// unspecified: callers overwrite every element) or, if it has none of that
 /// length or no pool is current, zeros.
 pub fn take<T: Real>(len: usize) -> Vec<T> {
+    take_or(len, T::zero())
+}
+
+/// [`take`] for any plain element type (a complex number, a pair): a
+/// recycled buffer of `len` elements (contents unspecified) or, if the
+/// current pool has none, `len` copies of `fresh`.
+pub fn take_or<T: Copy + Send + 'static>(len: usize, fresh: T) -> Vec<T> {
     if len >= MIN_POOLED_LEN {
         if let Some(v) = BufferPool::current().and_then(|p| p.take(len)) {
             return v;
         }
     }
-    vec![T::zero(); len]
+    vec![fresh; len]
+}
+
+/// A buffer of `len` copies of `value`: [`take_or`], filled.
+pub fn take_filled<T: Copy + Send + 'static>(len: usize, value: T) -> Vec<T> {
+    let mut v = take_or(len, value);
+    v.fill(value);
+    v
 }
 
 /// Gives `buffer` to the current pool for a later [`take`] of its length
 /// (dropped instead if it is short, if the pool is full or if no pool is
 /// current).
-pub fn recycle<T: Real>(buffer: Vec<T>) {
+pub fn recycle<T: Copy + Send + 'static>(buffer: Vec<T>) {
     if buffer.len() < MIN_POOLED_LEN || buffer.capacity() != buffer.len() {
         return;
     }

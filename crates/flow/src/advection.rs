@@ -298,6 +298,8 @@ impl Sampler {
     /// The stencil of the point `p`.
     #[inline(always)]
     pub(crate) fn locate(&self, p: [f64; 2]) -> Stencil {
+        // a division, not a product with 1/h: a point on the lattice
+        // lands on its entry exactly (no motion is the identity)
         let hx = self.rx.hit(p[0] / self.h.0 - self.offsets.0);
         let hy = self.ry.hit(p[1] / self.h.1 - self.offsets.1);
         Stencil {
@@ -579,53 +581,136 @@ impl Tracer<'_> {
     /// there is read, not interpolated: `I_ux` at an x-face is `u_x` there
     /// (the bilinear weights of a lattice point are 1 and 0 up to rounding).
     fn velocities(&self, field: &Field<'_>, len: usize) -> Vec<[f64; 2]> {
-        let (tx, ty) = (
-            self.sx.on_lattice(self.grid, field.lattice),
-            self.sy.on_lattice(self.grid, field.lattice),
-        );
-        let own = field.lattice;
+        let tables = self.tables(field.lattice);
         let mut v = zero_pairs(len);
         for_blocks(&mut v, |off, out| {
             self.each_entry(field, off, out.len(), |k, ab, _| {
                 if field.free(k) {
-                    out[k - off] = match own {
-                        Lattice::FaceX => [self.ux[k], ty.value_at(ab, self.uy, &self.walls)],
-                        Lattice::FaceY => [tx.value_at(ab, self.ux, &self.walls), self.uy[k]],
-                        Lattice::Cell => [
-                            tx.value_at(ab, self.ux, &self.walls),
-                            ty.value_at(ab, self.uy, &self.walls),
-                        ],
-                    };
+                    out[k - off] = self.velocity_at(field.lattice, &tables, k, ab);
                 }
             });
         });
         v
     }
 
+    /// The velocity samplers' stencils at the entries of `lattice`.
+    fn tables(&self, lattice: Lattice) -> [LatticeStencils; 2] {
+        [
+            self.sx.on_lattice(self.grid, lattice),
+            self.sy.on_lattice(self.grid, lattice),
+        ]
+    }
+
+    /// [`Tracer::velocities`] at the free entry `k`, `(a, b)`, of a field on
+    /// `own`, from its [`Tracer::tables`].
+    #[inline(always)]
+    fn velocity_at(
+        &self,
+        own: Lattice,
+        [tx, ty]: &[LatticeStencils; 2],
+        k: usize,
+        ab: [usize; 2],
+    ) -> [f64; 2] {
+        match own {
+            Lattice::FaceX => [self.ux[k], ty.value_at(ab, self.uy, &self.walls)],
+            Lattice::FaceY => [tx.value_at(ab, self.ux, &self.walls), self.uy[k]],
+            Lattice::Cell => [
+                tx.value_at(ab, self.ux, &self.walls),
+                ty.value_at(ab, self.uy, &self.walls),
+            ],
+        }
+    }
+
     /// Adds `I_vᵀ g_v` (the adjoint of [`Tracer::velocities`]) to the
     /// gradients of `u_x`, `u_y` and the walls.
     fn velocities_vjp(&self, field: &Field<'_>, g_v: &[[f64; 2]], grads: &mut Grads) {
-        let (tx, ty) = (
-            self.sx.on_lattice(self.grid, field.lattice),
-            self.sy.on_lattice(self.grid, field.lattice),
-        );
-        let own = field.lattice;
+        let tables = self.tables(field.lattice);
         self.each_entry(field, 0, g_v.len(), |k, ab, _| {
-            let g = g_v[k];
-            if g[0] != 0.0 {
-                if own == Lattice::FaceX {
-                    grads.ux[k] += g[0];
-                } else {
-                    tx.scatter_at(ab, g[0], &mut grads.ux, &mut grads.walls);
-                }
+            self.velocity_vjp_at(field.lattice, &tables, k, ab, g_v[k], grads);
+        });
+    }
+
+    /// The adjoint of [`Tracer::velocity_at`] with `g` (the gradient of the
+    /// entry's velocity), added to `grads`.
+    #[inline(always)]
+    fn velocity_vjp_at(
+        &self,
+        own: Lattice,
+        [tx, ty]: &[LatticeStencils; 2],
+        k: usize,
+        ab: [usize; 2],
+        g: [f64; 2],
+        grads: &mut Grads,
+    ) {
+        if g[0] != 0.0 {
+            if own == Lattice::FaceX {
+                grads.ux[k] += g[0];
+            } else {
+                tx.scatter_at(ab, g[0], &mut grads.ux, &mut grads.walls);
             }
-            if g[1] != 0.0 {
-                if own == Lattice::FaceY {
-                    grads.uy[k] += g[1];
-                } else {
-                    ty.scatter_at(ab, g[1], &mut grads.uy, &mut grads.walls);
-                }
+        }
+        if g[1] != 0.0 {
+            if own == Lattice::FaceY {
+                grads.uy[k] += g[1];
+            } else {
+                ty.scatter_at(ab, g[1], &mut grads.uy, &mut grads.walls);
             }
+        }
+    }
+
+    /// A semi-Lagrangian step on a periodic box (`lean`, the field's
+    /// sampler): each entry's tracing velocity computed where it is used,
+    /// not stored. The arithmetic of [`Tracer::velocities`] and
+    /// [`Tracer::semi_lagrangian`], so the same bits.
+    fn periodic_step(&self, field: &Field<'_>, lean: Periodic, q: &[f64], dt: f64) -> Vec<f64> {
+        let tables = self.tables(field.lattice);
+        // every entry is written
+        let mut out = scratch(q.len());
+        for_blocks(&mut out, |off, block| {
+            self.each_entry(field, off, block.len(), |k, ab, p| {
+                block[k - off] = if field.free(k) {
+                    let v = self.velocity_at(field.lattice, &tables, k, ab);
+                    let (c, wx, wy) = lean.locate([p[0] - dt * v[0], p[1] - dt * v[1]]);
+                    bilinear(corner_values(q, c), wx, wy)
+                } else {
+                    q[k]
+                };
+            });
+        });
+        out
+    }
+
+    /// The vector–Jacobian product of [`Tracer::periodic_step`] with `g`,
+    /// added to `grads`: [`Tracer::semi_lagrangian_vjp`] and
+    /// [`Tracer::velocities_vjp`] in one pass, without the velocities' and
+    /// their gradient's arrays. The velocity gradients are added in entry
+    /// order as there, and the field's go to another array: the same bits.
+    fn periodic_step_vjp(
+        &self,
+        field: &Field<'_>,
+        lean: Periodic,
+        q: &[f64],
+        dt: f64,
+        g: &[f64],
+        grads: &mut Grads,
+    ) {
+        let tables = self.tables(field.lattice);
+        let f = self.slope_factors(dt);
+        self.each_entry(field, 0, g.len(), |k, ab, p| {
+            let gk = g[k];
+            if !field.free(k) {
+                grads.q[k] += gk;
+                return;
+            }
+            if gk == 0.0 {
+                return;
+            }
+            let v = self.velocity_at(field.lattice, &tables, k, ab);
+            let (c, wx, wy) = lean.locate([p[0] - dt * v[0], p[1] - dt * v[1]]);
+            bilinear_scatter(c, wx, wy, gk, &mut grads.q);
+            let (slx, sly) = bilinear_slopes(corner_values(q, c), wx, wy);
+            let g_v = [f[0] * gk * slx, f[1] * gk * sly];
+            self.velocity_vjp_at(field.lattice, &tables, k, ab, g_v, grads);
         });
     }
 
@@ -727,7 +812,7 @@ impl Tracer<'_> {
         grads: &mut Grads,
         g_v: &mut [[f64; 2]],
     ) {
-        let (hx, hy) = (self.grid.dx, self.grid.dy);
+        let f = self.slope_factors(dt);
         let lean = field.sampler.periodic();
         self.each_entry(field, 0, g.len(), |k, _, p| {
             let gk = g[k];
@@ -744,20 +829,29 @@ impl Tracer<'_> {
                 let (c, wx, wy) = lean.locate([p[0] - dt * v[0], p[1] - dt * v[1]]);
                 bilinear_scatter(c, wx, wy, gk, &mut grads.q);
                 let (slx, sly) = bilinear_slopes(corner_values(q, c), wx, wy);
-                g_v[k][0] += -dt * gk * slx / hx;
-                g_v[k][1] += -dt * gk * sly / hy;
+                g_v[k][0] += f[0] * gk * slx;
+                g_v[k][1] += f[1] * gk * sly;
                 return;
             }
             let dep = Self::departure(field, p, vel[k], dt);
             dep.scatter(gk, &mut grads.q, &mut grads.walls);
             let (slx, sly) = dep.slopes(q, &self.walls);
-            g_v[k][0] += -dt * gk * slx / hx;
-            g_v[k][1] += -dt * gk * sly / hy;
+            g_v[k][0] += f[0] * gk * slx;
+            g_v[k][1] += f[1] * gk * sly;
         });
+    }
+
+    /// `−dt/h` along x and y: the departure point's derivative in lattice
+    /// units by the tracing velocity, which scales the interpolant's slopes.
+    fn slope_factors(&self, dt: f64) -> [f64; 2] {
+        [-dt / self.grid.dx, -dt / self.grid.dy]
     }
 
     /// One step of `scheme`.
     fn step(&self, field: &Field<'_>, q: &[f64], dt: f64, scheme: Advection) -> Vec<f64> {
+        if let (Advection::SemiLagrangian, Some(lean)) = (scheme, field.sampler.periodic()) {
+            return self.periodic_step(field, lean, q, dt);
+        }
         let vel = self.velocities(field, q.len());
         let Advection::MacCormack { limiter } = scheme else {
             let out = self.semi_lagrangian(field, q, &vel, dt);
@@ -797,6 +891,10 @@ impl Tracer<'_> {
         g: &[f64],
         grads: &mut Grads,
     ) {
+        if let (Advection::SemiLagrangian, Some(lean)) = (scheme, field.sampler.periodic()) {
+            self.periodic_step_vjp(field, lean, q, dt, g, grads);
+            return;
+        }
         let n = q.len();
         let vel = self.velocities(field, n);
         let mut g_v = zero_pairs(n);
@@ -1260,6 +1358,7 @@ mod tests {
         let uy: Vec<f64> = (0..ny).map(|k| 3.0 * wobble(k, 53, 89)).collect();
         let walls = [0.0; 4];
         let tr = tracer(&scene, &ux, &uy, walls);
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         for lattice in [Lattice::FaceX, Lattice::FaceY, Lattice::Cell] {
             let field = field_of(&scene, lattice);
             assert!(field.sampler.periodic().is_some());
@@ -1283,8 +1382,8 @@ mod tests {
                     let dep = Tracer::departure(&field, p, vel[k], dt);
                     dep.scatter(gq[k], &mut slow_g.q, &mut slow_g.walls);
                     let (slx, sly) = dep.slopes(&q, &walls);
-                    slow_v[k][0] += -dt * gq[k] * slx / g.dx;
-                    slow_v[k][1] += -dt * gq[k] * sly / g.dy;
+                    slow_v[k][0] += -dt / g.dx * gq[k] * slx;
+                    slow_v[k][1] += -dt / g.dy * gq[k] * sly;
                 });
                 assert!(fast_g
                     .q
@@ -1294,6 +1393,25 @@ mod tests {
                 let flat =
                     |v: &[[f64; 2]]| v.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
                 assert_eq!(flat(&fast_v), flat(&slow_v));
+                // the fused step and its product: the bits of the passes
+                // with stored velocities
+                let lean = field.sampler.periodic().unwrap();
+                let fused = tr.periodic_step(&field, lean, &q, dt);
+                assert_eq!(bits(&fused), bits(&fast));
+                let mut fused_g = Grads::zeros(n, nx, ny);
+                tr.periodic_step_vjp(&field, lean, &q, dt, &gq, &mut fused_g);
+                let mut passes = Grads::zeros(n, nx, ny);
+                let mut g_v = vec![[0.0; 2]; n];
+                tr.semi_lagrangian_vjp(&field, &q, &vel, dt, &gq, &mut passes, &mut g_v);
+                tr.velocities_vjp(&field, &g_v, &mut passes);
+                for (a, b) in [
+                    (&fused_g.q, &passes.q),
+                    (&fused_g.ux, &passes.ux),
+                    (&fused_g.uy, &passes.uy),
+                ] {
+                    assert_eq!(bits(a), bits(b));
+                }
+                assert!(passes.ux.iter().any(|&v| v != 0.0));
             }
         }
     }

@@ -41,7 +41,9 @@ use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
 use ndarray::{Array1, Array2, ArrayView1, ArrayView2, ArrayViewMutD, IxDyn};
 
 use crate::boundaries::{scalar_of, view1, view2, FaceKind, Faces};
-use crate::buffers::{copied, for_row_blocks, give_back, narrow, owned, walls_of, wide, zeros};
+use crate::buffers::{
+    copied, for_row_blocks, give_back, join, narrow, owned, scratch, walls_of, wide, zeros,
+};
 use crate::grid::{FlowGrid, Lattice};
 use crate::sparse::Csr;
 use crate::{FlowError, Result, Scene};
@@ -272,12 +274,13 @@ impl ComponentLaplacian {
         grad_u: &mut [f64],
         grad_walls: &mut [f64; 4],
     ) {
-        let masked: Vec<f64> = g
-            .iter()
-            .zip(&self.regular)
-            .map(|(&v, &r)| if r { alpha * v } else { 0.0 })
-            .collect();
+        let mut masked = scratch(g.len());
+        masked
+            .iter_mut()
+            .zip(g.iter().zip(&self.regular))
+            .for_each(|(m, (&v, &r))| *m = if r { alpha * v } else { 0.0 });
         self.stencil_add(&masked, None, grad_u);
+        give_back(masked);
         self.edge.mul_t_add(alpha, g, grad_u);
         for &(r, s, c) in &self.walls {
             grad_walls[s] += alpha * c * g[self.free[r]];
@@ -454,8 +457,8 @@ pub fn diffuse<T: Real>(
     let walls = walls_of(wall_speed);
     let lap = scene.laplacian();
     let grid = scene.grid();
-    let mut out = Vec::with_capacity(2);
-    for (lat, u) in [(Lattice::FaceX, ux), (Lattice::FaceY, uy)] {
+    // the two components are independent: on two threads
+    let component = |lat: Lattice, u: ArrayView2<'_, T>| -> Result<Array2<T>> {
         let l = lap.of(lat);
         let u = match mode {
             ViscosityMode::Explicit => {
@@ -482,11 +485,13 @@ pub fn diffuse<T: Real>(
                 u
             }
         };
-        out.push(narrow::<T>(grid.shape(lat), u));
-    }
-    let uy = out.pop().expect("two");
-    let ux = out.pop().expect("two");
-    Ok((ux, uy))
+        Ok(narrow::<T>(grid.shape(lat), u))
+    };
+    let (ux, uy) = join(
+        || component(Lattice::FaceX, ux),
+        || component(Lattice::FaceY, uy),
+    );
+    Ok((ux?, uy?))
 }
 
 /// The vector–Jacobian product of [`diffuse`]; `out_x`, `out_y` are its
@@ -516,13 +521,15 @@ pub fn diffuse_vjp<T: Real>(
     let walls = walls_of(wall_speed);
     let lap = scene.laplacian();
     let grid = scene.grid();
-    let mut g_walls = [0.0; 4];
-    let mut g_nu = 0.0;
-    let mut grads = Vec::with_capacity(2);
-    for (lat, u, o, g) in [
-        (Lattice::FaceX, ux, out.0, grad.0),
-        (Lattice::FaceY, uy, out.1, grad.1),
-    ] {
+    // each component's gradient, wall and ν terms of its own, on two threads
+    // and added after in a fixed order
+    let component = |lat: Lattice,
+                     u: ArrayView2<'_, T>,
+                     o: ArrayView2<'_, T>,
+                     g: ArrayView2<'_, T>|
+     -> Result<(Array2<T>, [f64; 4], f64)> {
+        let mut g_walls = [0.0; 4];
+        let mut g_nu = 0.0;
         let l = lap.of(lat);
         let u = wide(u);
         let g = wide(g);
@@ -552,10 +559,15 @@ pub fn diffuse_vjp<T: Real>(
             }
         }
         debug_assert_eq!(gu.len(), l.len);
-        grads.push(narrow::<T>(grid.shape(lat), gu));
-    }
-    let uy = grads.pop().expect("two");
-    let ux = grads.pop().expect("two");
+        Ok((narrow::<T>(grid.shape(lat), gu), g_walls, g_nu))
+    };
+    let (x, y) = join(
+        || component(Lattice::FaceX, ux, out.0, grad.0),
+        || component(Lattice::FaceY, uy, out.1, grad.1),
+    );
+    let ((ux, walls_x, nu_x), (uy, walls_y, nu_y)) = (x?, y?);
+    let g_walls: [f64; 4] = std::array::from_fn(|s| walls_x[s] + walls_y[s]);
+    let g_nu = nu_x + nu_y;
     Ok(DiffusionGrads {
         ux,
         uy,

@@ -93,6 +93,10 @@ through its own runner (benches/mosaic/mosaic_run.py, N = 64, 500 steps)
 gives l2_error_rel 0.099 / 0.104 / 0.145 / 0.136 at nu = 0.05 / 0.02 / 0.01 /
 0.005 against Mosaic's precomputed reference; the VJP checks on walls,
 outflow and the inflow profile are in benches/mosaic/channel_check.py.
+
+Memory: each ``FlowStep`` keeps the buffers of its last VJP for the next
+(``buffer_limit_bytes``; 474 MB after a 100-step VJP at N = 256), and this
+adapter lets only the scene of the latest VJP keep them (``_keep_buffers_of``).
 """
 
 from __future__ import annotations
@@ -458,6 +462,20 @@ def _forward(raw: dict):
     return _to_cells(vx, vy, lay), force
 
 
+# The scene whose FlowStep keeps its last VJP's buffers (the tape's memory,
+# reused by the next call instead of faulted in afresh: a third of a call at
+# 256²). Only one at a time: the cached scenes of other sizes give theirs
+# back when another scene's VJP runs.
+_buffers_kept_by = None
+
+
+def _keep_buffers_of(scene) -> None:
+    global _buffers_kept_by
+    if _buffers_kept_by is not None and _buffers_kept_by is not scene:
+        _buffers_kept_by.release_buffers()
+    _buffers_kept_by = scene
+
+
 def _vjp(raw: dict, vjp_inputs, vjp_outputs, cotangent_vector) -> dict:
     """The gradients of ``vector_jacobian_product`` in the solver's
     precision (``v0`` as ``(N, N, 2)``, ``viscosity`` a float,
@@ -474,8 +492,9 @@ def _vjp(raw: dict, vjp_inputs, vjp_outputs, cotangent_vector) -> dict:
     if g_drag is not None:
         gf = np.array([float(np.asarray(g_drag).reshape(-1)[0]), 0.0], DTYPE)
     kw = {} if lay.q is None else {"inflow": lay.q}
+    _keep_buffers_of(scene)
     # every step kept on the tape, as JAX's scan keeps its residuals (100
-    # steps at 256² in f64: about 1 GB); no recomputation in the reverse sweep
+    # steps at 256² in f64: about 470 MB); no recomputation in the reverse sweep
     g = scene.vjp(ux, uy, gx, gy, None, gf, steps=int(raw["steps"]), viscosity=nu,
                   checkpoint_every=1, **kw)
     out = {}

@@ -706,10 +706,7 @@ impl Tracer<'_> {
                 return;
             }
             let v = self.velocity_at(field.lattice, &tables, k, ab);
-            let (c, wx, wy) = lean.locate([p[0] - dt * v[0], p[1] - dt * v[1]]);
-            bilinear_scatter(c, wx, wy, gk, &mut grads.q);
-            let (slx, sly) = bilinear_slopes(corner_values(q, c), wx, wy);
-            let g_v = [f[0] * gk * slx, f[1] * gk * sly];
+            let g_v = Self::periodic_entry_vjp(lean, p, v, dt, f, q, gk, &mut grads.q);
             self.velocity_vjp_at(field.lattice, &tables, k, ab, g_v, grads);
         });
     }
@@ -824,13 +821,9 @@ impl Tracer<'_> {
                 return;
             }
             if let Some(lean) = lean {
-                // Stencil::scatter and Stencil::slopes, term for term
-                let v = vel[k];
-                let (c, wx, wy) = lean.locate([p[0] - dt * v[0], p[1] - dt * v[1]]);
-                bilinear_scatter(c, wx, wy, gk, &mut grads.q);
-                let (slx, sly) = bilinear_slopes(corner_values(q, c), wx, wy);
-                g_v[k][0] += f[0] * gk * slx;
-                g_v[k][1] += f[1] * gk * sly;
+                let gv = Self::periodic_entry_vjp(lean, p, vel[k], dt, f, q, gk, &mut grads.q);
+                g_v[k][0] += gv[0];
+                g_v[k][1] += gv[1];
                 return;
             }
             let dep = Self::departure(field, p, vel[k], dt);
@@ -839,6 +832,28 @@ impl Tracer<'_> {
             g_v[k][0] += f[0] * gk * slx;
             g_v[k][1] += f[1] * gk * sly;
         });
+    }
+
+    /// The adjoint at one free entry at `p` traced by `v` on a periodic box
+    /// (`f` the [`Tracer::slope_factors`]): `gk` scattered onto `grad_q`, the
+    /// gradient of the tracing velocity returned. [`Stencil::scatter`] and
+    /// [`Stencil::slopes`], term for term.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn periodic_entry_vjp(
+        lean: Periodic,
+        p: [f64; 2],
+        v: [f64; 2],
+        dt: f64,
+        f: [f64; 2],
+        q: &[f64],
+        gk: f64,
+        grad_q: &mut [f64],
+    ) -> [f64; 2] {
+        let (c, wx, wy) = lean.locate([p[0] - dt * v[0], p[1] - dt * v[1]]);
+        bilinear_scatter(c, wx, wy, gk, grad_q);
+        let (slx, sly) = bilinear_slopes(corner_values(q, c), wx, wy);
+        [f[0] * gk * slx, f[1] * gk * sly]
     }
 
     /// `−dt/h` along x and y: the departure point's derivative in lattice

@@ -6,8 +6,10 @@
 //! [`diffphys_tape::pool::MIN_POOLED_LEN`] entries per field, so the pool is
 //! used.
 
+mod common;
+
 use diffphys_flow::{
-    Advection, Boundary, FlowState, FlowVars, Obstacle, ParamVars, PressureSolver, Scene, Sides,
+    Advection, FlowState, FlowVars, Obstacle, ParamVars, PressureSolver, Scene, Sides,
     ViscosityMode,
 };
 use diffphys_tape::pool::{self, BufferPool};
@@ -30,12 +32,7 @@ fn scenes() -> Vec<(&'static str, Scene)> {
         .advection(Advection::MacCormack { limiter: true })
         .viscosity_mode(ViscosityMode::Implicit);
     let mixed = Scene::builder(40, 36, [1.0, 1.0])
-        .sides(Sides {
-            left: Boundary::NoSlip,
-            right: Boundary::Outflow,
-            bottom: Boundary::MovingWall { speed: 0.5 },
-            top: Boundary::FreeSlip,
-        })
+        .sides(common::mixed_sides())
         .obstacle(Obstacle::rectangle([0.4, 0.3], [0.7, 0.65]))
         .viscosity(0.01)
         .dt(0.01)

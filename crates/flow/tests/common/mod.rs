@@ -26,15 +26,20 @@ pub fn cavity() -> SceneBuilder {
 /// Every kind of side but inflow and periodic, and a box obstacle.
 pub fn mixed() -> SceneBuilder {
     Scene::builder(8, 7, [1.0, 1.0])
-        .sides(Sides {
-            left: Boundary::NoSlip,
-            right: Boundary::Outflow,
-            bottom: Boundary::MovingWall { speed: 0.5 },
-            top: Boundary::FreeSlip,
-        })
+        .sides(mixed_sides())
         .obstacle(Obstacle::rectangle([0.4, 0.3], [0.7, 0.65]))
         .viscosity(0.02)
         .dt(0.04)
+}
+
+/// Every kind of side but inflow and periodic.
+pub fn mixed_sides() -> Sides {
+    Sides {
+        left: Boundary::NoSlip,
+        right: Boundary::Outflow,
+        bottom: Boundary::MovingWall { speed: 0.5 },
+        top: Boundary::FreeSlip,
+    }
 }
 
 /// A 6 × 5 periodic box.

@@ -385,6 +385,28 @@ mod tests {
     }
 
     #[test]
+    fn a_pool_serves_the_threads_a_job_splits_onto() {
+        let pool = BufferPool::new();
+        std::thread::scope(|s| {
+            for _ in 0..2 {
+                s.spawn(|| {
+                    pool.scope(|| {
+                        let v: Vec<f64> = take(4096);
+                        recycle(v);
+                    })
+                });
+            }
+        });
+        // each thread's buffer came back to the one pool (one or two held:
+        // the demand depends on whether the two were out at once)
+        let held = pool.held_bytes();
+        assert!((4096 * 8..=2 * 4096 * 8).contains(&held), "held {held}");
+        let reused = pool.scope(|| take::<f64>(4096));
+        assert_eq!(pool.held_bytes(), held - 4096 * 8);
+        drop(reused);
+    }
+
+    #[test]
     fn installs_nest_and_end_with_their_guard() {
         let (outer, inner) = (BufferPool::new(), BufferPool::new());
         assert!(BufferPool::current().is_none());

@@ -696,18 +696,30 @@ impl Tracer<'_> {
     ) {
         let tables = self.tables(field.lattice);
         let f = self.slope_factors(dt);
+        self.each_gradient(field, g, grads, |grads, k, ab, p, gk| {
+            let v = self.velocity_at(field.lattice, &tables, k, ab);
+            let g_v = Self::periodic_entry_vjp(lean, p, v, dt, f, q, gk, &mut grads.q);
+            self.velocity_vjp_at(field.lattice, &tables, k, ab, g_v, grads);
+        });
+    }
+
+    /// Runs `f(grads, k, (a, b), x_k, g_k)` at the free entries of `field`
+    /// whose gradient `g_k` is not zero, in order; a fixed entry's gradient
+    /// goes to `grads.q` unchanged (the step copies it).
+    fn each_gradient(
+        &self,
+        field: &Field<'_>,
+        g: &[f64],
+        grads: &mut Grads,
+        mut f: impl FnMut(&mut Grads, usize, [usize; 2], [f64; 2], f64),
+    ) {
         self.each_entry(field, 0, g.len(), |k, ab, p| {
             let gk = g[k];
             if !field.free(k) {
                 grads.q[k] += gk;
-                return;
+            } else if gk != 0.0 {
+                f(grads, k, ab, p, gk);
             }
-            if gk == 0.0 {
-                return;
-            }
-            let v = self.velocity_at(field.lattice, &tables, k, ab);
-            let g_v = Self::periodic_entry_vjp(lean, p, v, dt, f, q, gk, &mut grads.q);
-            self.velocity_vjp_at(field.lattice, &tables, k, ab, g_v, grads);
         });
     }
 
@@ -811,15 +823,7 @@ impl Tracer<'_> {
     ) {
         let f = self.slope_factors(dt);
         let lean = field.sampler.periodic();
-        self.each_entry(field, 0, g.len(), |k, _, p| {
-            let gk = g[k];
-            if !field.free(k) {
-                grads.q[k] += gk;
-                return;
-            }
-            if gk == 0.0 {
-                return;
-            }
+        self.each_gradient(field, g, grads, |grads, k, _, p, gk| {
             if let Some(lean) = lean {
                 let gv = Self::periodic_entry_vjp(lean, p, vel[k], dt, f, q, gk, &mut grads.q);
                 g_v[k][0] += gv[0];

@@ -268,19 +268,28 @@ pub fn take<T: Real>(len: usize) -> Vec<T> {
 /// recycled buffer of `len` elements (contents unspecified) or, if the
 /// current pool has none, `len` copies of `fresh`.
 pub fn take_or<T: Copy + Send + 'static>(len: usize, fresh: T) -> Vec<T> {
-    if len >= MIN_POOLED_LEN {
-        if let Some(v) = BufferPool::current().and_then(|p| p.take(len)) {
-            return v;
-        }
-    }
-    vec![fresh; len]
+    recycled(len).unwrap_or_else(|| vec![fresh; len])
 }
 
-/// A buffer of `len` copies of `value`: [`take_or`], filled.
+/// A buffer of `len` copies of `value`: a recycled one filled, or a fresh
+/// one (written once either way).
 pub fn take_filled<T: Copy + Send + 'static>(len: usize, value: T) -> Vec<T> {
-    let mut v = take_or(len, value);
-    v.fill(value);
-    v
+    match recycled(len) {
+        Some(mut v) => {
+            v.fill(value);
+            v
+        }
+        None => vec![value; len],
+    }
+}
+
+/// A buffer of `len` elements from the current pool, if it holds one (and
+/// the length is pooled at all).
+fn recycled<T: Copy + Send + 'static>(len: usize) -> Option<Vec<T>> {
+    if len < MIN_POOLED_LEN {
+        return None;
+    }
+    BufferPool::current().and_then(|p| p.take(len))
 }
 
 /// Gives `buffer` to the current pool for a later [`take`] of its length

@@ -22,7 +22,9 @@
 //! with its own reference), `--train-seeds a,b,c` (default 1, 2, 3), `--held-out-re LIST` (any
 //! Re in [50, 3200]; its reference is generated and cached), `--train-re`,
 //! `--validation-re`, `--variants src,non,noise,sol4,sol16`, `--lrs LIST`,
-//! `--iterations N`, `--no-capacity`, `--no-speed`, `--small` (CI: 16 × 32),
+//! `--iterations N`, `--no-capacity`, `--no-speed`, `--coarse-advection`,
+//! `--body cylinder|staircase`, `--reference-scheme second-order|coarse`,
+//! `--small` (CI: 16 × 32),
 //! `--out DIR`, `--npy`. Tutorial: docs/11-wake-flow.md. Run:
 //! `cargo run --release --example wake_flow` (`-- --small` for CI).
 
@@ -272,6 +274,8 @@ fn main() -> Result<(), BoxError> {
     }
     let sizes = Sizes {
         advection: options.coarse_advection,
+        body: options.body,
+        reference: options.reference,
         ..if small { Sizes::small() } else { Sizes::full() }
     };
     let threads = options.threads;
@@ -310,6 +314,7 @@ fn main() -> Result<(), BoxError> {
     let mut validation_per_re: BTreeMap<String, BTreeMap<String, Vec<f64>>> = BTreeMap::new();
     let mut speed_inputs = None;
     let mut sigma_used = 0.0;
+    let mut pinned_face_error = serde_json::Map::new();
     let mut params_count = serde_json::Map::new();
     for size in std::iter::once(MAIN_SIZE).chain(options.capacity.iter().copied()) {
         let (_, p) = Net::new(&coarse.scene, size, &mut TrainSeed(0).init_rng())?;
@@ -378,6 +383,33 @@ fn main() -> Result<(), BoxError> {
             .flat_map(|r| [0].into_iter().map(|s| window(r, s, sizes.rollout + 1)))
             .collect();
         let sigma = one_step_rms(&coarse, &train)?;
+        // What no corrector can remove: the pinned faces' error (train and
+        // validation Re; the body decides it, see `Body`).
+        let free = free_faces(&coarse.scene);
+        let mut pinned = Vec::new();
+        for (re, t) in options
+            .train_re
+            .iter()
+            .zip(&train)
+            .chain(options.validation_re.iter().zip(&validation))
+        {
+            pinned.push((*re, study::pinned_face_error(&coarse, &free, t)?));
+        }
+        println!(
+            "  error on the faces the coarse step pins (no corrector removes it), per train and validation Re: {}",
+            pinned
+                .iter()
+                .map(|(re, e)| format!("{re}: {e:.4}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+        pinned_face_error.insert(
+            format!("data_{ds}"),
+            pinned
+                .iter()
+                .map(|(re, e)| (re.to_string(), json!(e)))
+                .collect(),
+        );
         sigma_used = sigma;
         let (net0, _) = Net::new(&coarse.scene, MAIN_SIZE, &mut TrainSeed(0).init_rng())?;
         let hybrid: Wake = Hybrid::new(coarse.clone(), net0);
@@ -821,6 +853,14 @@ fn main() -> Result<(), BoxError> {
         .held_out_re
         .iter()
         .partition(|&&r| options.inside(r));
+    // How the body and the reference were made, and the error they leave on
+    // the pinned faces (a key of its own: the line's macro is deep already).
+    let setup_json = json!({
+        "body": format!("{:?}", sizes.body).to_lowercase(),
+        "reference_scheme": format!("{:?}", sizes.reference).to_lowercase(),
+        "coarse_advection": format!("{:?}", sizes.advection).to_lowercase(),
+        "pinned_face_error": pinned_face_error,
+    });
     common::print_json_line(&json!({
         "example": "wake_flow",
         "small": args.small,
@@ -843,6 +883,7 @@ fn main() -> Result<(), BoxError> {
         "training_iterations": iterations,
         "corrector_evaluations_per_training": iterations * EVALUATIONS,
         "noise_sigma": sigma_used,
+        "setup": setup_json,
         "learning_rate": chosen_lr,
         "params": params_count,
         "main_size": MAIN_SIZE.label(),

@@ -17,7 +17,7 @@ use diffphys::flow::{restrict_velocity, FlowParams, FlowState, Scene};
 use ndarray::{Array2, Array3};
 use rand::Rng;
 
-use super::{viscosity, Result, Sizes, WakeError, CENTRE, FACTOR, U_IN};
+use super::{viscosity, Body, ReferenceScheme, Result, Sizes, WakeError, CENTRE, FACTOR, U_IN};
 
 /// Bump this when the generation changes in a way the settings do not show.
 const VERSION: u32 = 1;
@@ -96,6 +96,14 @@ impl Cache {
     pub fn new(out: &Path, sizes: &Sizes) -> Result<Self> {
         let dir = out.join("reference");
         std::fs::create_dir_all(&dir).map_err(|e| cache_error(&dir, e))?;
+        // The defaults add nothing, so earlier caches stay valid.
+        let mut variant = String::new();
+        if sizes.body != Body::Cylinder {
+            variant += &format!(" body {:?}", sizes.body);
+        }
+        if sizes.reference != ReferenceScheme::SecondOrder {
+            variant += &format!(" reference {:?}", sizes.reference);
+        }
         Ok(Cache {
             dir,
             settings: format!(
@@ -109,7 +117,7 @@ impl Cache {
                 sizes.record,
                 sizes.base_re,
                 sizes.starts
-            ),
+            ) + &variant,
         })
     }
 

@@ -30,6 +30,7 @@ use diffphys::flow::{
 use diffphys::learn::{standard_normal, Corrector, LearnError, Simulator, Split};
 use diffphys::nn::{Bound, Conv2, ConvConfig, Init, Layer, NnError, Padding, Params};
 use diffphys::tape::{ArrayD, TapeError, Var};
+use ndarray::Array2;
 use rand::rngs::StdRng;
 use rand::Rng;
 
@@ -239,6 +240,10 @@ pub struct Sizes {
     /// The coarse (uncorrected and corrected) solver's advection, also at the
     /// speed study's finer levels.
     pub advection: Advection,
+    /// How each resolution sees the cylinder.
+    pub body: Body,
+    /// The reference's scheme.
+    pub reference: ReferenceScheme,
 }
 
 impl Sizes {
@@ -257,6 +262,8 @@ impl Sizes {
             long: 240,
             speed_starts: vec![0, 100],
             advection: Advection::SemiLagrangian,
+            body: Body::Cylinder,
+            reference: ReferenceScheme::SecondOrder,
         }
     }
 
@@ -275,20 +282,71 @@ impl Sizes {
             long: 36,
             speed_starts: vec![0, 16],
             advection: Advection::SemiLagrangian,
+            body: Body::Cylinder,
+            reference: ReferenceScheme::SecondOrder,
+        }
+    }
+}
+
+/// How each resolution of the scene sees the cylinder (`--body`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Body {
+    /// Every grid rasterises the cylinder itself: its solid cells are those
+    /// whose centre lies within the radius. The reference resolves the round
+    /// body; the coarse solver pins to zero some faces where the restricted
+    /// reference is not zero (a coarse solid cell partly fluid on the fine
+    /// grid), an error no correction of the free faces can remove.
+    Cylinder,
+    /// Every grid uses the coarse grid's staircase (the coarse solid cells,
+    /// refined): the reference resolves the body the coarse solver
+    /// represents, so every face the coarse solver pins is zero in the
+    /// restricted reference too.
+    Staircase,
+}
+
+/// The reference's scheme (`--reference-scheme`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ReferenceScheme {
+    /// MacCormack advection with the limiter and incremental splitting: a
+    /// better scheme than the coarse one, not only a finer grid.
+    SecondOrder,
+    /// The coarse solver's own scheme (semi-Lagrangian, plain splitting) at
+    /// the reference's resolution, as in the JAX prototype the issue quotes.
+    Coarse,
+}
+
+/// The solid cells of the scene at `level` times the coarse resolution.
+///
+/// # Errors
+/// [`WakeError::Flow`] if the cylinder does not fit the coarse grid.
+pub fn obstacle(sizes: &Sizes, level: usize) -> Result<Obstacle> {
+    let cylinder = Obstacle::cylinder(CENTRE, DIAMETER / 2.0);
+    match sizes.body {
+        Body::Cylinder => Ok(cylinder),
+        Body::Staircase => {
+            let coarse = Scene::builder(sizes.nx, sizes.ny, [LX, LY])
+                .obstacle(cylinder)
+                .build()?;
+            let solid = coarse.solid();
+            Ok(Obstacle::Mask(Array2::from_shape_fn(
+                (level * sizes.nx, level * sizes.ny),
+                |(i, j)| solid[[i / level, j / level]],
+            )))
         }
     }
 }
 
 /// The wake channel at `nx × ny` cells with time step `dt`, the given
-/// advection, splitting and pressure solver.
+/// advection, splitting, pressure solver and body.
 pub fn wake_scene(
     nx: usize,
     ny: usize,
     dt: f64,
-    advection: Advection,
-    splitting: Splitting,
+    scheme: (Advection, Splitting),
     pressure: PressureSolver,
+    body: Obstacle,
 ) -> Result<Scene> {
+    let (advection, splitting) = scheme;
     Ok(Scene::builder(nx, ny, [LX, LY])
         .sides(Sides {
             left: Boundary::Inflow,
@@ -296,7 +354,7 @@ pub fn wake_scene(
             bottom: Boundary::FreeSlip,
             top: Boundary::FreeSlip,
         })
-        .obstacle(Obstacle::cylinder(CENTRE, DIAMETER / 2.0))
+        .obstacle(body)
         .uniform_inflow(U_IN)
         .viscosity(viscosity(RE_CENTRE))
         .dt(dt)
@@ -324,22 +382,29 @@ pub fn uncorrected(sizes: &Sizes, level: usize, pressure: PressureSolver) -> Res
         level * sizes.nx,
         level * sizes.ny,
         sizes.dt / level as f64,
-        sizes.advection,
-        Splitting::Plain,
+        (sizes.advection, Splitting::Plain),
         pressure,
+        obstacle(sizes, level)?,
     )
 }
 
-/// The reference solver: [`FACTOR`]× finer, MacCormack with the limiter,
-/// incremental splitting.
+/// The reference solver: [`FACTOR`]× finer, MacCormack with the limiter and
+/// incremental splitting (or the coarse scheme: [`ReferenceScheme`]).
 pub fn reference_scene(sizes: &Sizes) -> Result<Scene> {
+    let scheme = match sizes.reference {
+        ReferenceScheme::SecondOrder => (
+            Advection::MacCormack { limiter: true },
+            Splitting::Incremental,
+        ),
+        ReferenceScheme::Coarse => (sizes.advection, Splitting::Plain),
+    };
     wake_scene(
         FACTOR * sizes.nx,
         FACTOR * sizes.ny,
         sizes.dt / FACTOR as f64,
-        Advection::MacCormack { limiter: true },
-        Splitting::Incremental,
+        scheme,
         PressureSolver::Cholesky,
+        obstacle(sizes, FACTOR)?,
     )
 }
 
@@ -586,6 +651,10 @@ pub struct Options {
     pub threads: usize,
     /// The coarse solver's advection (`--coarse-advection`).
     pub coarse_advection: Advection,
+    /// How each resolution sees the cylinder (`--body cylinder|staircase`).
+    pub body: Body,
+    /// The reference's scheme (`--reference-scheme second-order|coarse`).
+    pub reference: ReferenceScheme,
 }
 
 impl Options {
@@ -620,12 +689,15 @@ impl Options {
             speed: true,
             threads: std::thread::available_parallelism().map_or(1, usize::from),
             coarse_advection: Advection::SemiLagrangian,
+            body: Body::Cylinder,
+            reference: ReferenceScheme::SecondOrder,
         }
     }
 
     /// Takes `--variants LIST`, `--train-re LIST`, `--validation-re LIST`,
     /// `--held-out-re LIST`, `--lrs LIST`, `--threads N`, `--capacity-sizes
-    /// w8b1,w24b2`, `--no-capacity`, `--no-speed` out of
+    /// w8b1,w24b2`, `--no-capacity`, `--no-speed`, `--coarse-advection`,
+    /// `--body`, `--reference-scheme` out of
     /// `args`, the rest left for the common options.
     ///
     /// # Errors
@@ -711,6 +783,32 @@ impl Options {
                             return Err(WakeError::Argument {
                                 option: flag.clone(),
                                 message: format!("not semi-lagrangian or maccormack: {v:?}"),
+                            })
+                        }
+                    };
+                }
+                "--body" => {
+                    let v = value(args)?;
+                    o.body = match v.trim() {
+                        "cylinder" => Body::Cylinder,
+                        "staircase" => Body::Staircase,
+                        _ => {
+                            return Err(WakeError::Argument {
+                                option: flag.clone(),
+                                message: format!("not cylinder or staircase: {v:?}"),
+                            })
+                        }
+                    };
+                }
+                "--reference-scheme" => {
+                    let v = value(args)?;
+                    o.reference = match v.trim() {
+                        "second-order" => ReferenceScheme::SecondOrder,
+                        "coarse" => ReferenceScheme::Coarse,
+                        _ => {
+                            return Err(WakeError::Argument {
+                                option: flag.clone(),
+                                message: format!("not second-order or coarse: {v:?}"),
                             })
                         }
                     };

@@ -342,6 +342,36 @@ pub fn pressure_solves(sizes: &Sizes, re: f64) -> Result<Value> {
 /// steps, long) and the parameter count.
 pub type CapacityRun = (NetSize, Variant, u64, f64, f64, usize);
 
+/// The error no correction can remove: the relative L2 norm, on the faces
+/// the coarse step pins (inflow, walls, solid cells), of the coarse step from
+/// each recorded state against the next one, mean over the steps. Zero when
+/// every pinned face of the restricted reference holds what the coarse solver
+/// pins there ([`super::Body::Staircase`]); a corrector only changes the free
+/// faces, so the rollout error of any corrected solver is at least about this.
+///
+/// # Errors
+/// A step that fails.
+pub fn pinned_face_error<S: Simulator>(
+    coarse: &S,
+    free: &ndarray::ArrayD<f64>,
+    trajectory: &Trajectory,
+) -> Result<f64> {
+    let mut sum = 0.0;
+    for pair in trajectory.windows(2) {
+        let next = coarse.step_plain(&pair[0].clone().insert_axis(Axis(0)))?;
+        let residual: f64 = next
+            .index_axis(Axis(0), 0)
+            .iter()
+            .zip(pair[1].iter())
+            .zip(free.iter())
+            .map(|((a, b), m)| if *m == 0.0 { (a - b).powi(2) } else { 0.0 })
+            .sum();
+        let norm: f64 = pair[1].iter().map(|b| b * b).sum();
+        sum += (residual / norm).sqrt();
+    }
+    Ok(sum / trajectory.len().saturating_sub(1).max(1) as f64)
+}
+
 /// Mean, min, max and count of `v` (null if empty).
 pub fn stats(v: &[f64]) -> Value {
     if v.is_empty() {

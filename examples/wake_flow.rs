@@ -23,7 +23,7 @@
 //! Re in [50, 3200]; its reference is generated and cached), `--train-re`,
 //! `--validation-re`, `--variants src,non,noise,sol4,sol16`, `--lrs LIST`,
 //! `--iterations N`, `--no-capacity`, `--no-speed`, `--coarse-advection`,
-//! `--body cylinder|staircase`, `--reference-scheme second-order|coarse`,
+//! `--body cylinder|staircase|inscribed`, `--reference-scheme second-order|coarse`,
 //! `--small` (CI: 16 × 32),
 //! `--out DIR`, `--npy`. Tutorial: docs/11-wake-flow.md. Run:
 //! `cargo run --release --example wake_flow` (`-- --small` for CI).
@@ -856,9 +856,13 @@ fn main() -> Result<(), BoxError> {
     // How the body and the reference were made, and the error they leave on
     // the pinned faces (a key of its own: the line's macro is deep already).
     let setup_json = json!({
-        "body": format!("{:?}", sizes.body).to_lowercase(),
-        "reference_scheme": format!("{:?}", sizes.reference).to_lowercase(),
-        "coarse_advection": format!("{:?}", sizes.advection).to_lowercase(),
+        "body": sizes.body.label(),
+        "reference_scheme": sizes.reference.label(),
+        "coarse_advection": if sizes.advection == diffphys::flow::Advection::SemiLagrangian {
+            "semi-lagrangian"
+        } else {
+            "maccormack"
+        },
         "pinned_face_error": pinned_face_error,
     });
     common::print_json_line(&json!({

@@ -96,9 +96,10 @@ impl Cache {
     pub fn new(out: &Path, sizes: &Sizes) -> Result<Self> {
         let dir = out.join("reference");
         std::fs::create_dir_all(&dir).map_err(|e| cache_error(&dir, e))?;
-        // The defaults add nothing, so earlier caches stay valid.
+        // The defaults add nothing, so earlier caches stay valid; the
+        // inscribed body changes only the coarse solver, not the reference.
         let mut variant = String::new();
-        if sizes.body != Body::Cylinder {
+        if sizes.body == Body::Staircase {
             variant += &format!(" body {:?}", sizes.body);
         }
         if sizes.reference != ReferenceScheme::SecondOrder {

@@ -324,11 +324,32 @@ impl Body {
 
     /// Its `--body` name.
     pub fn label(self) -> &'static str {
-        Self::ALL
-            .iter()
-            .find(|(_, b)| *b == self)
-            .map_or("?", |(n, _)| n)
+        name_in(&Self::ALL, self)
     }
+}
+
+/// The name of `value` in a table of names.
+fn name_in<T: PartialEq>(table: &[(&'static str, T)], value: T) -> &'static str {
+    table
+        .iter()
+        .find(|(_, v)| *v == value)
+        .map_or("?", |(n, _)| n)
+}
+
+/// The value named `name` in a table of names; an argument error for
+/// `option` listing the names otherwise.
+fn parse_named<T: Copy>(table: &[(&'static str, T)], option: &str, name: &str) -> Result<T> {
+    table
+        .iter()
+        .find(|(n, _)| *n == name.trim())
+        .map(|(_, v)| *v)
+        .ok_or_else(|| WakeError::Argument {
+            option: option.into(),
+            message: format!(
+                "{name:?} is not one of {}",
+                table.iter().map(|(n, _)| *n).collect::<Vec<_>>().join(", ")
+            ),
+        })
 }
 
 /// The reference's scheme (`--reference-scheme`).
@@ -351,10 +372,7 @@ impl ReferenceScheme {
 
     /// Its `--reference-scheme` name.
     pub fn label(self) -> &'static str {
-        Self::ALL
-            .iter()
-            .find(|(_, b)| *b == self)
-            .map_or("?", |(n, _)| n)
+        name_in(&Self::ALL, self)
     }
 }
 
@@ -849,27 +867,9 @@ impl Options {
                         }
                     };
                 }
-                "--body" => {
-                    let v = value(args)?;
-                    o.body = Body::ALL
-                        .iter()
-                        .find(|(n, _)| *n == v.trim())
-                        .map(|(_, b)| *b)
-                        .ok_or_else(|| WakeError::Argument {
-                            option: flag.clone(),
-                            message: format!("not cylinder, staircase or inscribed: {v:?}"),
-                        })?;
-                }
+                "--body" => o.body = parse_named(&Body::ALL, &flag, &value(args)?)?,
                 "--reference-scheme" => {
-                    let v = value(args)?;
-                    o.reference = ReferenceScheme::ALL
-                        .iter()
-                        .find(|(n, _)| *n == v.trim())
-                        .map(|(_, r)| *r)
-                        .ok_or_else(|| WakeError::Argument {
-                            option: flag.clone(),
-                            message: format!("not second-order or coarse: {v:?}"),
-                        })?;
+                    o.reference = parse_named(&ReferenceScheme::ALL, &flag, &value(args)?)?
                 }
                 "--no-speed" => {
                     o.speed = false;

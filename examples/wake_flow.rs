@@ -49,8 +49,8 @@ use serde_json::{json, Value};
 use wake_flow_scene::data::{base_state, reference, Bump, Cache, Reference};
 use wake_flow_scene::study::{self, HeldOutRun};
 use wake_flow_scene::{
-    free_faces, reference_scene, uncorrected, Coarse, Net, NetSize, Options, Sizes, Variant,
-    MAIN_SIZE, SIZES,
+    free_faces, reference_scene, uncorrected, Body, Coarse, Net, NetSize, Options, Sizes, Variant,
+    WakeError, MAIN_SIZE, SIZES,
 };
 
 type BoxError = Box<dyn std::error::Error>;
@@ -403,6 +403,17 @@ fn main() -> Result<(), BoxError> {
                 .collect::<Vec<_>>()
                 .join(", ")
         );
+        // The staircase and inscribed bodies make this zero by construction.
+        if sizes.body != Body::Cylinder {
+            if let Some(&(re, error)) = pinned.iter().find(|(_, e)| *e > 1e-12) {
+                return Err(WakeError::PinnedFaces {
+                    body: sizes.body.label(),
+                    re,
+                    error,
+                }
+                .into());
+            }
+        }
         pinned_face_error.insert(
             format!("data_{ds}"),
             pinned

@@ -2,6 +2,8 @@
 //! errors: an unknown variant, an unroll of 0, a Reynolds number outside the
 //! stated range, an empty split, a corrector whose output does not match the
 //! state; and its noise leaves the state's viscosity and fixed faces alone.
+//! The inscribed and staircase bodies leave no flow on the faces the coarse
+//! solver pins; the cylinder body does.
 
 #[allow(dead_code)]
 #[path = "../examples/wake_flow_scene/mod.rs"]
@@ -200,5 +202,94 @@ fn the_coarse_advection_parses_and_an_unknown_one_is_refused() {
             assert!(message.contains("upwind"), "{message}");
         }
         other => panic!("expected an argument error, got {other:?}"),
+    }
+}
+
+#[test]
+fn the_body_and_the_reference_scheme_parse_and_unknown_names_are_refused() {
+    use wake_flow_scene::{Body, ReferenceScheme};
+    let o = options(&[]).unwrap();
+    assert_eq!(o.body, Body::Inscribed);
+    assert_eq!(o.reference, ReferenceScheme::SecondOrder);
+    let o = options(&["--body", "cylinder", "--reference-scheme", "coarse"]).unwrap();
+    assert_eq!(o.body, Body::Cylinder);
+    assert_eq!(o.reference, ReferenceScheme::Coarse);
+    assert_eq!(
+        options(&["--body", "staircase"]).unwrap().body,
+        Body::Staircase
+    );
+    for (flag, bad) in [("--body", "round"), ("--reference-scheme", "spectral")] {
+        match options(&[flag, bad]) {
+            Err(WakeError::Argument { option, message }) => {
+                assert_eq!(option, flag);
+                assert!(message.contains(bad), "{message}");
+            }
+            other => panic!("expected an argument error, got {other:?}"),
+        }
+    }
+}
+
+/// The pinned-face error of the restricted state after one reference step
+/// from uniform flow: the reference pins its solid faces, the restriction
+/// averages them onto the coarse grid.
+fn pinned_after_one_reference_step(body: wake_flow_scene::Body) -> f64 {
+    use diffphys::flow::restrict_velocity;
+    use wake_flow_scene::{reference_scene, study, FACTOR};
+    let sizes = Sizes {
+        body,
+        ..Sizes::small()
+    };
+    let coarse = Coarse::new(uncorrected(&sizes, 1, PressureSolver::Cholesky).unwrap());
+    let fine = reference_scene(&sizes).unwrap();
+    let mut start = FlowState::zeros(&fine);
+    start.ux.fill(1.0);
+    let after = fine.forward(&start, &fine.params()).unwrap().0;
+    let (ux, uy) = restrict_velocity(
+        coarse.scene.grid(),
+        FACTOR,
+        after.ux.view(),
+        after.uy.view(),
+    )
+    .unwrap();
+    let state = coarse
+        .scene
+        .pack(
+            &FlowState::from_velocity(&coarse.scene, ux, uy),
+            fine.params().viscosity,
+        )
+        .unwrap()
+        .into_dyn();
+    let free = free_faces(&coarse.scene);
+    study::pinned_face_error(&coarse, &free, &vec![state.clone(), state]).unwrap()
+}
+
+#[test]
+fn only_the_cylinder_body_leaves_flow_on_the_pinned_faces() {
+    use wake_flow_scene::Body;
+    let cylinder = pinned_after_one_reference_step(Body::Cylinder);
+    assert!(
+        cylinder > 1e-3,
+        "cylinder body: pinned-face error {cylinder}"
+    );
+    for body in [Body::Staircase, Body::Inscribed] {
+        let e = pinned_after_one_reference_step(body);
+        assert_eq!(e, 0.0, "{body:?}: pinned-face error {e}");
+    }
+}
+
+#[test]
+fn the_inscribed_body_is_inside_the_reference_body() {
+    use wake_flow_scene::{Body, FACTOR};
+    let sizes = Sizes {
+        body: Body::Inscribed,
+        ..Sizes::small()
+    };
+    let coarse = uncorrected(&sizes, 1, PressureSolver::Cholesky).unwrap();
+    let fine = wake_flow_scene::reference_scene(&sizes).unwrap();
+    let (c, f) = (coarse.solid(), fine.solid());
+    assert!(c.iter().any(|&s| s), "the coarse body has solid cells");
+    for ((i, j), &solid) in c.indexed_iter() {
+        let all = (0..FACTOR).all(|a| (0..FACTOR).all(|b| f[[FACTOR * i + a, FACTOR * j + b]]));
+        assert_eq!(solid, all, "coarse cell ({i}, {j})");
     }
 }

@@ -869,11 +869,7 @@ fn main() -> Result<(), BoxError> {
     let setup_json = json!({
         "body": sizes.body.label(),
         "reference_scheme": sizes.reference.label(),
-        "coarse_advection": if sizes.advection == diffphys::flow::Advection::SemiLagrangian {
-            "semi-lagrangian"
-        } else {
-            "maccormack"
-        },
+        "coarse_advection": wake_flow_scene::advection_label(sizes.advection),
         "pinned_face_error": pinned_face_error,
     });
     common::print_json_line(&json!({

@@ -340,6 +340,17 @@ impl Body {
     }
 }
 
+/// The coarse solver's advection schemes, by their `--coarse-advection` name.
+pub const ADVECTIONS: [(&str, Advection); 2] = [
+    ("semi-lagrangian", Advection::SemiLagrangian),
+    ("maccormack", Advection::MacCormack { limiter: true }),
+];
+
+/// The `--coarse-advection` name of `advection`.
+pub fn advection_label(advection: Advection) -> &'static str {
+    name_in(&ADVECTIONS, advection)
+}
+
 /// The name of `value` in a table of names.
 fn name_in<T: PartialEq>(table: &[(&'static str, T)], value: T) -> &'static str {
     table
@@ -415,11 +426,15 @@ pub fn obstacle(sizes: &Sizes, level: usize) -> Result<Obstacle> {
                     ),
                 });
             }
+            let k = FACTOR / level;
+            if k == 1 {
+                // The reference grid: the cylinder itself.
+                return Ok(cylinder);
+            }
             let fine = Scene::builder(FACTOR * sizes.nx, FACTOR * sizes.ny, [LX, LY])
                 .obstacle(cylinder)
                 .build()?;
             let solid = fine.solid();
-            let k = FACTOR / level;
             Ok(Obstacle::Mask(Array2::from_shape_fn(
                 (level * sizes.nx, level * sizes.ny),
                 |(i, j)| (0..k).all(|a| (0..k).all(|b| solid[[k * i + a, k * j + b]])),
@@ -867,17 +882,7 @@ impl Options {
                         .collect::<Result<_>>()?;
                 }
                 "--coarse-advection" => {
-                    let v = value(args)?;
-                    o.coarse_advection = match v.trim() {
-                        "semi-lagrangian" => Advection::SemiLagrangian,
-                        "maccormack" => Advection::MacCormack { limiter: true },
-                        _ => {
-                            return Err(WakeError::Argument {
-                                option: flag.clone(),
-                                message: format!("not semi-lagrangian or maccormack: {v:?}"),
-                            })
-                        }
-                    };
+                    o.coarse_advection = parse_named(&ADVECTIONS, &flag, &value(args)?)?
                 }
                 "--body" => o.body = parse_named(&Body::ALL, &flag, &value(args)?)?,
                 "--reference-scheme" => {

@@ -22,7 +22,7 @@
 //! with its own reference), `--train-seeds a,b,c` (default 1, 2, 3), `--held-out-re LIST` (any
 //! Re in [50, 3200]; its reference is generated and cached), `--train-re`,
 //! `--validation-re`, `--variants src,non,noise,sol4,sol16`, `--lrs LIST`,
-//! `--iterations N`, `--no-capacity`, `--no-speed`, `--coarse-advection`,
+//! `--iterations N` (a budget of 4N corrector evaluations), `--no-capacity`, `--no-speed`, `--coarse-advection`,
 //! `--body cylinder|staircase|inscribed`, `--reference-scheme second-order|coarse`,
 //! `--small` (CI: 16 × 32),
 //! `--out DIR`, `--npy`. Tutorial: docs/11-wake-flow.md. Run:
@@ -50,20 +50,20 @@ use wake_flow_scene::data::{base_state, reference, Bump, Cache, Reference};
 use wake_flow_scene::study::{self, HeldOutRun};
 use wake_flow_scene::{
     free_faces, reference_scene, uncorrected, Body, Coarse, Net, NetSize, Options, Sizes, Variant,
-    WakeError, MAIN_SIZE, SIZES,
+    WakeError, MAIN_SIZE, SIZES, STEP_EVALUATIONS,
 };
 
 type BoxError = Box<dyn std::error::Error>;
 type Wake = Hybrid<Coarse, Net>;
 
-/// Network evaluations per optimizer step (divisible by every unroll).
-const EVALUATIONS: usize = 16;
+/// Corrector evaluations per training at full size (each variant's Adam steps
+/// are this over its evaluations per step). Chosen on validation and on the
+/// hour the scene may take (docs/11).
+const EVALUATIONS: usize = 24_000;
 
-/// Adam steps per training at full size: 24,000 corrector evaluations. Chosen
-/// on validation and on the hour the scene may take: at 1,500 steps `sol_4`'s
-/// validation error was still falling (0.049 against `src`'s 0.171 with data
-/// and training seed 1), and the whole scene fits about an hour on 2 cores.
-const ITERATIONS: usize = 1500;
+/// Validate (for early stopping) every this many corrector evaluations at
+/// full size.
+const VALIDATION_EVALUATIONS: usize = 1_600;
 
 fn strategy(variant: Variant, sigma: f64) -> Option<Strategy> {
     match variant {
@@ -124,12 +124,15 @@ struct Job {
     size: NetSize,
     seed: u64,
     lr: f64,
-    iterations: usize,
+    /// The budget: corrector evaluations.
+    evaluations: usize,
 }
 
 /// What every training shares.
 struct Setup<'a> {
     trainer: Trainer,
+    /// Validate every this many corrector evaluations.
+    validation_evaluations: usize,
     coarse: &'a Coarse,
     sigma: f64,
     data_seed: u64,
@@ -143,14 +146,17 @@ fn train_one(setup: &Setup<'_>, job: &Job) -> Result<Model, BoxError> {
         size,
         seed,
         lr,
-        iterations,
+        evaluations,
     } = *job;
+    let per_step = variant.step_evaluations();
+    let iterations = (evaluations / per_step).max(1);
     let trainer = Trainer {
         learning_rate: lr,
         budget: Budget {
             iterations,
-            ..setup.trainer.budget
+            evaluations_per_iteration: per_step,
         },
+        validate_every: (setup.validation_evaluations / per_step).max(1),
         ..setup.trainer
     };
     let strategy = strategy(variant, setup.sigma).ok_or("src is not trained")?;
@@ -283,23 +289,29 @@ fn main() -> Result<(), BoxError> {
     let fine = reference_scene(&sizes)?;
     let coarse = Coarse::new(coarse_scene.clone());
     let cache = Cache::new(&args.out, &sizes)?;
-    let iterations = args.iterations.unwrap_or(args.pick(ITERATIONS, 4));
+    // `--iterations N`: N Adam steps of STEP_EVALUATIONS evaluations each.
+    let evaluations = args
+        .iterations
+        .map_or(args.pick(EVALUATIONS, 16 * STEP_EVALUATIONS), |n| {
+            n * STEP_EVALUATIONS
+        });
     let trainer = Trainer {
+        // Each training sets its own steps from its variant (`train_one`).
         budget: Budget {
-            iterations,
-            evaluations_per_iteration: EVALUATIONS,
+            iterations: evaluations / STEP_EVALUATIONS,
+            evaluations_per_iteration: STEP_EVALUATIONS,
         },
         learning_rate: options.learning_rates[0],
         schedule: LrSchedule::Cosine {
             final_fraction: 0.1,
         },
-        validate_every: args.pick(100, 2),
+        validate_every: 0,
         validation_steps: sizes.rollout,
     };
     println!(
-        "wake flow: coarse {} x {} (dt {}), reference {} x {} (dt {}); train Re {:?}, validation Re {:?}, held-out Re {:?}; {} iterations x {} corrector evaluations",
+        "wake flow: coarse {} x {} (dt {}), reference {} x {} (dt {}); train Re {:?}, validation Re {:?}, held-out Re {:?}; {} corrector evaluations per training, at least {} per Adam step",
         sizes.ny, sizes.nx, sizes.dt, fine.grid().ny, fine.grid().nx, fine.dt(),
-        options.train_re, options.validation_re, options.held_out_re, iterations, EVALUATIONS
+        options.train_re, options.validation_re, options.held_out_re, evaluations, STEP_EVALUATIONS
     );
 
     let mut results = Results::default();
@@ -462,6 +474,7 @@ fn main() -> Result<(), BoxError> {
         .collect();
         let setup = Setup {
             trainer,
+            validation_evaluations: args.pick(VALIDATION_EVALUATIONS, 32),
             coarse: &coarse,
             sigma,
             data_seed: ds,
@@ -483,7 +496,7 @@ fn main() -> Result<(), BoxError> {
                         size: MAIN_SIZE,
                         seed: first_seed,
                         lr,
-                        iterations: (iterations / 4).max(1),
+                        evaluations: (evaluations / 4).max(1),
                     })
                 })
                 .collect();
@@ -558,7 +571,7 @@ fn main() -> Result<(), BoxError> {
                     size,
                     seed,
                     lr: lr_for(variant),
-                    iterations,
+                    evaluations,
                 })
             })
             .collect();
@@ -860,6 +873,12 @@ fn main() -> Result<(), BoxError> {
         "peak_rss_under_2_gib": common::peak_rss_bytes().map(|b| b < 2 << 30),
     });
     println!("floors: {floors}");
+    let training_iterations: serde_json::Map<String, Value> = options
+        .variants
+        .iter()
+        .filter(|v| **v != Variant::Src)
+        .map(|&v| (v.name(), json!((evaluations / v.step_evaluations()).max(1))))
+        .collect();
     let held_split: (Vec<f64>, Vec<f64>) = options
         .held_out_re
         .iter()
@@ -891,8 +910,8 @@ fn main() -> Result<(), BoxError> {
         "train_re": options.train_re,
         "validation_re": options.validation_re,
         "held_out_re": {"inside": held_split.0, "outside": held_split.1},
-        "training_iterations": iterations,
-        "corrector_evaluations_per_training": iterations * EVALUATIONS,
+        "training_iterations": training_iterations,
+        "corrector_evaluations_per_training": evaluations,
         "noise_sigma": sigma_used,
         "setup": setup_json,
         "learning_rate": chosen_lr,

@@ -293,3 +293,24 @@ fn the_inscribed_body_is_inside_the_reference_body() {
         assert_eq!(solid, all, "coarse cell ({i}, {j})");
     }
 }
+
+#[test]
+fn every_variant_steps_whole_windows_of_at_least_four_evaluations() {
+    for (variant, expected) in [
+        (Variant::Non, 4),
+        (Variant::Noise, 4),
+        (Variant::Sol(1), 4),
+        (Variant::Sol(2), 4),
+        (Variant::Sol(3), 6),
+        (Variant::Sol(4), 4),
+        (Variant::Sol(5), 5),
+        (Variant::Sol(16), 16),
+    ] {
+        let e = variant.step_evaluations();
+        assert_eq!(e, expected, "{}", variant.name());
+        if let Variant::Sol(k) = variant {
+            assert_eq!(e % k, 0, "{}: a step holds whole windows", variant.name());
+        }
+        assert!(e >= wake_flow_scene::STEP_EVALUATIONS);
+    }
+}

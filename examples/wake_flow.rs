@@ -317,6 +317,7 @@ fn main() -> Result<(), BoxError> {
     let mut results = Results::default();
     let mut validation_report = Report::new();
     let mut selected_k = serde_json::Map::new();
+    let mut selected_size = serde_json::Map::new();
     let mut chosen_lr = serde_json::Map::new();
     let mut capacity_runs: Vec<(NetSize, Variant, u64, f64, f64, usize)> = Vec::new();
     let mut train_seconds: BTreeMap<String, Vec<f64>> = BTreeMap::new();
@@ -625,24 +626,28 @@ fn main() -> Result<(), BoxError> {
                 score,
             )
         };
-        let (sols, others): (Vec<_>, Vec<_>) = groups
-            .into_iter()
-            .partition(|(v, _)| matches!(v, Variant::Sol(_)));
+        // Every SOL variant trained, at every size, is a candidate: the
+        // unroll and the corrector's size are both chosen here.
+        let is_sol = |g: &(Variant, Vec<Model>)| matches!(g.0, Variant::Sol(_));
+        let (mut sols, others): (Vec<_>, Vec<_>) = groups.into_iter().partition(is_sol);
+        let (capacity_sols, capacity_others): (Vec<_>, Vec<_>) =
+            capacity_groups.into_iter().partition(is_sol);
+        sols.extend(capacity_sols);
         let mut selections = Vec::new();
         if !sols.is_empty() {
             let s = select_best(sols.into_iter().map(candidate).collect())?;
-            let k: usize = s
+            let (unroll, size) = s
                 .chosen_label()
                 .trim_start_matches("sol_")
-                .split('@')
-                .next()
-                .unwrap_or("0")
-                .parse()?;
-            println!("  selected by validation: sol_{k}");
+                .split_once('@')
+                .ok_or("a SOL candidate's label is sol_K@SIZE")?;
+            let k: usize = unroll.parse()?;
+            println!("  selected by validation: sol_{k} at {size}");
             selected_k.insert(ds.to_string(), json!(k));
+            selected_size.insert(ds.to_string(), json!(size));
             selections.push(s);
         }
-        for g in others.into_iter().chain(capacity_groups) {
+        for g in others.into_iter().chain(capacity_others) {
             selections.push(select_best(vec![candidate(g)])?);
         }
 
@@ -692,7 +697,7 @@ fn main() -> Result<(), BoxError> {
             .last
             .entry("reference".into())
             .or_insert(reference_last);
-        let mut probe: Option<Params<f64>> = None;
+        let mut probe: Option<(Params<f64>, NetSize)> = None;
         let mut non_probe: Option<Params<f64>> = None;
         for selection in selections {
             for model in selection.models {
@@ -720,21 +725,17 @@ fn main() -> Result<(), BoxError> {
                             ));
                         }
                     }
-                    if m.size != MAIN_SIZE {
-                        continue;
-                    }
-                    let mut names = vec![m.variant.name()];
-                    if matches!(m.variant, Variant::Sol(_)) && e.chosen {
-                        names.push("sol_selected".into());
-                        if probe.is_none() {
-                            probe = Some(m.trained.model.params.clone());
+                    if m.size == MAIN_SIZE {
+                        results.record(&m.variant.name(), ds, Some(m.seed), run);
+                        if m.variant == Variant::Non && non_probe.is_none() {
+                            non_probe = Some(m.trained.model.params.clone());
                         }
                     }
-                    if m.variant == Variant::Non && non_probe.is_none() {
-                        non_probe = Some(m.trained.model.params.clone());
-                    }
-                    for name in names {
-                        results.record(&name, ds, Some(m.seed), run);
+                    if matches!(m.variant, Variant::Sol(_)) && e.chosen {
+                        results.record("sol_selected", ds, Some(m.seed), run);
+                        if probe.is_none() {
+                            probe = Some((m.trained.model.params.clone(), m.size));
+                        }
                     }
                 }
             }
@@ -750,10 +751,12 @@ fn main() -> Result<(), BoxError> {
     let mut speed = Value::Null;
     let mut pressure = Value::Null;
     if let (true, Some((splits, probe, _non))) = (options.speed, &speed_inputs) {
-        let (net0, _) = Net::new(&coarse.scene, MAIN_SIZE, &mut TrainSeed(0).init_rng())?;
+        let size = probe.as_ref().map_or(MAIN_SIZE, |p| p.1);
+        let (net0, _) = Net::new(&coarse.scene, size, &mut TrainSeed(0).init_rng())?;
         let hybrid: Wake = Hybrid::new(coarse.clone(), net0);
+        let params = probe.as_ref().map(|p| &p.0);
         let result = splits.held_out().evaluate_baseline(|refs| {
-            study::speed(&hybrid, probe.as_ref(), refs, &sizes, &coarse.scene).map_err(|e| {
+            study::speed(&hybrid, params, refs, &sizes, &coarse.scene).map_err(|e| {
                 diffphys::learn::LearnError::Invalid {
                     what: "speed",
                     message: e.to_string(),
@@ -923,6 +926,7 @@ fn main() -> Result<(), BoxError> {
         "per_re": per_re_json,
         "capacity": capacity,
         "selected_k": selected_k,
+        "selected_size": selected_size,
         "selected_by": "validation",
         "train_seconds": train_seconds,
         "validation_curves": validation_curves,

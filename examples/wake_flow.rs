@@ -22,7 +22,8 @@
 //! with its own reference), `--train-seeds a,b,c` (default 1, 2, 3), `--held-out-re LIST` (any
 //! Re in [50, 3200]; its reference is generated and cached), `--train-re`,
 //! `--validation-re`, `--variants src,non,noise,sol4,sol16`, `--lrs LIST`,
-//! `--iterations N` (a budget of 4N corrector evaluations), `--no-capacity`, `--no-speed`, `--coarse-advection`,
+//! `--iterations N` (a budget of 4N corrector evaluations), `--no-capacity`,
+//! `--no-speed`, `--coarse-advection`,
 //! `--body cylinder|staircase|inscribed`, `--reference-scheme second-order|coarse`,
 //! `--small` (CI: 16 × 32),
 //! `--out DIR`, `--npy`. Tutorial: docs/11-wake-flow.md. Run:
@@ -149,7 +150,7 @@ fn train_one(setup: &Setup<'_>, job: &Job) -> Result<Model, BoxError> {
         evaluations,
     } = *job;
     let per_step = variant.step_evaluations();
-    let iterations = (evaluations / per_step).max(1);
+    let iterations = variant.adam_steps(evaluations);
     let trainer = Trainer {
         learning_rate: lr,
         budget: Budget {
@@ -497,7 +498,7 @@ fn main() -> Result<(), BoxError> {
                         size: MAIN_SIZE,
                         seed: first_seed,
                         lr,
-                        evaluations: (evaluations / 4).max(1),
+                        evaluations: evaluations.div_ceil(4),
                     })
                 })
                 .collect();
@@ -880,7 +881,7 @@ fn main() -> Result<(), BoxError> {
         .variants
         .iter()
         .filter(|v| **v != Variant::Src)
-        .map(|&v| (v.name(), json!((evaluations / v.step_evaluations()).max(1))))
+        .map(|&v| (v.name(), json!(v.adam_steps(evaluations))))
         .collect();
     let held_split: (Vec<f64>, Vec<f64>) = options
         .held_out_re

@@ -314,3 +314,14 @@ fn every_variant_steps_whole_windows_of_at_least_four_evaluations() {
         assert!(e >= wake_flow_scene::STEP_EVALUATIONS);
     }
 }
+
+#[test]
+fn a_budget_becomes_adam_steps_and_zero_stays_zero() {
+    assert_eq!(Variant::Sol(4).adam_steps(24_000), 6_000);
+    assert_eq!(Variant::Non.adam_steps(24_000), 6_000);
+    assert_eq!(Variant::Sol(16).adam_steps(24_000), 1_500);
+    // A budget smaller than one step still trains one step; none trains none
+    // (the trainer refuses 0 iterations with a typed error).
+    assert_eq!(Variant::Sol(16).adam_steps(4), 1);
+    assert_eq!(Variant::Sol(4).adam_steps(0), 0);
+}

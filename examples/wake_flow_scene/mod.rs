@@ -213,6 +213,17 @@ impl Variant {
         };
         k * STEP_EVALUATIONS.div_ceil(k)
     }
+
+    /// Adam steps of a training with a budget of `evaluations`: the budget
+    /// over [`Variant::step_evaluations`], at least one step for any budget
+    /// but 0 (which stays 0, for the trainer to refuse).
+    pub fn adam_steps(&self, evaluations: usize) -> usize {
+        if evaluations == 0 {
+            0
+        } else {
+            (evaluations / self.step_evaluations()).max(1)
+        }
+    }
 }
 
 /// A comma-separated list of Reynolds numbers, each checked.

@@ -701,7 +701,6 @@ fn main() -> Result<(), BoxError> {
             .entry("reference".into())
             .or_insert(reference_last);
         let mut probe: Option<(Params<f64>, NetSize)> = None;
-        let mut non_probe: Option<Params<f64>> = None;
         for selection in selections {
             for model in selection.models {
                 let e = splits.held_out().evaluate(model, |group, refs| {
@@ -730,9 +729,6 @@ fn main() -> Result<(), BoxError> {
                     }
                     if m.size == MAIN_SIZE {
                         results.record(&m.variant.name(), ds, Some(m.seed), run);
-                        if m.variant == Variant::Non && non_probe.is_none() {
-                            non_probe = Some(m.trained.model.params.clone());
-                        }
                     }
                     if matches!(m.variant, Variant::Sol(_)) && e.chosen {
                         results.record("sol_selected", ds, Some(m.seed), run);
@@ -746,14 +742,14 @@ fn main() -> Result<(), BoxError> {
         bar.finish_and_clear();
         mem("held-out");
         if speed_inputs.is_none() {
-            speed_inputs = Some((splits, probe, non_probe));
+            speed_inputs = Some((splits, probe));
         }
     }
 
     // Phase 6: speed against accuracy, pressure solves.
     let mut speed = Value::Null;
     let mut pressure = Value::Null;
-    if let (true, Some((splits, probe, _non))) = (options.speed, &speed_inputs) {
+    if let (true, Some((splits, probe))) = (options.speed, &speed_inputs) {
         let size = probe.as_ref().map_or(MAIN_SIZE, |p| p.1);
         let (net0, _) = Net::new(&coarse.scene, size, &mut TrainSeed(0).init_rng())?;
         let hybrid: Wake = Hybrid::new(coarse.clone(), net0);

@@ -1,4 +1,4 @@
-//! `Conv2` forward + backward as the fused op (im2col and a matrix product, one
+//! `Conv2` forward + backward as the fused op (a register-blocked direct kernel, one
 //! node, adjoint by hand) against the same convolution built from tape
 //! primitives (per kernel tap: roll, broadcast multiply, sum over input
 //! channels, add), at batch 8, 16 → 16 channels, 3×3 kernel, 64² cells, periodic

@@ -17,18 +17,21 @@
 //! - `∂L/∂w[o, c, p, q] = Σ_{b, i, j} g[b, o, i, j] · x̃[b, c, i + p − r_y, j + q − r_x]`;
 //! - `∂L/∂bias[o] = Σ_{b, i, j} g[b, o, i, j]`.
 //!
-//! The kernel lowers each batch element to columns (`im2col`: one row per
-//! `(c, p, q)` tap, one column per output cell) and multiplies by the weight
-//! matrix `[c_out, c_in·k_y·k_x]`; the backward sweep rebuilds the columns rather
-//! than keep them, so the tape holds only the op's inputs and output.
+//! The kernel pads each batch element by the kernel's radius and flattens it
+//! row by row, so that every tap is a fixed offset into one flat array. The
+//! forward correlation and `∂L/∂x` (the same correlation of `g` with the
+//! flipped, channel-transposed kernel) run as one loop over blocks of output
+//! cells and channels whose sums stay in vector registers; `∂L/∂w` is a dot
+//! product per tap over the flat cells, its lanes in registers too. No column
+//! matrix is built, and the tape holds only the op's inputs and output.
 //!
 //! # References
 //! K. Chellapilla, S. Puri, P. Simard, *High performance convolutional neural
-//! networks for document processing*, IWFHR 2006 (the `im2col` lowering).
+//! networks for document processing*, IWFHR 2006 (the column lowering this
+//! kernel replaces: it copies each input value once per tap).
 
 use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, IxDyn, Op, Real, Result, TapeError};
-use ndarray::linalg::general_mat_mul;
-use ndarray::{Array2, ArrayView2, ArrayViewMut2, Ix2};
+use ndarray::{Array2, ArrayView2, Ix2};
 
 /// How a convolution sees past the edge of the field.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -117,16 +120,6 @@ impl Geometry {
     fn taps(&self) -> usize {
         self.c_in * self.k_y * self.k_x
     }
-
-    /// The source row of output row `y` under tap row `p`, if it exists.
-    fn source_row(&self, y: usize, p: usize, padding: Padding) -> Option<usize> {
-        let s = y as isize + p as isize - (self.k_y / 2) as isize;
-        wrap(s, self.height, padding)
-    }
-
-    fn shift_x(&self, q: usize) -> isize {
-        q as isize - (self.k_x / 2) as isize
-    }
 }
 
 fn wrap(s: isize, n: usize, padding: Padding) -> Option<usize> {
@@ -140,98 +133,169 @@ fn wrap(s: isize, n: usize, padding: Padding) -> Option<usize> {
     }
 }
 
-/// The range of `j` in `0..n` with `j + shift` in `0..n`.
-fn inner_range(n: usize, shift: isize) -> std::ops::Range<usize> {
-    let lo = (-shift).clamp(0, n as isize) as usize;
-    let hi = (n as isize - shift).clamp(0, n as isize) as usize;
-    lo..hi.max(lo)
+/// Output cells one block computes together (one 8-lane f64 vector with
+/// AVX-512, two with AVX2).
+const CELLS: usize = 8;
+/// Output channels one kernel call computes together.
+const CHANNELS: usize = 4;
+
+/// One batch element padded by the kernel's radius on every side and flattened
+/// row by row, so that every tap of the kernel is a fixed offset.
+///
+/// Padded row `s` (`0..ph`), column `t` (`0..pw`) of channel `c` sits at
+/// `c · plane + s · pw + t` and holds `x̃[c, s − r_y, t − r_x]`. An output cell
+/// `(i, j)` is computed at the flat index `i · pw + j`, and its tap `(p, q)`
+/// reads the flat index `i · pw + j + p · pw + q`: the whole correlation runs
+/// over one flat range, `span` cells long, with the columns `j ≥ W` computed and
+/// dropped. `plane` leaves room for the last block's reads past the field.
+#[derive(Debug, Clone, Copy)]
+struct Lattice {
+    pw: usize,
+    span: usize,
+    plane: usize,
 }
 
-/// `dst[j] = x̃[j + shift]` for one row.
-fn read_shifted<T: Real>(dst: &mut [T], src: &[T], shift: isize, padding: Padding) {
-    let n = src.len();
-    let inner = inner_range(n, shift);
-    let offset = |j: usize| (j as isize + shift) as usize;
-    dst[inner.clone()]
-        .copy_from_slice(&src[offset(inner.start)..offset(inner.start) + inner.len()]);
-    for j in (0..inner.start).chain(inner.end..n) {
-        dst[j] = match wrap(j as isize + shift, n, padding) {
-            Some(s) => src[s],
-            None => T::zero(),
-        };
-    }
-}
-
-/// The adjoint of [`read_shifted`]: `grad_src[j + shift] += g[j]`, folded back
-/// by the padding rule.
-fn add_shifted<T: Real>(grad_src: &mut [T], g: &[T], shift: isize, padding: Padding) {
-    let n = g.len();
-    let inner = inner_range(n, shift);
-    let start = (inner.start as isize + shift) as usize;
-    for (d, &v) in grad_src[start..start + inner.len()]
-        .iter_mut()
-        .zip(&g[inner.clone()])
-    {
-        *d += v;
-    }
-    for j in (0..inner.start).chain(inner.end..n) {
-        if let Some(s) = wrap(j as isize + shift, n, padding) {
-            grad_src[s] += g[j];
+impl Lattice {
+    fn of(geo: &Geometry) -> Self {
+        let pw = geo.width + geo.k_x - 1;
+        let span = (geo.height * pw).div_ceil(CELLS) * CELLS;
+        Lattice {
+            pw,
+            span,
+            plane: span + (geo.k_y - 1) * pw + geo.k_x - 1,
         }
     }
-}
 
-/// The columns of one batch element `x_b` (`c_in·H·W` values): row `(c, p, q)`,
-/// column `(i, j)` holds `x̃[c, i + p − r_y, j + q − r_x]`.
-fn im2col<T: Real>(geo: &Geometry, padding: Padding, x_b: &[T], cols: &mut ArrayViewMut2<'_, T>) {
-    let (h, w) = (geo.height, geo.width);
-    let cols = cols.as_slice_mut().expect("columns are contiguous");
-    let cells = geo.cells();
-    for c in 0..geo.c_in {
-        for p in 0..geo.k_y {
-            for q in 0..geo.k_x {
-                let row = &mut cols[((c * geo.k_y + p) * geo.k_x + q) * cells..][..cells];
-                let shift = geo.shift_x(q);
-                for y in 0..h {
-                    let dst = &mut row[y * w..(y + 1) * w];
-                    match geo.source_row(y, p, padding) {
-                        Some(sy) => {
-                            read_shifted(dst, &x_b[(c * h + sy) * w..][..w], shift, padding)
-                        }
-                        None => dst.fill(T::zero()),
-                    }
+    /// The flat offset of each tap `(p, q)`, in the weights' order.
+    fn offsets(&self, geo: &Geometry) -> Vec<usize> {
+        (0..geo.k_y)
+            .flat_map(|p| (0..geo.k_x).map(move |q| p * self.pw + q))
+            .collect()
+    }
+
+    /// Writes `channels` channels of `field` (`channels · H · W` values) padded
+    /// by `padding` into `out` (`channels · plane` values).
+    fn pad<T: Real>(
+        &self,
+        geo: &Geometry,
+        padding: Padding,
+        channels: usize,
+        field: &[T],
+        out: &mut [T],
+    ) {
+        let (h, w) = (geo.height, geo.width);
+        let (r_y, r_x) = ((geo.k_y / 2) as isize, (geo.k_x / 2) as isize);
+        let ph = h + geo.k_y - 1;
+        for c in 0..channels {
+            let plane = &mut out[c * self.plane..(c + 1) * self.plane];
+            plane[ph * self.pw..].fill(T::zero());
+            for s in 0..ph {
+                let row = &mut plane[s * self.pw..(s + 1) * self.pw];
+                let Some(sy) = wrap(s as isize - r_y, h, padding) else {
+                    row.fill(T::zero());
+                    continue;
+                };
+                let src = &field[(c * h + sy) * w..][..w];
+                row[geo.k_x / 2..geo.k_x / 2 + w].copy_from_slice(src);
+                for t in (0..geo.k_x / 2).chain(geo.k_x / 2 + w..self.pw) {
+                    row[t] = wrap(t as isize - r_x, w, padding).map_or(T::zero(), |sx| src[sx]);
                 }
             }
         }
     }
 }
 
-/// The adjoint of [`im2col`]: adds the column gradients into `grad_x_b`.
-fn col2im<T: Real>(
-    geo: &Geometry,
-    padding: Padding,
-    grad_cols: &ArrayView2<'_, T>,
-    grad_x_b: &mut [T],
-) {
-    let (h, w) = (geo.height, geo.width);
-    let cells = geo.cells();
-    let grad_cols = grad_cols
-        .as_slice()
-        .expect("column gradients are contiguous");
-    for c in 0..geo.c_in {
-        for p in 0..geo.k_y {
-            for q in 0..geo.k_x {
-                let row = &grad_cols[((c * geo.k_y + p) * geo.k_x + q) * cells..][..cells];
-                let shift = geo.shift_x(q);
-                for y in 0..h {
-                    if let Some(sy) = geo.source_row(y, p, padding) {
-                        add_shifted(
-                            &mut grad_x_b[(c * h + sy) * w..][..w],
-                            &row[y * w..(y + 1) * w],
-                            shift,
-                            padding,
-                        );
+/// `out[o, t] = bias[o] + Σ_{c, k} w[o, c, k] · x[c, t + offsets[k]]` for `t` in
+/// `0..lat.span`: the correlation over the flat padded layout of [`Lattice`].
+/// `w` is `[c_out, c_in · taps]` row-major, `x` holds `c_in` planes, `out` holds
+/// `c_out` rows of `span` values.
+struct Correlation<'a, T> {
+    w: &'a [T],
+    bias: Option<&'a [T]>,
+    offsets: &'a [usize],
+    c_in: usize,
+    c_out: usize,
+    lat: Lattice,
+}
+
+impl<T: Real> Correlation<'_, T> {
+    fn run(&self, x: &[T], out: &mut [T]) {
+        let full = self.c_out / CHANNELS * CHANNELS;
+        for o in (0..full).step_by(CHANNELS) {
+            self.block::<CHANNELS>(o, x, out);
+        }
+        for o in full..self.c_out {
+            self.block::<1>(o, x, out);
+        }
+    }
+
+    /// Output channels `o0..o0 + OB`, every cell, `CELLS` cells at a time with
+    /// the sums held in registers.
+    #[inline(always)]
+    fn block<const OB: usize>(&self, o0: usize, x: &[T], out: &mut [T]) {
+        let (span, plane) = (self.lat.span, self.lat.plane);
+        let row = self.c_in * self.offsets.len();
+        let w: [&[T]; OB] = std::array::from_fn(|k| &self.w[(o0 + k) * row..][..row]);
+        for t0 in (0..span).step_by(CELLS) {
+            let mut acc: [[T; CELLS]; OB] =
+                std::array::from_fn(|k| [self.bias.map_or(T::zero(), |b| b[o0 + k]); CELLS]);
+            for c in 0..self.c_in {
+                let xc = &x[c * plane + t0..(c + 1) * plane];
+                let wc: [&[T]; OB] =
+                    std::array::from_fn(|k| &w[k][c * self.offsets.len()..][..self.offsets.len()]);
+                for (k, &off) in self.offsets.iter().enumerate() {
+                    let xs: &[T; CELLS] = xc[off..off + CELLS].try_into().expect("in the plane");
+                    for (a, wk) in acc.iter_mut().zip(&wc) {
+                        let wv = wk[k];
+                        for (s, &v) in a.iter_mut().zip(xs) {
+                            *s += wv * v;
+                        }
                     }
+                }
+            }
+            for (k, a) in acc.iter().enumerate() {
+                out[(o0 + k) * span + t0..][..CELLS].copy_from_slice(a);
+            }
+        }
+    }
+}
+
+/// Adds `Σ_t g[o, t] · x[c, t + base + p · pw + q]` over the flat cells into
+/// `gw[o, c · taps + first + p · KX + q]` for the `KY × KX` taps `(p, q)`, the
+/// sums held in registers `CELLS` lanes wide (`g` holds `c_out` rows of `span`,
+/// zero on the dropped columns; `x` holds `c_in` planes). A 3 × 3 kernel is one
+/// call; any other is one call per tap with `KY = KX = 1`.
+#[allow(clippy::too_many_arguments)]
+fn weight_gradient<T: Real, const KY: usize, const KX: usize>(
+    g: &[T],
+    x: &[T],
+    base: usize,
+    first: usize,
+    geo: &Geometry,
+    lat: &Lattice,
+    gw: &mut Array2<T>,
+) {
+    let taps = geo.k_y * geo.k_x;
+    let pw = lat.pw;
+    for (o, g_o) in g.chunks_exact(lat.span).enumerate() {
+        for c in 0..geo.c_in {
+            let x_c = &x[c * lat.plane + base..(c + 1) * lat.plane];
+            let mut acc = [[[T::zero(); CELLS]; KX]; KY];
+            for t0 in (0..lat.span).step_by(CELLS) {
+                let gs: &[T; CELLS] = g_o[t0..t0 + CELLS].try_into().expect("in the row");
+                for (p, acc_p) in acc.iter_mut().enumerate() {
+                    let row = &x_c[t0 + p * pw..][..CELLS + KX - 1];
+                    for (q, a) in acc_p.iter_mut().enumerate() {
+                        for l in 0..CELLS {
+                            a[l] += gs[l] * row[q + l];
+                        }
+                    }
+                }
+            }
+            for (p, acc_p) in acc.iter().enumerate() {
+                for (q, a) in acc_p.iter().enumerate() {
+                    gw[[o, c * taps + first + p * KX + q]] +=
+                        a.iter().fold(T::zero(), |s, &v| s + v);
                 }
             }
         }
@@ -244,6 +308,23 @@ fn weight_matrix<'a, T: Real>(geo: &Geometry, w: &'a ArrayD<T>) -> ArrayView2<'a
         .expect("standard layout, sizes checked")
         .into_dimensionality::<Ix2>()
         .expect("2-D")
+}
+
+/// Adds (or writes, with `add` false) the valid cells of `rows` (`channels` rows
+/// of `lat.span` flat cells) into the field `field` (`channels · H · W` values).
+fn unflatten<T: Real>(geo: &Geometry, lat: &Lattice, rows: &[T], field: &mut [T], add: bool) {
+    let (h, w) = (geo.height, geo.width);
+    for (c, dst) in field.chunks_exact_mut(h * w).enumerate() {
+        for i in 0..h {
+            let src = &rows[c * lat.span + i * lat.pw..][..w];
+            let dst = &mut dst[i * w..(i + 1) * w];
+            if add {
+                dst.iter_mut().zip(src).for_each(|(d, &s)| *d += s);
+            } else {
+                dst.copy_from_slice(src);
+            }
+        }
+    }
 }
 
 /// The convolution `y = w ⋆ x + bias` (see the module docs). `name` labels errors.
@@ -261,28 +342,33 @@ pub fn conv_forward<T: Real>(
     let geo = Geometry::of(name, x.shape(), w.shape(), bias.shape())?;
     let x = x.as_standard_layout();
     let x = x.as_slice().expect("standard layout");
-    let w = w.as_standard_layout().into_owned();
-    let wm = weight_matrix(&geo, &w);
+    let w = w.as_standard_layout();
+    let bias = bias.as_standard_layout();
+    let lat = Lattice::of(&geo);
+    let offsets = lat.offsets(&geo);
+    let correlation = Correlation {
+        w: w.as_slice().expect("standard layout"),
+        bias: Some(bias.as_slice().expect("standard layout")),
+        offsets: &offsets,
+        c_in: geo.c_in,
+        c_out: geo.c_out,
+        lat,
+    };
     let mut out = vec![T::zero(); geo.batch * geo.c_out * geo.cells()];
-    let mut cols = Array2::<T>::zeros((geo.taps(), geo.cells()));
+    let mut padded = vec![T::zero(); geo.c_in * lat.plane];
+    let mut rows = vec![T::zero(); geo.c_out * lat.span];
     let in_len = geo.c_in * geo.cells();
     let out_len = geo.c_out * geo.cells();
     for b in 0..geo.batch {
-        im2col(
+        lat.pad(
             &geo,
             padding,
-            &x[b * in_len..(b + 1) * in_len],
-            &mut cols.view_mut(),
+            geo.c_in,
+            &x[b * in_len..][..in_len],
+            &mut padded,
         );
-        let mut y = ArrayViewMut2::from_shape(
-            (geo.c_out, geo.cells()),
-            &mut out[b * out_len..(b + 1) * out_len],
-        )
-        .expect("sizes match");
-        for (o, mut row) in y.rows_mut().into_iter().enumerate() {
-            row.fill(bias[o]);
-        }
-        general_mat_mul(T::one(), &wm, &cols, T::one(), &mut y);
+        correlation.run(&padded, &mut rows);
+        unflatten(&geo, &lat, &rows, &mut out[b * out_len..][..out_len], false);
     }
     ArrayD::from_shape_vec(IxDyn(&geo.shape(geo.c_out)), out)
         .map_err(|e| TapeError::invalid(name, e.to_string()))
@@ -316,43 +402,77 @@ pub fn conv_vjp<T: Real>(
     let x = x.as_standard_layout();
     let x = x.as_slice().expect("standard layout");
     let w_owned = w.as_standard_layout().into_owned();
-    let wm = weight_matrix(&geo, &w_owned);
     let g = grad_y.as_standard_layout();
     let g = g.as_slice().expect("standard layout");
     let in_len = geo.c_in * geo.cells();
     let out_len = geo.c_out * geo.cells();
+    let lat = Lattice::of(&geo);
+    let offsets = lat.offsets(&geo);
+    let taps = offsets.len();
+
+    // ∂L/∂x correlates g with the kernel flipped in space and transposed in
+    // channels: w'[c, o, k] = w[o, c, taps − 1 − k].
+    let wm = weight_matrix(&geo, &w_owned);
+    let mut flipped = vec![T::zero(); geo.c_in * geo.c_out * taps];
+    for o in 0..geo.c_out {
+        for c in 0..geo.c_in {
+            for k in 0..taps {
+                flipped[(c * geo.c_out + o) * taps + taps - 1 - k] = wm[[o, c * taps + k]];
+            }
+        }
+    }
+    let adjoint = Correlation {
+        w: &flipped,
+        bias: None,
+        offsets: &offsets,
+        c_in: geo.c_out,
+        c_out: geo.c_in,
+        lat,
+    };
 
     let mut grad_x = needs[0].then(|| vec![T::zero(); x.len()]);
     let mut grad_w = needs[1].then(|| Array2::<T>::zeros((geo.c_out, geo.taps())));
     let mut grad_bias = needs[2].then(|| ndarray::Array1::<T>::zeros(geo.c_out));
-    let mut cols = Array2::<T>::zeros((geo.taps(), geo.cells()));
-    let mut grad_cols = Array2::<T>::zeros((geo.taps(), geo.cells()));
+    let mut padded_x = vec![T::zero(); geo.c_in * lat.plane];
+    let mut padded_g = vec![T::zero(); geo.c_out * lat.plane];
+    let mut flat_g = vec![T::zero(); geo.c_out * lat.span];
+    let mut rows = vec![T::zero(); geo.c_in * lat.span];
     for b in 0..geo.batch {
-        let g_b =
-            ArrayView2::from_shape((geo.c_out, geo.cells()), &g[b * out_len..(b + 1) * out_len])
-                .expect("sizes match");
+        let g_b = &g[b * out_len..][..out_len];
         if let Some(gw) = grad_w.as_mut() {
-            im2col(
+            // ∂L/∂w[o, c, k] = Σ_t g[o, t] · x̃[c, t + offsets[k]] over the flat
+            // cells, g zero on the dropped columns: one product per tap.
+            lat.pad(
                 &geo,
                 padding,
-                &x[b * in_len..(b + 1) * in_len],
-                &mut cols.view_mut(),
+                geo.c_in,
+                &x[b * in_len..][..in_len],
+                &mut padded_x,
             );
-            general_mat_mul(T::one(), &g_b, &cols.t(), T::one(), gw);
+            for (o, row) in g_b.chunks_exact(geo.cells()).enumerate() {
+                let dst = &mut flat_g[o * lat.span..(o + 1) * lat.span];
+                dst.fill(T::zero());
+                for (i, src) in row.chunks_exact(geo.width).enumerate() {
+                    dst[i * lat.pw..][..geo.width].copy_from_slice(src);
+                }
+            }
+            if (geo.k_y, geo.k_x) == (3, 3) {
+                weight_gradient::<T, 3, 3>(&flat_g, &padded_x, 0, 0, &geo, &lat, gw);
+            } else {
+                for (k, &off) in offsets.iter().enumerate() {
+                    weight_gradient::<T, 1, 1>(&flat_g, &padded_x, off, k, &geo, &lat, gw);
+                }
+            }
         }
         if let Some(gb) = grad_bias.as_mut() {
-            for (o, row) in g_b.rows().into_iter().enumerate() {
-                gb[o] += row.sum();
+            for (o, row) in g_b.chunks_exact(geo.cells()).enumerate() {
+                gb[o] += row.iter().fold(T::zero(), |s, &v| s + v);
             }
         }
         if let Some(gx) = grad_x.as_mut() {
-            general_mat_mul(T::one(), &wm.t(), &g_b, T::zero(), &mut grad_cols);
-            col2im(
-                &geo,
-                padding,
-                &grad_cols.view(),
-                &mut gx[b * in_len..(b + 1) * in_len],
-            );
+            lat.pad(&geo, padding, geo.c_out, g_b, &mut padded_g);
+            adjoint.run(&padded_g, &mut rows);
+            unflatten(&geo, &lat, &rows, &mut gx[b * in_len..][..in_len], true);
         }
     }
     let grad_x = grad_x

@@ -64,6 +64,10 @@ type Wake = Hybrid<Coarse, Net>;
 /// 36,000 fills about the hour (docs/11).
 const EVALUATIONS: usize = 36_000;
 
+/// A learning-rate pilot trains on the budget divided by this (a quarter,
+/// first training seed).
+const PILOT_DIVISOR: usize = 4;
+
 /// Validate (for early stopping) every this many corrector evaluations at
 /// full size.
 const VALIDATION_EVALUATIONS: usize = 1_600;
@@ -131,9 +135,13 @@ struct Job {
     evaluations: usize,
 }
 
-/// What every training shares.
+/// What every training shares (each job's budget, steps and learning rate
+/// come from its [`Job`]).
 struct Setup<'a> {
-    trainer: Trainer,
+    /// How the learning rate changes over a training.
+    schedule: LrSchedule,
+    /// Steps of the validation rollouts.
+    validation_steps: usize,
     /// Validate every this many corrector evaluations.
     validation_evaluations: usize,
     coarse: &'a Coarse,
@@ -159,8 +167,9 @@ fn train_one(setup: &Setup<'_>, job: &Job) -> Result<Model, BoxError> {
             iterations,
             evaluations_per_iteration: per_step,
         },
+        schedule: setup.schedule,
         validate_every: (setup.validation_evaluations / per_step).max(1),
-        ..setup.trainer
+        validation_steps: setup.validation_steps,
     };
     let strategy = strategy(variant, setup.sigma).ok_or("src is not trained")?;
     let (net, params) = Net::new(&setup.coarse.scene, size, &mut TrainSeed(seed).init_rng())?;
@@ -190,7 +199,7 @@ fn train_one(setup: &Setup<'_>, job: &Job) -> Result<Model, BoxError> {
         &hybrid,
         Some(&trained.model.params),
         setup.validation,
-        setup.trainer.validation_steps,
+        setup.validation_steps,
     )?;
     println!(
         "  {:>6} {} seed {seed}, lr {lr:.0e}: {:.1} s, validation {:.5} (kept iteration {} of {iterations}; per Re {})",
@@ -298,19 +307,6 @@ fn main() -> Result<(), BoxError> {
         .map_or(args.pick(EVALUATIONS, 16 * STEP_EVALUATIONS), |n| {
             n * STEP_EVALUATIONS
         });
-    let trainer = Trainer {
-        // Each training sets its own steps from its variant (`train_one`).
-        budget: Budget {
-            iterations: evaluations / STEP_EVALUATIONS,
-            evaluations_per_iteration: STEP_EVALUATIONS,
-        },
-        learning_rate: options.learning_rates[0],
-        schedule: LrSchedule::Cosine {
-            final_fraction: 0.1,
-        },
-        validate_every: 0,
-        validation_steps: sizes.rollout,
-    };
     println!(
         "wake flow: coarse {} x {} (dt {}), reference {} x {} (dt {}); train Re {:?}, validation Re {:?}, held-out Re {:?}; {} corrector evaluations per training, at least {} per Adam step",
         sizes.ny, sizes.nx, sizes.dt, fine.grid().ny, fine.grid().nx, fine.dt(),
@@ -477,7 +473,10 @@ fn main() -> Result<(), BoxError> {
         })
         .collect();
         let setup = Setup {
-            trainer,
+            schedule: LrSchedule::Cosine {
+                final_fraction: 0.1,
+            },
+            validation_steps: sizes.rollout,
             validation_evaluations: args.pick(VALIDATION_EVALUATIONS, 32),
             coarse: &coarse,
             sigma,
@@ -500,7 +499,7 @@ fn main() -> Result<(), BoxError> {
                         size: MAIN_SIZE,
                         seed: first_seed,
                         lr,
-                        evaluations: evaluations.div_ceil(4),
+                        evaluations: evaluations.div_ceil(PILOT_DIVISOR),
                     })
                 })
                 .collect();

@@ -773,7 +773,9 @@ pub struct Options {
     pub variants: Vec<Variant>,
     /// Training Reynolds numbers.
     pub train_re: Vec<f64>,
-    /// Validation Reynolds numbers.
+    /// Validation Reynolds numbers: by default inside the training range
+    /// (141, 566) and outside it on both sides (85, 1900), as the held-out
+    /// split is.
     pub validation_re: Vec<f64>,
     /// Held-out Reynolds numbers.
     pub held_out_re: Vec<f64>,
@@ -815,7 +817,7 @@ impl Options {
             validation_re: if small {
                 list(&[566.0])
             } else {
-                list(&[141.0, 566.0])
+                list(&[85.0, 141.0, 566.0, 1900.0])
             },
             held_out_re: if small {
                 list(&[283.0, 2263.0])

@@ -263,8 +263,9 @@ impl<T: Real> Correlation<'_, T> {
 /// Adds `Σ_t g[o, t] · x[c, t + base + p · pw + q]` over the flat cells into
 /// `gw[o, c · taps + first + p · KX + q]` for the `KY × KX` taps `(p, q)`, the
 /// sums held in registers `CELLS` lanes wide (`g` holds `c_out` rows of `span`,
-/// zero on the dropped columns; `x` holds `c_in` planes). A 3 × 3 kernel is one
-/// call; any other is one call per tap with `KY = KX = 1`.
+/// zero on the dropped columns; `x` holds `c_in` planes). The common kernels
+/// (3 × 3, and 3 and 5 in 1D) are one call; any other is one call per tap with
+/// `KY = KX = 1`.
 #[allow(clippy::too_many_arguments)]
 fn weight_gradient<T: Real, const KY: usize, const KX: usize>(
     g: &[T],
@@ -456,11 +457,15 @@ pub fn conv_vjp<T: Real>(
                     dst[i * lat.pw..][..geo.width].copy_from_slice(src);
                 }
             }
-            if (geo.k_y, geo.k_x) == (3, 3) {
-                weight_gradient::<T, 3, 3>(&flat_g, &padded_x, 0, 0, &geo, &lat, gw);
-            } else {
-                for (k, &off) in offsets.iter().enumerate() {
-                    weight_gradient::<T, 1, 1>(&flat_g, &padded_x, off, k, &geo, &lat, gw);
+            let (g, x) = (&flat_g, &padded_x);
+            match (geo.k_y, geo.k_x) {
+                (3, 3) => weight_gradient::<T, 3, 3>(g, x, 0, 0, &geo, &lat, gw),
+                (1, 3) => weight_gradient::<T, 1, 3>(g, x, 0, 0, &geo, &lat, gw),
+                (1, 5) => weight_gradient::<T, 1, 5>(g, x, 0, 0, &geo, &lat, gw),
+                _ => {
+                    for (k, &off) in offsets.iter().enumerate() {
+                        weight_gradient::<T, 1, 1>(g, x, off, k, &geo, &lat, gw);
+                    }
                 }
             }
         }

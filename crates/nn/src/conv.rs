@@ -136,7 +136,7 @@ fn wrap(s: isize, n: usize, padding: Padding) -> Option<usize> {
 /// Output cells one block computes together (one 8-lane f64 vector with
 /// AVX-512, two with AVX2).
 const CELLS: usize = 8;
-/// Output channels one kernel call computes together.
+/// Output channels one block computes together.
 const CHANNELS: usize = 4;
 
 /// One batch element padded by the kernel's radius on every side and flattened

@@ -31,7 +31,7 @@
 //! kernel replaces: it copies each input value once per tap).
 
 use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, IxDyn, Op, Real, Result, TapeError};
-use ndarray::{Array2, ArrayView2, Ix2};
+use ndarray::Array2;
 
 /// How a convolution sees past the edge of the field.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -303,14 +303,6 @@ fn weight_gradient<T: Real, const KY: usize, const KX: usize>(
     }
 }
 
-fn weight_matrix<'a, T: Real>(geo: &Geometry, w: &'a ArrayD<T>) -> ArrayView2<'a, T> {
-    w.view()
-        .into_shape_with_order((geo.c_out, geo.taps()))
-        .expect("standard layout, sizes checked")
-        .into_dimensionality::<Ix2>()
-        .expect("2-D")
-}
-
 /// Adds (or writes, with `add` false) the valid cells of `rows` (`channels` rows
 /// of `lat.span` flat cells) into the field `field` (`channels · H · W` values).
 fn unflatten<T: Real>(geo: &Geometry, lat: &Lattice, rows: &[T], field: &mut [T], add: bool) {
@@ -402,7 +394,7 @@ pub fn conv_vjp<T: Real>(
     }
     let x = x.as_standard_layout();
     let x = x.as_slice().expect("standard layout");
-    let w_owned = w.as_standard_layout().into_owned();
+    let w_std = w.as_standard_layout();
     let g = grad_y.as_standard_layout();
     let g = g.as_slice().expect("standard layout");
     let in_len = geo.c_in * geo.cells();
@@ -413,12 +405,13 @@ pub fn conv_vjp<T: Real>(
 
     // ∂L/∂x correlates g with the kernel flipped in space and transposed in
     // channels: w'[c, o, k] = w[o, c, taps − 1 − k].
-    let wm = weight_matrix(&geo, &w_owned);
+    let w_flat = w_std.as_slice().expect("standard layout");
     let mut flipped = vec![T::zero(); geo.c_in * geo.c_out * taps];
     for o in 0..geo.c_out {
         for c in 0..geo.c_in {
             for k in 0..taps {
-                flipped[(c * geo.c_out + o) * taps + taps - 1 - k] = wm[[o, c * taps + k]];
+                flipped[(c * geo.c_out + o) * taps + taps - 1 - k] =
+                    w_flat[(o * geo.c_in + c) * taps + k];
             }
         }
     }

@@ -13,7 +13,7 @@ use std::time::Instant;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use diffphys::nn::reference::conv_from_primitives;
-use diffphys::nn::{ConvOp, Padding};
+use diffphys::nn::{Arithmetic, ConvOp, Padding};
 use diffphys::prelude::*;
 
 const BATCH: usize = 8;
@@ -56,6 +56,7 @@ fn run(variant: Variant, inp: &Inputs) -> ([ArrayD<f64>; 3], TapeStats) {
             ConvOp {
                 name: "conv2d".into(),
                 padding: Padding::Periodic,
+                arithmetic: Arithmetic::Native,
             },
             &[x, w, b],
         ),

@@ -42,7 +42,7 @@ use diffphys::learn::{
     rollout, select_best, Budget, Candidate, DataSeed, Hybrid, LrSchedule, Report, Schedule,
     Simulator, Split, Splits, Strategy, TrainSeed, Trained, TrainedCorrector, Trainer, Trajectory,
 };
-use diffphys::nn::Params;
+use diffphys::nn::{Arithmetic, Params};
 use diffphys_compare::harness::progress_bar;
 use ndarray::Array3;
 use serde_json::{json, Value};
@@ -61,8 +61,9 @@ type Wake = Hybrid<Coarse, Net>;
 /// are this over its evaluations per step). Chosen on validation and on the
 /// hour the scene may take: at 24,000, 9 of the 15 main trainings still
 /// improved on validation at their last step and the scene took 34 minutes;
-/// 36,000 fills about the hour (docs/11).
-const EVALUATIONS: usize = 36_000;
+/// 36,000 took 66 minutes with the corrector in `f64`; 48,000 with it in `f32`
+/// (about 1.3× faster) fills about the hour again (docs/11).
+const EVALUATIONS: usize = 48_000;
 
 /// A learning-rate pilot trains on the budget divided by this (a quarter,
 /// first training seed).
@@ -145,6 +146,8 @@ struct Setup<'a> {
     /// Validate every this many corrector evaluations.
     validation_evaluations: usize,
     coarse: &'a Coarse,
+    /// The corrector's convolution arithmetic.
+    arithmetic: Arithmetic,
     sigma: f64,
     data_seed: u64,
     train: &'a [Trajectory],
@@ -172,7 +175,12 @@ fn train_one(setup: &Setup<'_>, job: &Job) -> Result<Model, BoxError> {
         validation_steps: setup.validation_steps,
     };
     let strategy = strategy(variant, setup.sigma).ok_or("src is not trained")?;
-    let (net, params) = Net::new(&setup.coarse.scene, size, &mut TrainSeed(seed).init_rng())?;
+    let (net, params) = Net::new(
+        &setup.coarse.scene,
+        size,
+        setup.arithmetic,
+        &mut TrainSeed(seed).init_rng(),
+    )?;
     let hybrid = Hybrid::new(setup.coarse.clone(), net);
     let bar = progress_bar(
         iterations,
@@ -297,6 +305,7 @@ fn main() -> Result<(), BoxError> {
         ..if small { Sizes::small() } else { Sizes::full() }
     };
     let threads = options.threads;
+    let arithmetic = options.arithmetic;
     let coarse_scene = uncorrected(&sizes, 1, PressureSolver::Cholesky)?;
     let fine = reference_scene(&sizes)?;
     let coarse = Coarse::new(coarse_scene.clone());
@@ -329,7 +338,12 @@ fn main() -> Result<(), BoxError> {
     let mut pinned_face_error = serde_json::Map::new();
     let mut params_count = serde_json::Map::new();
     for size in std::iter::once(MAIN_SIZE).chain(options.capacity.iter().copied()) {
-        let (_, p) = Net::new(&coarse.scene, size, &mut TrainSeed(0).init_rng())?;
+        let (_, p) = Net::new(
+            &coarse.scene,
+            size,
+            arithmetic,
+            &mut TrainSeed(0).init_rng(),
+        )?;
         params_count.insert(size.label(), json!(p.count()));
     }
 
@@ -434,7 +448,12 @@ fn main() -> Result<(), BoxError> {
                 .collect(),
         );
         sigma_used = sigma;
-        let (net0, _) = Net::new(&coarse.scene, MAIN_SIZE, &mut TrainSeed(0).init_rng())?;
+        let (net0, _) = Net::new(
+            &coarse.scene,
+            MAIN_SIZE,
+            arithmetic,
+            &mut TrainSeed(0).init_rng(),
+        )?;
         let hybrid: Wake = Hybrid::new(coarse.clone(), net0);
         let src_val = rollout(&hybrid, None, &validation, sizes.rollout)?.mean();
         validation_report.add("src", ds, None, src_val);
@@ -479,6 +498,7 @@ fn main() -> Result<(), BoxError> {
             validation_steps: sizes.rollout,
             validation_evaluations: args.pick(VALIDATION_EVALUATIONS, 32),
             coarse: &coarse,
+            arithmetic,
             sigma,
             data_seed: ds,
             train: &train,
@@ -670,8 +690,13 @@ fn main() -> Result<(), BoxError> {
                 .collect();
             let runs = parallel(&jobs, threads, |&(m, r)| {
                 let (params, size, seed) = models[m];
-                let (net, _) = Net::new(&coarse.scene, size, &mut TrainSeed(seed).init_rng())
-                    .map_err(|e| e.to_string())?;
+                let (net, _) = Net::new(
+                    &coarse.scene,
+                    size,
+                    arithmetic,
+                    &mut TrainSeed(seed).init_rng(),
+                )
+                .map_err(|e| e.to_string())?;
                 let h = Hybrid::new(coarse.clone(), net);
                 let run =
                     study::held_out_re(&h, params, &refs[r], &sizes).map_err(|e| e.to_string());
@@ -750,7 +775,12 @@ fn main() -> Result<(), BoxError> {
     let mut pressure = Value::Null;
     if let (true, Some((splits, probe))) = (options.speed, &speed_inputs) {
         let size = probe.as_ref().map_or(MAIN_SIZE, |p| p.1);
-        let (net0, _) = Net::new(&coarse.scene, size, &mut TrainSeed(0).init_rng())?;
+        let (net0, _) = Net::new(
+            &coarse.scene,
+            size,
+            arithmetic,
+            &mut TrainSeed(0).init_rng(),
+        )?;
         let hybrid: Wake = Hybrid::new(coarse.clone(), net0);
         let params = probe.as_ref().map(|p| &p.0);
         let result = splits.held_out().evaluate_baseline(|refs| {
@@ -890,6 +920,7 @@ fn main() -> Result<(), BoxError> {
         "body": sizes.body.label(),
         "reference_scheme": sizes.reference.label(),
         "coarse_advection": wake_flow_scene::advection_label(sizes.advection),
+        "network_arithmetic": wake_flow_scene::arithmetic_label(arithmetic),
         "pinned_face_error": pinned_face_error,
     });
     common::print_json_line(&json!({

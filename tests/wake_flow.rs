@@ -11,6 +11,7 @@ mod wake_flow_scene;
 
 use diffphys::flow::{FlowState, PressureSolver};
 use diffphys::learn::{Hybrid, LearnError, Simulator, Split, TrainSeed};
+use diffphys::nn::Arithmetic;
 use ndarray::Array2;
 use wake_flow_scene::{
     free_faces, uncorrected, viscosity, Coarse, Net, NetSize, Options, Sizes, Variant, WakeError,
@@ -112,7 +113,14 @@ fn a_corrector_of_the_wrong_shape_is_refused() {
         width: 4,
         blocks: 1,
     };
-    let (net, params) = Net::with_outputs(&c.scene, size, 3, &mut TrainSeed(1).init_rng()).unwrap();
+    let (net, params) = Net::with_outputs(
+        &c.scene,
+        size,
+        3,
+        Arithmetic::Single,
+        &mut TrainSeed(1).init_rng(),
+    )
+    .unwrap();
     let hybrid = Hybrid::new(c.clone(), net);
     match hybrid.check_shapes(&params, &probe(&c)) {
         Err(LearnError::CorrectorShape { state, correction }) => {
@@ -121,7 +129,13 @@ fn a_corrector_of_the_wrong_shape_is_refused() {
         }
         other => panic!("expected a corrector shape error, got {other:?}"),
     }
-    let (net, params) = Net::new(&c.scene, size, &mut TrainSeed(1).init_rng()).unwrap();
+    let (net, params) = Net::new(
+        &c.scene,
+        size,
+        Arithmetic::Single,
+        &mut TrainSeed(1).init_rng(),
+    )
+    .unwrap();
     Hybrid::new(c.clone(), net)
         .check_shapes(&params, &probe(&c))
         .unwrap();

@@ -29,7 +29,7 @@ use diffphys::flow::{
     Advection, Boundary, FlowError, Obstacle, PressureSolver, Scene, Sides, Splitting,
 };
 use diffphys::learn::{standard_normal, Corrector, LearnError, Simulator, Split};
-use diffphys::nn::{Bound, Conv2, ConvConfig, Init, Layer, NnError, Padding, Params};
+use diffphys::nn::{Arithmetic, Bound, Conv2, ConvConfig, Init, Layer, NnError, Padding, Params};
 use diffphys::tape::{ArrayD, TapeError, Var};
 use ndarray::Array2;
 use rand::rngs::StdRng;
@@ -382,6 +382,17 @@ pub fn advection_label(advection: Advection) -> &'static str {
     name_in(&ADVECTIONS, advection)
 }
 
+/// The corrector's convolution arithmetic, by its `--network-arithmetic` name.
+/// `f32` is the default: on validation it trains as well as `f64` in about
+/// 0.8× the time (docs/11, "Cost").
+pub const ARITHMETICS: [(&str, Arithmetic); 2] =
+    [("f32", Arithmetic::Single), ("f64", Arithmetic::Native)];
+
+/// The `--network-arithmetic` name of `arithmetic`.
+pub fn arithmetic_label(arithmetic: Arithmetic) -> &'static str {
+    name_in(&ARITHMETICS, arithmetic)
+}
+
 /// The name of `value` in a table of names.
 fn name_in<T: PartialEq>(table: &[(&'static str, T)], value: T) -> &'static str {
     table
@@ -660,12 +671,18 @@ pub struct Net {
 }
 
 impl Net {
-    /// A corrector of `size` for `scene` with parameters drawn by `rng`.
+    /// A corrector of `size` for `scene` whose convolutions compute in
+    /// `arithmetic`, with parameters drawn by `rng`.
     ///
     /// # Errors
     /// [`WakeError::Nn`] for a bad size.
-    pub fn new(scene: &Scene, size: NetSize, rng: &mut impl Rng) -> Result<(Self, Params<f64>)> {
-        Self::with_outputs(scene, size, 2, rng)
+    pub fn new(
+        scene: &Scene,
+        size: NetSize,
+        arithmetic: Arithmetic,
+        rng: &mut impl Rng,
+    ) -> Result<(Self, Params<f64>)> {
+        Self::with_outputs(scene, size, 2, arithmetic, rng)
     }
 
     /// As [`Net::new`] with `c_out` output channels (2 fit the state; another
@@ -677,6 +694,7 @@ impl Net {
         scene: &Scene,
         size: NetSize,
         c_out: usize,
+        arithmetic: Arithmetic,
         rng: &mut impl Rng,
     ) -> Result<(Self, Params<f64>)> {
         let mut params = Params::new();
@@ -688,17 +706,20 @@ impl Net {
             init,
         };
         let w = size.width;
-        let stem = Conv2::new(&mut params, "stem", conv(3, w, Init::He), rng)?;
+        let layer = |params: &mut Params<f64>, name: &str, config, rng: &mut _| {
+            Conv2::new(params, name, config, rng).map(|c| c.with_arithmetic(arithmetic))
+        };
+        let stem = layer(&mut params, "stem", conv(3, w, Init::He), rng)?;
         let blocks = (0..size.blocks)
             .map(|b| {
                 Ok((
-                    Conv2::new(
+                    layer(
                         &mut params,
                         &format!("block{b}.a"),
                         conv(w, w, Init::He),
                         rng,
                     )?,
-                    Conv2::new(
+                    layer(
                         &mut params,
                         &format!("block{b}.b"),
                         conv(w, w, Init::He),
@@ -707,7 +728,7 @@ impl Net {
                 ))
             })
             .collect::<Result<Vec<_>>>()?;
-        let head = Conv2::new(&mut params, "head", conv(w, c_out, Init::Zeros), rng)?;
+        let head = layer(&mut params, "head", conv(w, c_out, Init::Zeros), rng)?;
         Ok((
             Net {
                 stem,
@@ -795,6 +816,8 @@ pub struct Options {
     pub body: Body,
     /// The reference's scheme (`--reference-scheme second-order|coarse`).
     pub reference: ReferenceScheme,
+    /// The corrector's convolution arithmetic (`--network-arithmetic f32|f64`).
+    pub arithmetic: Arithmetic,
 }
 
 impl Options {
@@ -831,13 +854,14 @@ impl Options {
             coarse_advection: Advection::SemiLagrangian,
             body: Body::Inscribed,
             reference: ReferenceScheme::SecondOrder,
+            arithmetic: Arithmetic::Single,
         }
     }
 
     /// Takes `--variants LIST`, `--train-re LIST`, `--validation-re LIST`,
     /// `--held-out-re LIST`, `--lrs LIST`, `--threads N`, `--capacity-sizes
     /// w8b1,w24b2`, `--no-capacity`, `--no-speed`, `--coarse-advection`,
-    /// `--body`, `--reference-scheme` out of
+    /// `--body`, `--reference-scheme`, `--network-arithmetic` out of
     /// `args`, the rest left for the common options.
     ///
     /// # Errors
@@ -920,6 +944,9 @@ impl Options {
                 "--body" => o.body = parse_named(&Body::ALL, &flag, &value(args)?)?,
                 "--reference-scheme" => {
                     o.reference = parse_named(&ReferenceScheme::ALL, &flag, &value(args)?)?
+                }
+                "--network-arithmetic" => {
+                    o.arithmetic = parse_named(&ARITHMETICS, &flag, &value(args)?)?
                 }
                 "--no-speed" => {
                     o.speed = false;

@@ -133,11 +133,36 @@ fn wrap(s: isize, n: usize, padding: Padding) -> Option<usize> {
     }
 }
 
-/// Output cells one block computes together (one 8-lane f64 vector with
+/// The arithmetic a convolution computes its products and sums in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Arithmetic {
+    /// The tape's own scalar type.
+    #[default]
+    Native,
+    /// `f32`, whatever the tape's type: the input, the kernel and the output
+    /// gradient are rounded to `f32` as the kernel pads them, every product and
+    /// sum runs in `f32` (twice the vector lanes of `f64`), and the results are
+    /// widened back to the tape's type. On an `f64` tape the output then differs
+    /// from [`Arithmetic::Native`]'s by `f32` rounding (about `1e-7` relative per
+    /// product); the op is still linear in `x` and in `w`, and its gradients are
+    /// the exact adjoints of the rounded computation up to that rounding. On an
+    /// `f32` tape it is [`Arithmetic::Native`].
+    Single,
+}
+
+/// Output cells one block computes together in `f64` (one 8-lane vector with
 /// AVX-512, two with AVX2).
-const CELLS: usize = 8;
+const CELLS_F64: usize = 8;
+/// Output cells one block computes together in `f32` (the same vector width).
+const CELLS_F32: usize = 16;
 /// Output channels one block computes together.
 const CHANNELS: usize = 4;
+
+/// `s` in the compute type `U` (rounded to nearest if `U` is narrower).
+#[inline(always)]
+fn to<S: Real, U: Real>(s: S) -> U {
+    U::from_f64(s.as_f64())
+}
 
 /// One batch element padded by the kernel's radius on every side and flattened
 /// row by row, so that every tap of the kernel is a fixed offset.
@@ -146,8 +171,9 @@ const CHANNELS: usize = 4;
 /// `c · plane + s · pw + t` and holds `x̃[c, s − r_y, t − r_x]`. An output cell
 /// `(i, j)` is computed at the flat index `i · pw + j`, and its tap `(p, q)`
 /// reads the flat index `i · pw + j + p · pw + q`: the whole correlation runs
-/// over one flat range, `span` cells long, with the columns `j ≥ W` computed and
-/// dropped. `plane` leaves room for the last block's reads past the field.
+/// over one flat range, `span` cells long (a multiple of every block's cell
+/// count), with the columns `j ≥ W` computed and dropped. `plane` leaves room
+/// for the last block's reads past the field.
 #[derive(Debug, Clone, Copy)]
 struct Lattice {
     pw: usize,
@@ -158,7 +184,7 @@ struct Lattice {
 impl Lattice {
     fn of(geo: &Geometry) -> Self {
         let pw = geo.width + geo.k_x - 1;
-        let span = (geo.height * pw).div_ceil(CELLS) * CELLS;
+        let span = (geo.height * pw).div_ceil(CELLS_F32) * CELLS_F32;
         Lattice {
             pw,
             span,
@@ -174,31 +200,33 @@ impl Lattice {
     }
 
     /// Writes `channels` channels of `field` (`channels · H · W` values) padded
-    /// by `padding` into `out` (`channels · plane` values).
-    fn pad<T: Real>(
+    /// by `padding` into `out` (`channels · plane` values), in `out`'s type.
+    fn pad<S: Real, U: Real>(
         &self,
         geo: &Geometry,
         padding: Padding,
         channels: usize,
-        field: &[T],
-        out: &mut [T],
+        field: &[S],
+        out: &mut [U],
     ) {
         let (h, w) = (geo.height, geo.width);
         let (r_y, r_x) = ((geo.k_y / 2) as isize, (geo.k_x / 2) as isize);
         let ph = h + geo.k_y - 1;
         for c in 0..channels {
             let plane = &mut out[c * self.plane..(c + 1) * self.plane];
-            plane[ph * self.pw..].fill(T::zero());
+            plane[ph * self.pw..].fill(U::zero());
             for s in 0..ph {
                 let row = &mut plane[s * self.pw..(s + 1) * self.pw];
                 let Some(sy) = wrap(s as isize - r_y, h, padding) else {
-                    row.fill(T::zero());
+                    row.fill(U::zero());
                     continue;
                 };
                 let src = &field[(c * h + sy) * w..][..w];
-                row[geo.k_x / 2..geo.k_x / 2 + w].copy_from_slice(src);
+                for (d, &v) in row[geo.k_x / 2..geo.k_x / 2 + w].iter_mut().zip(src) {
+                    *d = to(v);
+                }
                 for t in (0..geo.k_x / 2).chain(geo.k_x / 2 + w..self.pw) {
-                    row[t] = wrap(t as isize - r_x, w, padding).map_or(T::zero(), |sx| src[sx]);
+                    row[t] = wrap(t as isize - r_x, w, padding).map_or(U::zero(), |sx| to(src[sx]));
                 }
             }
         }
@@ -209,42 +237,50 @@ impl Lattice {
 /// `0..lat.span`: the correlation over the flat padded layout of [`Lattice`].
 /// `w` is `[c_out, c_in · taps]` row-major, `x` holds `c_in` planes, `out` holds
 /// `c_out` rows of `span` values.
-struct Correlation<'a, T> {
-    w: &'a [T],
-    bias: Option<&'a [T]>,
+struct Correlation<'a, U> {
+    w: &'a [U],
+    bias: Option<&'a [U]>,
     offsets: &'a [usize],
     c_in: usize,
     c_out: usize,
     lat: Lattice,
 }
 
-impl<T: Real> Correlation<'_, T> {
-    fn run(&self, x: &[T], out: &mut [T]) {
-        let full = self.c_out / CHANNELS * CHANNELS;
-        for o in (0..full).step_by(CHANNELS) {
-            self.block::<CHANNELS>(o, x, out);
-        }
-        for o in full..self.c_out {
-            self.block::<1>(o, x, out);
+impl<U: Real> Correlation<'_, U> {
+    fn run(&self, x: &[U], out: &mut [U]) {
+        if size_of::<U>() == size_of::<f32>() {
+            self.run_in::<CELLS_F32>(x, out);
+        } else {
+            self.run_in::<CELLS_F64>(x, out);
         }
     }
 
-    /// Output channels `o0..o0 + OB`, every cell, `CELLS` cells at a time with
-    /// the sums held in registers.
+    fn run_in<const L: usize>(&self, x: &[U], out: &mut [U]) {
+        let full = self.c_out / CHANNELS * CHANNELS;
+        for o in (0..full).step_by(CHANNELS) {
+            self.block::<CHANNELS, L>(o, x, out);
+        }
+        for o in full..self.c_out {
+            self.block::<1, L>(o, x, out);
+        }
+    }
+
+    /// Output channels `o0..o0 + OB`, every cell, `L` cells at a time with the
+    /// sums held in registers.
     #[inline(always)]
-    fn block<const OB: usize>(&self, o0: usize, x: &[T], out: &mut [T]) {
+    fn block<const OB: usize, const L: usize>(&self, o0: usize, x: &[U], out: &mut [U]) {
         let (span, plane) = (self.lat.span, self.lat.plane);
         let row = self.c_in * self.offsets.len();
-        let w: [&[T]; OB] = std::array::from_fn(|k| &self.w[(o0 + k) * row..][..row]);
-        for t0 in (0..span).step_by(CELLS) {
-            let mut acc: [[T; CELLS]; OB] =
-                std::array::from_fn(|k| [self.bias.map_or(T::zero(), |b| b[o0 + k]); CELLS]);
+        let w: [&[U]; OB] = std::array::from_fn(|k| &self.w[(o0 + k) * row..][..row]);
+        for t0 in (0..span).step_by(L) {
+            let mut acc: [[U; L]; OB] =
+                std::array::from_fn(|k| [self.bias.map_or(U::zero(), |b| b[o0 + k]); L]);
             for c in 0..self.c_in {
                 let xc = &x[c * plane + t0..(c + 1) * plane];
-                let wc: [&[T]; OB] =
+                let wc: [&[U]; OB] =
                     std::array::from_fn(|k| &w[k][c * self.offsets.len()..][..self.offsets.len()]);
                 for (k, &off) in self.offsets.iter().enumerate() {
-                    let xs: &[T; CELLS] = xc[off..off + CELLS].try_into().expect("in the plane");
+                    let xs: &[U; L] = xc[off..off + L].try_into().expect("in the plane");
                     for (a, wk) in acc.iter_mut().zip(&wc) {
                         let wv = wk[k];
                         for (s, &v) in a.iter_mut().zip(xs) {
@@ -254,7 +290,7 @@ impl<T: Real> Correlation<'_, T> {
                 }
             }
             for (k, a) in acc.iter().enumerate() {
-                out[(o0 + k) * span + t0..][..CELLS].copy_from_slice(a);
+                out[(o0 + k) * span + t0..][..L].copy_from_slice(a);
             }
         }
     }
@@ -262,14 +298,14 @@ impl<T: Real> Correlation<'_, T> {
 
 /// Adds `Σ_t g[o, t] · x[c, t + base + p · pw + q]` over the flat cells into
 /// `gw[o, c · taps + first + p · KX + q]` for the `KY × KX` taps `(p, q)`, the
-/// sums held in registers `CELLS` lanes wide (`g` holds `c_out` rows of `span`,
-/// zero on the dropped columns; `x` holds `c_in` planes). The common kernels
-/// (3 × 3, and 3 and 5 in 1D) are one call; any other is one call per tap with
-/// `KY = KX = 1`.
+/// sums held in registers `L` lanes wide in the compute type `U` (`g` holds
+/// `c_out` rows of `span`, zero on the dropped columns; `x` holds `c_in`
+/// planes). The common kernels (3 × 3, and 3 and 5 in 1D) are one call; any
+/// other is one call per tap with `KY = KX = 1`.
 #[allow(clippy::too_many_arguments)]
-fn weight_gradient<T: Real, const KY: usize, const KX: usize>(
-    g: &[T],
-    x: &[T],
+fn weight_gradient<U: Real, T: Real, const KY: usize, const KX: usize, const L: usize>(
+    g: &[U],
+    x: &[U],
     base: usize,
     first: usize,
     geo: &Geometry,
@@ -281,13 +317,13 @@ fn weight_gradient<T: Real, const KY: usize, const KX: usize>(
     for (o, g_o) in g.chunks_exact(lat.span).enumerate() {
         for c in 0..geo.c_in {
             let x_c = &x[c * lat.plane + base..(c + 1) * lat.plane];
-            let mut acc = [[[T::zero(); CELLS]; KX]; KY];
-            for t0 in (0..lat.span).step_by(CELLS) {
-                let gs: &[T; CELLS] = g_o[t0..t0 + CELLS].try_into().expect("in the row");
+            let mut acc = [[[U::zero(); L]; KX]; KY];
+            for t0 in (0..lat.span).step_by(L) {
+                let gs: &[U; L] = g_o[t0..t0 + L].try_into().expect("in the row");
                 for (p, acc_p) in acc.iter_mut().enumerate() {
-                    let row = &x_c[t0 + p * pw..][..CELLS + KX - 1];
+                    let row = &x_c[t0 + p * pw..][..L + KX - 1];
                     for (q, a) in acc_p.iter_mut().enumerate() {
-                        for l in 0..CELLS {
+                        for l in 0..L {
                             a[l] += gs[l] * row[q + l];
                         }
                     }
@@ -296,31 +332,60 @@ fn weight_gradient<T: Real, const KY: usize, const KX: usize>(
             for (p, acc_p) in acc.iter().enumerate() {
                 for (q, a) in acc_p.iter().enumerate() {
                     gw[[o, c * taps + first + p * KX + q]] +=
-                        a.iter().fold(T::zero(), |s, &v| s + v);
+                        to(a.iter().fold(U::zero(), |s, &v| s + v));
                 }
             }
         }
     }
 }
 
+/// [`weight_gradient`] for every tap of the kernel, `L` lanes wide.
+fn weight_gradients<U: Real, T: Real, const L: usize>(
+    g: &[U],
+    x: &[U],
+    offsets: &[usize],
+    geo: &Geometry,
+    lat: &Lattice,
+    gw: &mut Array2<T>,
+) {
+    match (geo.k_y, geo.k_x) {
+        (3, 3) => weight_gradient::<U, T, 3, 3, L>(g, x, 0, 0, geo, lat, gw),
+        (1, 3) => weight_gradient::<U, T, 1, 3, L>(g, x, 0, 0, geo, lat, gw),
+        (1, 5) => weight_gradient::<U, T, 1, 5, L>(g, x, 0, 0, geo, lat, gw),
+        _ => {
+            for (k, &off) in offsets.iter().enumerate() {
+                weight_gradient::<U, T, 1, 1, L>(g, x, off, k, geo, lat, gw);
+            }
+        }
+    }
+}
+
 /// Adds (or writes, with `add` false) the valid cells of `rows` (`channels` rows
-/// of `lat.span` flat cells) into the field `field` (`channels · H · W` values).
-fn unflatten<T: Real>(geo: &Geometry, lat: &Lattice, rows: &[T], field: &mut [T], add: bool) {
+/// of `lat.span` flat cells, in the compute type) into the field `field`
+/// (`channels · H · W` values).
+fn unflatten<U: Real, T: Real>(
+    geo: &Geometry,
+    lat: &Lattice,
+    rows: &[U],
+    field: &mut [T],
+    add: bool,
+) {
     let (h, w) = (geo.height, geo.width);
     for (c, dst) in field.chunks_exact_mut(h * w).enumerate() {
         for i in 0..h {
             let src = &rows[c * lat.span + i * lat.pw..][..w];
             let dst = &mut dst[i * w..(i + 1) * w];
             if add {
-                dst.iter_mut().zip(src).for_each(|(d, &s)| *d += s);
+                dst.iter_mut().zip(src).for_each(|(d, &s)| *d += to(s));
             } else {
-                dst.copy_from_slice(src);
+                dst.iter_mut().zip(src).for_each(|(d, &s)| *d = to(s));
             }
         }
     }
 }
 
-/// The convolution `y = w ⋆ x + bias` (see the module docs). `name` labels errors.
+/// The convolution `y = w ⋆ x + bias` (see the module docs), computed in
+/// `arithmetic`. `name` labels errors.
 ///
 /// # Errors
 /// [`TapeError::InvalidArgument`] or [`TapeError::ShapeMismatch`] naming `name` if
@@ -331,49 +396,72 @@ pub fn conv_forward<T: Real>(
     w: ArrayViewD<'_, T>,
     bias: ArrayViewD<'_, T>,
     padding: Padding,
+    arithmetic: Arithmetic,
 ) -> Result<ArrayD<T>> {
     let geo = Geometry::of(name, x.shape(), w.shape(), bias.shape())?;
     let x = x.as_standard_layout();
     let x = x.as_slice().expect("standard layout");
     let w = w.as_standard_layout();
+    let w = w.as_slice().expect("standard layout");
     let bias = bias.as_standard_layout();
-    let lat = Lattice::of(&geo);
-    let offsets = lat.offsets(&geo);
+    let bias = bias.as_slice().expect("standard layout");
+    let out = match arithmetic {
+        Arithmetic::Native => forward_in::<T, T>(&geo, padding, x, w, bias),
+        Arithmetic::Single => forward_in::<T, f32>(&geo, padding, x, w, bias),
+    };
+    ArrayD::from_shape_vec(IxDyn(&geo.shape(geo.c_out)), out)
+        .map_err(|e| TapeError::invalid(name, e.to_string()))
+}
+
+/// The forward convolution's values, computed in `U`.
+fn forward_in<T: Real, U: Real>(
+    geo: &Geometry,
+    padding: Padding,
+    x: &[T],
+    w: &[T],
+    bias: &[T],
+) -> Vec<T> {
+    let lat = Lattice::of(geo);
+    let offsets = lat.offsets(geo);
+    let w: Vec<U> = w.iter().map(|&v| to(v)).collect();
+    let bias: Vec<U> = bias.iter().map(|&v| to(v)).collect();
     let correlation = Correlation {
-        w: w.as_slice().expect("standard layout"),
-        bias: Some(bias.as_slice().expect("standard layout")),
+        w: &w,
+        bias: Some(&bias),
         offsets: &offsets,
         c_in: geo.c_in,
         c_out: geo.c_out,
         lat,
     };
     let mut out = vec![T::zero(); geo.batch * geo.c_out * geo.cells()];
-    let mut padded = vec![T::zero(); geo.c_in * lat.plane];
-    let mut rows = vec![T::zero(); geo.c_out * lat.span];
+    let mut padded = vec![U::zero(); geo.c_in * lat.plane];
+    let mut rows = vec![U::zero(); geo.c_out * lat.span];
     let in_len = geo.c_in * geo.cells();
     let out_len = geo.c_out * geo.cells();
     for b in 0..geo.batch {
         lat.pad(
-            &geo,
+            geo,
             padding,
             geo.c_in,
             &x[b * in_len..][..in_len],
             &mut padded,
         );
         correlation.run(&padded, &mut rows);
-        unflatten(&geo, &lat, &rows, &mut out[b * out_len..][..out_len], false);
+        unflatten(geo, &lat, &rows, &mut out[b * out_len..][..out_len], false);
     }
-    ArrayD::from_shape_vec(IxDyn(&geo.shape(geo.c_out)), out)
-        .map_err(|e| TapeError::invalid(name, e.to_string()))
+    out
 }
 
+/// The gradients of one convolution's inputs, each where it was asked for.
+type ConvGradients<T> = (Option<ArrayD<T>>, Option<ArrayD<T>>, Option<ArrayD<T>>);
+
 /// The gradients of the convolution's inputs `(x, w, bias)` from `grad_y`, each
-/// computed only where `needs` asks (see the module docs for the formulas).
+/// computed only where `needs` asks (see the module docs for the formulas), in
+/// `arithmetic` (`∂L/∂bias`, a plain sum of `grad_y`, always in `T`).
 ///
 /// # Errors
 /// As [`conv_forward`], and [`TapeError::ShapeMismatch`] if `grad_y` does not have
 /// the output's shape.
-#[allow(clippy::type_complexity)]
 pub fn conv_vjp<T: Real>(
     name: &str,
     x: ArrayViewD<'_, T>,
@@ -381,7 +469,8 @@ pub fn conv_vjp<T: Real>(
     grad_y: ArrayViewD<'_, T>,
     padding: Padding,
     needs: [bool; 3],
-) -> Result<(Option<ArrayD<T>>, Option<ArrayD<T>>, Option<ArrayD<T>>)> {
+    arithmetic: Arithmetic,
+) -> Result<ConvGradients<T>> {
     let c_out = w.shape().first().copied().unwrap_or(0);
     let geo = Geometry::of(name, x.shape(), w.shape(), &[c_out])?;
     let y_shape = geo.shape(geo.c_out);
@@ -395,23 +484,57 @@ pub fn conv_vjp<T: Real>(
     let x = x.as_standard_layout();
     let x = x.as_slice().expect("standard layout");
     let w_std = w.as_standard_layout();
+    let w_flat = w_std.as_slice().expect("standard layout");
     let g = grad_y.as_standard_layout();
     let g = g.as_slice().expect("standard layout");
+    let (grad_x, grad_w) = match arithmetic {
+        Arithmetic::Native => vjp_in::<T, T>(&geo, padding, x, w_flat, g, needs),
+        Arithmetic::Single => vjp_in::<T, f32>(&geo, padding, x, w_flat, g, needs),
+    };
+    let grad_bias = needs[2].then(|| {
+        let mut gb = ndarray::Array1::<T>::zeros(geo.c_out);
+        for g_b in g.chunks_exact(geo.c_out * geo.cells()) {
+            for (o, row) in g_b.chunks_exact(geo.cells()).enumerate() {
+                gb[o] += row.iter().fold(T::zero(), |s, &v| s + v);
+            }
+        }
+        gb.into_dyn()
+    });
+    let grad_x = grad_x
+        .map(|v| ArrayD::from_shape_vec(IxDyn(&geo.shape(geo.c_in)), v))
+        .transpose()
+        .map_err(|e| TapeError::invalid(name, e.to_string()))?;
+    let grad_w = grad_w
+        .map(|m| m.into_shape_with_order(IxDyn(w.shape())))
+        .transpose()
+        .map_err(|e| TapeError::invalid(name, e.to_string()))?;
+    Ok((grad_x, grad_w, grad_bias))
+}
+
+/// `∂L/∂x` (flat) and `∂L/∂w` (`[c_out, c_in · taps]`) where `needs` asks,
+/// computed in `U`.
+fn vjp_in<T: Real, U: Real>(
+    geo: &Geometry,
+    padding: Padding,
+    x: &[T],
+    w: &[T],
+    g: &[T],
+    needs: [bool; 3],
+) -> (Option<Vec<T>>, Option<Array2<T>>) {
     let in_len = geo.c_in * geo.cells();
     let out_len = geo.c_out * geo.cells();
-    let lat = Lattice::of(&geo);
-    let offsets = lat.offsets(&geo);
+    let lat = Lattice::of(geo);
+    let offsets = lat.offsets(geo);
     let taps = offsets.len();
 
     // ∂L/∂x correlates g with the kernel flipped in space and transposed in
     // channels: w'[c, o, k] = w[o, c, taps − 1 − k].
-    let w_flat = w_std.as_slice().expect("standard layout");
-    let mut flipped = vec![T::zero(); geo.c_in * geo.c_out * taps];
+    let mut flipped = vec![U::zero(); geo.c_in * geo.c_out * taps];
     for o in 0..geo.c_out {
         for c in 0..geo.c_in {
             for k in 0..taps {
                 flipped[(c * geo.c_out + o) * taps + taps - 1 - k] =
-                    w_flat[(o * geo.c_in + c) * taps + k];
+                    to(w[(o * geo.c_in + c) * taps + k]);
             }
         }
     }
@@ -426,18 +549,24 @@ pub fn conv_vjp<T: Real>(
 
     let mut grad_x = needs[0].then(|| vec![T::zero(); x.len()]);
     let mut grad_w = needs[1].then(|| Array2::<T>::zeros((geo.c_out, geo.taps())));
-    let mut grad_bias = needs[2].then(|| ndarray::Array1::<T>::zeros(geo.c_out));
-    let mut padded_x = vec![T::zero(); geo.c_in * lat.plane];
-    let mut padded_g = vec![T::zero(); geo.c_out * lat.plane];
-    let mut flat_g = vec![T::zero(); geo.c_out * lat.span];
-    let mut rows = vec![T::zero(); geo.c_in * lat.span];
+    let scratch = |n: usize, needed: bool| {
+        if needed {
+            vec![U::zero(); n]
+        } else {
+            Vec::new()
+        }
+    };
+    let mut padded_x = scratch(geo.c_in * lat.plane, needs[1]);
+    let mut flat_g = scratch(geo.c_out * lat.span, needs[1]);
+    let mut padded_g = scratch(geo.c_out * lat.plane, needs[0]);
+    let mut rows = scratch(geo.c_in * lat.span, needs[0]);
     for b in 0..geo.batch {
         let g_b = &g[b * out_len..][..out_len];
         if let Some(gw) = grad_w.as_mut() {
             // ∂L/∂w[o, c, k] = Σ_t g[o, t] · x̃[c, t + offsets[k]] over the flat
             // cells, g zero on the dropped columns: one product per tap.
             lat.pad(
-                &geo,
+                geo,
                 padding,
                 geo.c_in,
                 &x[b * in_len..][..in_len],
@@ -445,43 +574,26 @@ pub fn conv_vjp<T: Real>(
             );
             for (o, row) in g_b.chunks_exact(geo.cells()).enumerate() {
                 let dst = &mut flat_g[o * lat.span..(o + 1) * lat.span];
-                dst.fill(T::zero());
+                dst.fill(U::zero());
                 for (i, src) in row.chunks_exact(geo.width).enumerate() {
-                    dst[i * lat.pw..][..geo.width].copy_from_slice(src);
-                }
-            }
-            let (g, x) = (&flat_g, &padded_x);
-            match (geo.k_y, geo.k_x) {
-                (3, 3) => weight_gradient::<T, 3, 3>(g, x, 0, 0, &geo, &lat, gw),
-                (1, 3) => weight_gradient::<T, 1, 3>(g, x, 0, 0, &geo, &lat, gw),
-                (1, 5) => weight_gradient::<T, 1, 5>(g, x, 0, 0, &geo, &lat, gw),
-                _ => {
-                    for (k, &off) in offsets.iter().enumerate() {
-                        weight_gradient::<T, 1, 1>(g, x, off, k, &geo, &lat, gw);
+                    for (d, &v) in dst[i * lat.pw..][..geo.width].iter_mut().zip(src) {
+                        *d = to(v);
                     }
                 }
             }
-        }
-        if let Some(gb) = grad_bias.as_mut() {
-            for (o, row) in g_b.chunks_exact(geo.cells()).enumerate() {
-                gb[o] += row.iter().fold(T::zero(), |s, &v| s + v);
+            if size_of::<U>() == size_of::<f32>() {
+                weight_gradients::<U, T, CELLS_F32>(&flat_g, &padded_x, &offsets, geo, &lat, gw);
+            } else {
+                weight_gradients::<U, T, CELLS_F64>(&flat_g, &padded_x, &offsets, geo, &lat, gw);
             }
         }
         if let Some(gx) = grad_x.as_mut() {
-            lat.pad(&geo, padding, geo.c_out, g_b, &mut padded_g);
+            lat.pad(geo, padding, geo.c_out, g_b, &mut padded_g);
             adjoint.run(&padded_g, &mut rows);
-            unflatten(&geo, &lat, &rows, &mut gx[b * in_len..][..in_len], true);
+            unflatten(geo, &lat, &rows, &mut gx[b * in_len..][..in_len], true);
         }
     }
-    let grad_x = grad_x
-        .map(|v| ArrayD::from_shape_vec(IxDyn(&geo.shape(geo.c_in)), v))
-        .transpose()
-        .map_err(|e| TapeError::invalid(name, e.to_string()))?;
-    let grad_w = grad_w
-        .map(|m| m.into_shape_with_order(IxDyn(w.shape())))
-        .transpose()
-        .map_err(|e| TapeError::invalid(name, e.to_string()))?;
-    Ok((grad_x, grad_w, grad_bias.map(|b| b.into_dyn())))
+    (grad_x, grad_w)
 }
 
 /// The convolution as a tape op over inputs `(x, w, bias)`; see the module docs.
@@ -492,6 +604,8 @@ pub struct ConvOp {
     pub name: String,
     /// The padding rule.
     pub padding: Padding,
+    /// The arithmetic of the products and sums.
+    pub arithmetic: Arithmetic,
 }
 
 impl<T: Real> Op<T> for ConvOp {
@@ -507,6 +621,7 @@ impl<T: Real> Op<T> for ConvOp {
             inputs[1].view(),
             inputs[2].view(),
             self.padding,
+            self.arithmetic,
         )?])
     }
 
@@ -518,6 +633,7 @@ impl<T: Real> Op<T> for ConvOp {
             args.grad_out().view(),
             self.padding,
             [args.needs(0), args.needs(1), args.needs(2)],
+            self.arithmetic,
         )?;
         Ok(vec![gx, gw, gb])
     }

@@ -4,7 +4,7 @@
 use diffphys_tape::{Real, Result, Var};
 use rand::Rng;
 
-use crate::conv::{ConvOp, Padding};
+use crate::conv::{Arithmetic, ConvOp, Padding};
 use crate::dense::DenseOp;
 use crate::params::{Bound, Init, ParamId, Params, Scalar};
 use crate::resample::{Direction, Resample};
@@ -116,6 +116,7 @@ impl<T: Real> Layer<T> for Dense {
 struct Conv {
     name: String,
     padding: Padding,
+    arithmetic: Arithmetic,
     weight: ParamId,
     bias: ParamId,
 }
@@ -174,6 +175,7 @@ impl Conv {
         Ok(Conv {
             name: format!("{kind} {name:?}"),
             padding,
+            arithmetic: Arithmetic::Native,
             weight,
             bias,
         })
@@ -183,6 +185,7 @@ impl Conv {
         let op = ConvOp {
             name: self.name.clone(),
             padding: self.padding,
+            arithmetic: self.arithmetic,
         };
         x.tape()
             .apply(op, &[x, params.get(self.weight), params.get(self.bias)])
@@ -207,6 +210,14 @@ impl Conv1 {
         rng: &mut impl Rng,
     ) -> crate::Result<Self> {
         Conv::new(params, "conv1d", name, 1, config, rng).map(Conv1)
+    }
+
+    /// The layer computing in `arithmetic` (new layers compute in
+    /// [`Arithmetic::Native`]).
+    #[must_use]
+    pub fn with_arithmetic(mut self, arithmetic: Arithmetic) -> Self {
+        self.0.arithmetic = arithmetic;
+        self
     }
 }
 
@@ -233,6 +244,14 @@ impl Conv2 {
         rng: &mut impl Rng,
     ) -> crate::Result<Self> {
         Conv::new(params, "conv2d", name, 2, config, rng).map(Conv2)
+    }
+
+    /// The layer computing in `arithmetic` (new layers compute in
+    /// [`Arithmetic::Native`]).
+    #[must_use]
+    pub fn with_arithmetic(mut self, arithmetic: Arithmetic) -> Self {
+        self.0.arithmetic = arithmetic;
+        self
     }
 }
 

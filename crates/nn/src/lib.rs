@@ -51,7 +51,7 @@ mod sequential;
 mod train;
 mod unet;
 
-pub use conv::{ConvOp, Padding};
+pub use conv::{Arithmetic, ConvOp, Padding};
 pub use error::{NnError, Result};
 pub use layers::{Activation, AvgPool2x, Conv1, Conv2, ConvConfig, Dense, Layer, Upsample2x};
 pub use params::{Bound, Init, ParamId, Params, Scalar};

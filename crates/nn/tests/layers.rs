@@ -6,7 +6,9 @@ use diffphys_nn::conv::{conv_forward, conv_vjp};
 use diffphys_nn::dense::dense_forward;
 use diffphys_nn::reference::conv_from_primitives;
 use diffphys_nn::resample::{resample_adjoint, resample_forward, Direction};
-use diffphys_nn::{Activation, Bound, ConvOp, Layer, Padding, Params, UNet, UNetConfig};
+use diffphys_nn::{
+    Activation, Arithmetic, Bound, ConvOp, Layer, Padding, Params, UNet, UNetConfig,
+};
 use diffphys_tape::{
     check_adjoint, check_gradient, test_array, ArrayD, GradCheckOptions, IxDyn, Tape,
 };
@@ -24,28 +26,36 @@ fn f64_options() -> GradCheckOptions {
     GradCheckOptions::for_type::<f64>()
 }
 
-fn conv_op(padding: Padding) -> ConvOp {
+fn conv_op(padding: Padding, arithmetic: Arithmetic) -> ConvOp {
     ConvOp {
         name: "conv".into(),
         padding,
+        arithmetic,
     }
+}
+
+/// The shapes the convolution's checks run on: 1D, 2D with a 3 × 3 kernel (the
+/// specialised paths) and 2D with a 1 × 5 kernel (one pass per tap), output
+/// channel counts that are not a multiple of the kernel's block of 4.
+fn conv_shapes() -> [(Vec<usize>, Vec<usize>); 3] {
+    [
+        (vec![2, 2, 7], vec![3, 2, 3]),
+        (vec![2, 2, 5, 4], vec![3, 2, 3, 3]),
+        (vec![1, 1, 3, 6], vec![2, 1, 1, 5]),
+    ]
 }
 
 #[test]
 fn conv_passes_finite_differences_in_1d_and_2d_for_both_paddings() {
     for padding in [Padding::Zero, Padding::Periodic] {
-        for (x_shape, w_shape) in [
-            (vec![2, 2, 7], vec![3, 2, 3]),
-            (vec![2, 2, 5, 4], vec![3, 2, 3, 3]),
-            (vec![1, 1, 3, 6], vec![2, 1, 1, 5]),
-        ] {
+        for (x_shape, w_shape) in conv_shapes() {
             let inputs = [
                 test_array::<f64>(&x_shape, 1),
                 test_array::<f64>(&w_shape, 2),
                 test_array::<f64>(&[w_shape[0]], 3),
             ];
             let report = check_gradient(
-                |t, v| t.apply(conv_op(padding), &[v[0], v[1], v[2]]),
+                |t, v| t.apply(conv_op(padding, Arithmetic::Native), &[v[0], v[1], v[2]]),
                 &inputs,
                 f64_options(),
             )
@@ -57,18 +67,27 @@ fn conv_passes_finite_differences_in_1d_and_2d_for_both_paddings() {
 
 #[test]
 fn conv_is_linear_in_x_and_in_w_with_adjoints_that_pass_the_dot_product_test() {
+    use Arithmetic::Native;
     for padding in [Padding::Zero, Padding::Periodic] {
         let w = test_array::<f64>(&[3, 2, 3, 5], 4);
         let x = test_array::<f64>(&[2, 2, 6, 7], 5);
         let zero_bias = ArrayD::zeros(ndarray::IxDyn(&[3]));
         let y = test_array::<f64>(&[2, 3, 6, 7], 6);
         let in_x = check_adjoint(
-            |x| conv_forward("conv", x, w.view(), zero_bias.view(), padding).unwrap(),
+            |x| conv_forward("conv", x, w.view(), zero_bias.view(), padding, Native).unwrap(),
             |g| {
-                conv_vjp("conv", x.view(), w.view(), g, padding, [true, false, false])
-                    .unwrap()
-                    .0
-                    .unwrap()
+                conv_vjp(
+                    "conv",
+                    x.view(),
+                    w.view(),
+                    g,
+                    padding,
+                    [true, false, false],
+                    Native,
+                )
+                .unwrap()
+                .0
+                .unwrap()
             },
             x.view(),
             y.view(),
@@ -76,12 +95,20 @@ fn conv_is_linear_in_x_and_in_w_with_adjoints_that_pass_the_dot_product_test() {
         .unwrap();
         assert!(in_x.passes(1e-14), "{in_x:?}");
         let in_w = check_adjoint(
-            |w| conv_forward("conv", x.view(), w, zero_bias.view(), padding).unwrap(),
+            |w| conv_forward("conv", x.view(), w, zero_bias.view(), padding, Native).unwrap(),
             |g| {
-                conv_vjp("conv", x.view(), w.view(), g, padding, [false, true, false])
-                    .unwrap()
-                    .1
-                    .unwrap()
+                conv_vjp(
+                    "conv",
+                    x.view(),
+                    w.view(),
+                    g,
+                    padding,
+                    [false, true, false],
+                    Native,
+                )
+                .unwrap()
+                .1
+                .unwrap()
             },
             w.view(),
             y.view(),
@@ -112,7 +139,8 @@ fn conv_matches_the_chain_of_primitives_in_value_and_gradient() {
                 let w = tape.var(test_array(&w_shape, 8));
                 let b = tape.var(test_array(&[4], 10));
                 let y = if fused {
-                    tape.apply(conv_op(padding), &[x, w, b]).unwrap()
+                    tape.apply(conv_op(padding, Arithmetic::Native), &[x, w, b])
+                        .unwrap()
                 } else {
                     conv_from_primitives(x, w, b, padding).unwrap()
                 };
@@ -145,6 +173,105 @@ fn conv_matches_the_chain_of_primitives_in_value_and_gradient() {
             assert_eq!(sf.nodes, 1);
             assert!(sp.nodes > 3 * w_shape[2]);
             assert!(sf.bytes < sp.bytes);
+        }
+    }
+}
+
+#[test]
+fn conv_in_single_arithmetic_passes_finite_differences_with_a_step_its_linearity_allows() {
+    // The op is linear in each input, so a central difference is exact at any
+    // step: a step of 0.5 keeps f32's rounding (~1e-7 of the output) far below
+    // the tolerance, which an f64 step of ~1e-5 would not.
+    let options = GradCheckOptions {
+        rel_tol: 1e-4,
+        abs_tol: 1e-6,
+        step: Some(0.5),
+    };
+    for padding in [Padding::Zero, Padding::Periodic] {
+        for (x_shape, w_shape) in conv_shapes() {
+            let inputs = [
+                test_array::<f64>(&x_shape, 1),
+                test_array::<f64>(&w_shape, 2),
+                test_array::<f64>(&[w_shape[0]], 3),
+            ];
+            let report = check_gradient(
+                |t, v| t.apply(conv_op(padding, Arithmetic::Single), &[v[0], v[1], v[2]]),
+                &inputs,
+                options,
+            )
+            .unwrap();
+            assert!(report.passed, "{padding:?} {x_shape:?}: {report:?}");
+        }
+    }
+}
+
+#[test]
+fn conv_in_single_arithmetic_passes_the_dot_product_test_and_agrees_with_native_to_f32_rounding() {
+    use Arithmetic::{Native, Single};
+    for padding in [Padding::Zero, Padding::Periodic] {
+        for (x_shape, w_shape) in conv_shapes() {
+            let x = test_array::<f64>(&x_shape, 5);
+            let w = test_array::<f64>(&w_shape, 4);
+            let bias = test_array::<f64>(&[w_shape[0]], 3);
+            let zero_bias = ArrayD::zeros(IxDyn(&[w_shape[0]]));
+            let y_shape: Vec<usize> = [x_shape[0], w_shape[0]]
+                .iter()
+                .chain(&x_shape[2..])
+                .copied()
+                .collect();
+            let y = test_array::<f64>(&y_shape, 6);
+            let in_x = check_adjoint(
+                |x| conv_forward("conv", x, w.view(), zero_bias.view(), padding, Single).unwrap(),
+                |g| {
+                    let grads = conv_vjp("conv", x.view(), w.view(), g, padding, [true; 3], Single);
+                    grads.unwrap().0.unwrap()
+                },
+                x.view(),
+                y.view(),
+            )
+            .unwrap();
+            assert!(in_x.passes(1e-6), "{padding:?} {x_shape:?}: {in_x:?}");
+            let in_w = check_adjoint(
+                |w| conv_forward("conv", x.view(), w, zero_bias.view(), padding, Single).unwrap(),
+                |g| {
+                    let grads = conv_vjp("conv", x.view(), w.view(), g, padding, [true; 3], Single);
+                    grads.unwrap().1.unwrap()
+                },
+                w.view(),
+                y.view(),
+            )
+            .unwrap();
+            assert!(in_w.passes(1e-6), "{padding:?} {x_shape:?}: {in_w:?}");
+
+            // Against the f64 kernel: within f32's rounding, and not equal (the
+            // products really ran in f32).
+            let relative = |a: &ArrayD<f64>, b: &ArrayD<f64>| {
+                let scale = b.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
+                a.iter()
+                    .zip(b)
+                    .fold(0.0_f64, |m, (p, q)| m.max((p - q).abs()))
+                    / scale
+            };
+            let forward = |a| conv_forward("conv", x.view(), w.view(), bias.view(), padding, a);
+            let (single, native) = (forward(Single).unwrap(), forward(Native).unwrap());
+            let gap = relative(&single, &native);
+            assert!(
+                gap > 0.0 && gap < 1e-6,
+                "{padding:?} {x_shape:?} values: {gap:e}"
+            );
+            let vjp = |a| conv_vjp("conv", x.view(), w.view(), y.view(), padding, [true; 3], a);
+            let (single, native) = (vjp(Single).unwrap(), vjp(Native).unwrap());
+            for (k, (s, n)) in [
+                (single.0, native.0),
+                (single.1, native.1),
+                (single.2, native.2),
+            ]
+            .into_iter()
+            .enumerate()
+            {
+                let gap = relative(&s.unwrap(), &n.unwrap());
+                assert!(gap < 1e-6, "{padding:?} {x_shape:?} gradient {k}: {gap:e}");
+            }
         }
     }
 }

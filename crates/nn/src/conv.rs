@@ -150,11 +150,16 @@ pub enum Arithmetic {
     Single,
 }
 
-/// Output cells one block computes together in `f64` (one 8-lane vector with
-/// AVX-512, two with AVX2).
-const CELLS_F64: usize = 8;
-/// Output cells one block computes together in `f32` (the same vector width).
-const CELLS_F32: usize = 16;
+/// Lanes of one 512-bit vector register in `f64`: the lanes of the weight
+/// gradient's sums (two registers with AVX2).
+const LANES_F64: usize = 8;
+/// Lanes of one 512-bit vector register in `f32`.
+const LANES_F32: usize = 16;
+/// Vectors of output cells one correlation block computes together. With
+/// [`CHANNELS`] output channels that is 8 sums in registers, and each tap loads
+/// 2 input vectors and 4 weights for 8 vector products: more arithmetic than
+/// loads, which one vector of cells (1 + 4 loads for 4 products) is not.
+const VECTORS: usize = 2;
 /// Output channels one block computes together.
 const CHANNELS: usize = 4;
 
@@ -184,7 +189,7 @@ struct Lattice {
 impl Lattice {
     fn of(geo: &Geometry) -> Self {
         let pw = geo.width + geo.k_x - 1;
-        let span = (geo.height * pw).div_ceil(CELLS_F32) * CELLS_F32;
+        let span = (geo.height * pw).div_ceil(LANES_F32 * VECTORS) * LANES_F32 * VECTORS;
         Lattice {
             pw,
             span,
@@ -249,9 +254,9 @@ struct Correlation<'a, U> {
 impl<U: Real> Correlation<'_, U> {
     fn run(&self, x: &[U], out: &mut [U]) {
         if size_of::<U>() == size_of::<f32>() {
-            self.run_in::<CELLS_F32>(x, out);
+            self.run_in::<{ LANES_F32 * VECTORS }>(x, out);
         } else {
-            self.run_in::<CELLS_F64>(x, out);
+            self.run_in::<{ LANES_F64 * VECTORS }>(x, out);
         }
     }
 
@@ -297,41 +302,55 @@ impl<U: Real> Correlation<'_, U> {
 }
 
 /// Adds `Σ_t g[o, t] · x[c, t + base + p · pw + q]` over the flat cells into
-/// `gw[o, c · taps + first + p · KX + q]` for the `KY × KX` taps `(p, q)`, the
-/// sums held in registers `L` lanes wide in the compute type `U` (`g` holds
-/// `c_out` rows of `span`, zero on the dropped columns; `x` holds `c_in`
-/// planes). The common kernels (3 × 3, and 3 and 5 in 1D) are one call; any
-/// other is one call per tap with `KY = KX = 1`.
+/// `gw[o, c · taps + first + p · KX + q]` for the output channels `o0..o0 + OB`
+/// and the `KY × KX` taps `(p, q)`, the sums held in registers `L` lanes wide
+/// in the compute type `U` (`g` holds `c_out` rows of `span`, zero on the
+/// dropped columns; `x` holds `c_in` planes). Two output channels share each
+/// load of `x`. The common kernels (3 × 3, and 3 and 5 in 1D) are one call;
+/// any other is one call per tap with `KY = KX = 1`.
 #[allow(clippy::too_many_arguments)]
-fn weight_gradient<U: Real, T: Real, const KY: usize, const KX: usize, const L: usize>(
+fn weight_gradient<
+    U: Real,
+    T: Real,
+    const OB: usize,
+    const KY: usize,
+    const KX: usize,
+    const L: usize,
+>(
     g: &[U],
     x: &[U],
     base: usize,
     first: usize,
+    o0: usize,
     geo: &Geometry,
     lat: &Lattice,
     gw: &mut Array2<T>,
 ) {
     let taps = geo.k_y * geo.k_x;
     let pw = lat.pw;
-    for (o, g_o) in g.chunks_exact(lat.span).enumerate() {
-        for c in 0..geo.c_in {
-            let x_c = &x[c * lat.plane + base..(c + 1) * lat.plane];
-            let mut acc = [[[U::zero(); L]; KX]; KY];
-            for t0 in (0..lat.span).step_by(L) {
-                let gs: &[U; L] = g_o[t0..t0 + L].try_into().expect("in the row");
-                for (p, acc_p) in acc.iter_mut().enumerate() {
-                    let row = &x_c[t0 + p * pw..][..L + KX - 1];
-                    for (q, a) in acc_p.iter_mut().enumerate() {
+    let g_o: [&[U]; OB] = std::array::from_fn(|k| &g[(o0 + k) * lat.span..][..lat.span]);
+    for c in 0..geo.c_in {
+        let x_c = &x[c * lat.plane + base..(c + 1) * lat.plane];
+        let mut acc = [[[[U::zero(); L]; KX]; KY]; OB];
+        for t0 in (0..lat.span).step_by(L) {
+            let gs: [&[U; L]; OB] =
+                std::array::from_fn(|k| g_o[k][t0..t0 + L].try_into().expect("in the row"));
+            for p in 0..KY {
+                let row = &x_c[t0 + p * pw..][..L + KX - 1];
+                for q in 0..KX {
+                    for (acc_k, gs_k) in acc.iter_mut().zip(&gs) {
+                        let a = &mut acc_k[p][q];
                         for l in 0..L {
-                            a[l] += gs[l] * row[q + l];
+                            a[l] += gs_k[l] * row[q + l];
                         }
                     }
                 }
             }
-            for (p, acc_p) in acc.iter().enumerate() {
+        }
+        for (k, acc_k) in acc.iter().enumerate() {
+            for (p, acc_p) in acc_k.iter().enumerate() {
                 for (q, a) in acc_p.iter().enumerate() {
-                    gw[[o, c * taps + first + p * KX + q]] +=
+                    gw[[o0 + k, c * taps + first + p * KX + q]] +=
                         to(a.iter().fold(U::zero(), |s, &v| s + v));
                 }
             }
@@ -339,7 +358,32 @@ fn weight_gradient<U: Real, T: Real, const KY: usize, const KX: usize, const L: 
     }
 }
 
-/// [`weight_gradient`] for every tap of the kernel, `L` lanes wide.
+/// [`weight_gradient`] for every tap of the kernel and the output channels
+/// `o0..o0 + OB`, `L` lanes wide.
+#[allow(clippy::too_many_arguments)]
+fn weight_gradient_taps<U: Real, T: Real, const OB: usize, const L: usize>(
+    g: &[U],
+    x: &[U],
+    offsets: &[usize],
+    o0: usize,
+    geo: &Geometry,
+    lat: &Lattice,
+    gw: &mut Array2<T>,
+) {
+    match (geo.k_y, geo.k_x) {
+        (3, 3) => weight_gradient::<U, T, OB, 3, 3, L>(g, x, 0, 0, o0, geo, lat, gw),
+        (1, 3) => weight_gradient::<U, T, OB, 1, 3, L>(g, x, 0, 0, o0, geo, lat, gw),
+        (1, 5) => weight_gradient::<U, T, OB, 1, 5, L>(g, x, 0, 0, o0, geo, lat, gw),
+        _ => {
+            for (k, &off) in offsets.iter().enumerate() {
+                weight_gradient::<U, T, OB, 1, 1, L>(g, x, off, k, o0, geo, lat, gw);
+            }
+        }
+    }
+}
+
+/// [`weight_gradient`] for every tap and output channel, two channels at a
+/// time, `L` lanes wide.
 fn weight_gradients<U: Real, T: Real, const L: usize>(
     g: &[U],
     x: &[U],
@@ -348,15 +392,12 @@ fn weight_gradients<U: Real, T: Real, const L: usize>(
     lat: &Lattice,
     gw: &mut Array2<T>,
 ) {
-    match (geo.k_y, geo.k_x) {
-        (3, 3) => weight_gradient::<U, T, 3, 3, L>(g, x, 0, 0, geo, lat, gw),
-        (1, 3) => weight_gradient::<U, T, 1, 3, L>(g, x, 0, 0, geo, lat, gw),
-        (1, 5) => weight_gradient::<U, T, 1, 5, L>(g, x, 0, 0, geo, lat, gw),
-        _ => {
-            for (k, &off) in offsets.iter().enumerate() {
-                weight_gradient::<U, T, 1, 1, L>(g, x, off, k, geo, lat, gw);
-            }
-        }
+    let pairs = geo.c_out / 2 * 2;
+    for o0 in (0..pairs).step_by(2) {
+        weight_gradient_taps::<U, T, 2, L>(g, x, offsets, o0, geo, lat, gw);
+    }
+    for o0 in pairs..geo.c_out {
+        weight_gradient_taps::<U, T, 1, L>(g, x, offsets, o0, geo, lat, gw);
     }
 }
 
@@ -582,9 +623,9 @@ fn vjp_in<T: Real, U: Real>(
                 }
             }
             if size_of::<U>() == size_of::<f32>() {
-                weight_gradients::<U, T, CELLS_F32>(&flat_g, &padded_x, &offsets, geo, &lat, gw);
+                weight_gradients::<U, T, LANES_F32>(&flat_g, &padded_x, &offsets, geo, &lat, gw);
             } else {
-                weight_gradients::<U, T, CELLS_F64>(&flat_g, &padded_x, &offsets, geo, &lat, gw);
+                weight_gradients::<U, T, LANES_F64>(&flat_g, &padded_x, &offsets, geo, &lat, gw);
             }
         }
         if let Some(gx) = grad_x.as_mut() {

@@ -34,19 +34,22 @@ fn conv_op(padding: Padding, arithmetic: Arithmetic) -> ConvOp {
     }
 }
 
-/// The shapes the convolution's checks run on: 1D, 2D with a 3 × 3 kernel (the
-/// specialised paths) and 2D with a 1 × 5 kernel (one pass per tap), output
-/// channel counts that are not a multiple of the kernel's block of 4.
-fn conv_shapes() -> [(Vec<usize>, Vec<usize>); 3] {
+/// The shapes the convolution's checks run on: 1D, 2D with a 3 × 3 and a 1 × 5
+/// kernel (the weight gradient's specialised paths) and with a 3 × 5 kernel
+/// (one pass per tap); output channel counts that are not a multiple of the
+/// correlation's block of 4, odd ones leaving the weight gradient's pairs a
+/// single channel.
+fn conv_shapes() -> [(Vec<usize>, Vec<usize>); 4] {
     [
         (vec![2, 2, 7], vec![3, 2, 3]),
         (vec![2, 2, 5, 4], vec![3, 2, 3, 3]),
         (vec![1, 1, 3, 6], vec![2, 1, 1, 5]),
+        (vec![1, 2, 4, 6], vec![3, 2, 3, 5]),
     ]
 }
 
-#[test]
-fn conv_passes_finite_differences_in_1d_and_2d_for_both_paddings() {
+/// Every shape of [`conv_shapes`] in both paddings against finite differences.
+fn conv_passes_finite_differences(arithmetic: Arithmetic, options: GradCheckOptions) {
     for padding in [Padding::Zero, Padding::Periodic] {
         for (x_shape, w_shape) in conv_shapes() {
             let inputs = [
@@ -55,14 +58,22 @@ fn conv_passes_finite_differences_in_1d_and_2d_for_both_paddings() {
                 test_array::<f64>(&[w_shape[0]], 3),
             ];
             let report = check_gradient(
-                |t, v| t.apply(conv_op(padding, Arithmetic::Native), &[v[0], v[1], v[2]]),
+                |t, v| t.apply(conv_op(padding, arithmetic), &[v[0], v[1], v[2]]),
                 &inputs,
-                f64_options(),
+                options,
             )
             .unwrap();
-            assert!(report.passed, "{padding:?} {x_shape:?}: {report:?}");
+            assert!(
+                report.passed,
+                "{arithmetic:?} {padding:?} {x_shape:?}: {report:?}"
+            );
         }
     }
+}
+
+#[test]
+fn conv_passes_finite_differences_in_1d_and_2d_for_both_paddings() {
+    conv_passes_finite_differences(Arithmetic::Native, f64_options());
 }
 
 #[test]
@@ -182,27 +193,14 @@ fn conv_in_single_arithmetic_passes_finite_differences_with_a_step_its_linearity
     // The op is linear in each input, so a central difference is exact at any
     // step: a step of 0.5 keeps f32's rounding (~1e-7 of the output) far below
     // the tolerance, which an f64 step of ~1e-5 would not.
-    let options = GradCheckOptions {
-        rel_tol: 1e-4,
-        abs_tol: 1e-6,
-        step: Some(0.5),
-    };
-    for padding in [Padding::Zero, Padding::Periodic] {
-        for (x_shape, w_shape) in conv_shapes() {
-            let inputs = [
-                test_array::<f64>(&x_shape, 1),
-                test_array::<f64>(&w_shape, 2),
-                test_array::<f64>(&[w_shape[0]], 3),
-            ];
-            let report = check_gradient(
-                |t, v| t.apply(conv_op(padding, Arithmetic::Single), &[v[0], v[1], v[2]]),
-                &inputs,
-                options,
-            )
-            .unwrap();
-            assert!(report.passed, "{padding:?} {x_shape:?}: {report:?}");
-        }
-    }
+    conv_passes_finite_differences(
+        Arithmetic::Single,
+        GradCheckOptions {
+            rel_tol: 1e-4,
+            abs_tol: 1e-6,
+            step: Some(0.5),
+        },
+    );
 }
 
 #[test]

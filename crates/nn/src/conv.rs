@@ -23,7 +23,9 @@
 //! flipped, channel-transposed kernel) run as one loop over blocks of output
 //! cells and channels whose sums stay in vector registers; `∂L/∂w` is a dot
 //! product per tap over the flat cells, its lanes in registers too. No column
-//! matrix is built, and the tape holds only the op's inputs and output.
+//! matrix is built, and the tape holds only the op's inputs and output. The
+//! products and sums run in the tape's type or, with [`Arithmetic::Single`],
+//! in `f32` on any tape.
 //!
 //! # References
 //! K. Chellapilla, S. Puri, P. Simard, *High performance convolutional neural

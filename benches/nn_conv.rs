@@ -1,12 +1,14 @@
 //! `Conv2` forward + backward as the fused op (a register-blocked direct kernel, one
 //! node, adjoint by hand) against the same convolution built from tape
 //! primitives (per kernel tap: roll, broadcast multiply, sum over input
-//! channels, add), at batch 8, 16 → 16 channels, 3×3 kernel, 64² cells, periodic
-//! padding, gradients in the input, the kernel and the bias.
+//! channels, add), and the fused op computing in f32 on the same f64 tape
+//! (`Arithmetic::Single`), at batch 8, 16 → 16 channels, 3×3 kernel, 64²
+//! cells, periodic padding, gradients in the input, the kernel and the bias.
 //!
 //! Run: `cargo bench --bench nn_conv` (`-- --quick` for a short run). Before
-//! timing it prints, for both variants, the tape's peak bytes, the best of five
-//! forward + backward times, their ratios, and the largest gradient difference.
+//! timing it prints, for each variant, the tape's peak bytes, the best of five
+//! forward + backward times, their ratios, and the largest gradient difference
+//! to the fused op in f64.
 
 use std::hint::black_box;
 use std::time::Instant;
@@ -23,7 +25,10 @@ const N: usize = 64;
 
 #[derive(Clone, Copy, Debug)]
 enum Variant {
+    /// The fused op in f64.
     Op,
+    /// The fused op computing in f32 on the f64 tape ([`Arithmetic::Single`]).
+    OpSingle,
     Primitives,
 }
 
@@ -52,11 +57,15 @@ fn run(variant: Variant, inp: &Inputs) -> ([ArrayD<f64>; 3], TapeStats) {
         tape.var(inp.b.clone()),
     );
     let y = match variant {
-        Variant::Op => tape.apply(
+        Variant::Op | Variant::OpSingle => tape.apply(
             ConvOp {
                 name: "conv2d".into(),
                 padding: Padding::Periodic,
-                arithmetic: Arithmetic::Native,
+                arithmetic: if matches!(variant, Variant::Op) {
+                    Arithmetic::Native
+                } else {
+                    Arithmetic::Single
+                },
             },
             &[x, w, b],
         ),
@@ -82,20 +91,25 @@ fn best_seconds(variant: Variant, inp: &Inputs) -> f64 {
 
 fn report(inp: &Inputs) {
     let (g_op, s_op) = run(Variant::Op, inp);
+    let (g_single, _) = run(Variant::OpSingle, inp);
     let (g_prim, s_prim) = run(Variant::Primitives, inp);
-    let diff = g_op
-        .iter()
-        .zip(&g_prim)
-        .flat_map(|(a, b)| a.iter().zip(b).map(|(p, q)| (p - q).abs()))
-        .fold(0.0, f64::max);
-    let (t_op, t_prim) = (
+    let largest_difference = |g: &[ArrayD<f64>; 3]| {
+        g_op.iter()
+            .zip(g)
+            .flat_map(|(a, b)| a.iter().zip(b).map(|(p, q)| (p - q).abs()))
+            .fold(0.0, f64::max)
+    };
+    let (diff, diff_single) = (largest_difference(&g_prim), largest_difference(&g_single));
+    let (t_op, t_single, t_prim) = (
         best_seconds(Variant::Op, inp),
+        best_seconds(Variant::OpSingle, inp),
         best_seconds(Variant::Primitives, inp),
     );
     println!(
         "conv2d batch {BATCH}, {CHANNELS}→{CHANNELS}, {KERNEL}×{KERNEL}, {N}²: op {:.2} ms, {} B, {} nodes; \
          primitives {:.2} ms, {} B, {} nodes; primitives/op time {:.1}, bytes {:.1}; \
-         max |grad difference| {diff:.1e}",
+         max |grad difference| {diff:.1e}; op in f32 {:.2} ms ({:.2}× faster than f64), \
+         max |grad difference| to f64 {diff_single:.1e}",
         t_op * 1e3,
         s_op.peak_bytes,
         s_op.nodes,
@@ -104,6 +118,8 @@ fn report(inp: &Inputs) {
         s_prim.nodes,
         t_prim / t_op,
         s_prim.peak_bytes as f64 / s_op.peak_bytes as f64,
+        t_single * 1e3,
+        t_op / t_single,
     );
 }
 
@@ -113,7 +129,7 @@ fn bench(c: &mut Criterion) {
     let mut group = c.benchmark_group("conv2d_forward_backward");
     group.throughput(Throughput::Elements((BATCH * CHANNELS * N * N) as u64));
     group.sample_size(10);
-    for variant in [Variant::Op, Variant::Primitives] {
+    for variant in [Variant::Op, Variant::OpSingle, Variant::Primitives] {
         group.bench_function(format!("{variant:?}").to_lowercase(), |bench| {
             bench.iter(|| black_box(run(variant, &inp)))
         });

@@ -220,7 +220,7 @@ fn the_coarse_advection_parses_and_an_unknown_one_is_refused() {
 }
 
 #[test]
-fn the_body_and_the_reference_scheme_parse_and_unknown_names_are_refused() {
+fn the_body_the_reference_scheme_and_the_arithmetic_parse_and_unknown_names_are_refused() {
     use wake_flow_scene::{Body, ReferenceScheme};
     let o = options(&[]).unwrap();
     assert_eq!(o.body, Body::Inscribed);
@@ -232,7 +232,14 @@ fn the_body_and_the_reference_scheme_parse_and_unknown_names_are_refused() {
         options(&["--body", "staircase"]).unwrap().body,
         Body::Staircase
     );
-    for (flag, bad) in [("--body", "round"), ("--reference-scheme", "spectral")] {
+    assert_eq!(o.arithmetic, Arithmetic::Single);
+    let o = options(&["--network-arithmetic", "f64"]).unwrap();
+    assert_eq!(o.arithmetic, Arithmetic::Native);
+    for (flag, bad) in [
+        ("--body", "round"),
+        ("--reference-scheme", "spectral"),
+        ("--network-arithmetic", "bf16"),
+    ] {
         match options(&[flag, bad]) {
             Err(WakeError::Argument { option, message }) => {
                 assert_eq!(option, flag);

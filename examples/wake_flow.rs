@@ -309,6 +309,15 @@ fn main() -> Result<(), BoxError> {
     let coarse_scene = uncorrected(&sizes, 1, PressureSolver::Cholesky)?;
     let fine = reference_scene(&sizes)?;
     let coarse = Coarse::new(coarse_scene.clone());
+    // A corrector of `size` on the coarse scene, drawn from training seed `seed`.
+    let new_net = |size: NetSize, seed: u64| {
+        Net::new(
+            &coarse.scene,
+            size,
+            arithmetic,
+            &mut TrainSeed(seed).init_rng(),
+        )
+    };
     let cache = Cache::new(&args.out, &sizes)?;
     // `--iterations N`: N Adam steps of STEP_EVALUATIONS evaluations each.
     let evaluations = args
@@ -338,12 +347,7 @@ fn main() -> Result<(), BoxError> {
     let mut pinned_face_error = serde_json::Map::new();
     let mut params_count = serde_json::Map::new();
     for size in std::iter::once(MAIN_SIZE).chain(options.capacity.iter().copied()) {
-        let (_, p) = Net::new(
-            &coarse.scene,
-            size,
-            arithmetic,
-            &mut TrainSeed(0).init_rng(),
-        )?;
+        let (_, p) = new_net(size, 0)?;
         params_count.insert(size.label(), json!(p.count()));
     }
 
@@ -448,12 +452,7 @@ fn main() -> Result<(), BoxError> {
                 .collect(),
         );
         sigma_used = sigma;
-        let (net0, _) = Net::new(
-            &coarse.scene,
-            MAIN_SIZE,
-            arithmetic,
-            &mut TrainSeed(0).init_rng(),
-        )?;
+        let (net0, _) = new_net(MAIN_SIZE, 0)?;
         let hybrid: Wake = Hybrid::new(coarse.clone(), net0);
         let src_val = rollout(&hybrid, None, &validation, sizes.rollout)?.mean();
         validation_report.add("src", ds, None, src_val);
@@ -690,13 +689,7 @@ fn main() -> Result<(), BoxError> {
                 .collect();
             let runs = parallel(&jobs, threads, |&(m, r)| {
                 let (params, size, seed) = models[m];
-                let (net, _) = Net::new(
-                    &coarse.scene,
-                    size,
-                    arithmetic,
-                    &mut TrainSeed(seed).init_rng(),
-                )
-                .map_err(|e| e.to_string())?;
+                let (net, _) = new_net(size, seed).map_err(|e| e.to_string())?;
                 let h = Hybrid::new(coarse.clone(), net);
                 let run =
                     study::held_out_re(&h, params, &refs[r], &sizes).map_err(|e| e.to_string());
@@ -775,12 +768,7 @@ fn main() -> Result<(), BoxError> {
     let mut pressure = Value::Null;
     if let (true, Some((splits, probe))) = (options.speed, &speed_inputs) {
         let size = probe.as_ref().map_or(MAIN_SIZE, |p| p.1);
-        let (net0, _) = Net::new(
-            &coarse.scene,
-            size,
-            arithmetic,
-            &mut TrainSeed(0).init_rng(),
-        )?;
+        let (net0, _) = new_net(size, 0)?;
         let hybrid: Wake = Hybrid::new(coarse.clone(), net0);
         let params = probe.as_ref().map(|p| &p.0);
         let result = splits.held_out().evaluate_baseline(|refs| {

@@ -10,7 +10,8 @@ use diffphys_nn::{
     Activation, Arithmetic, Bound, ConvOp, Layer, Padding, Params, UNet, UNetConfig,
 };
 use diffphys_tape::{
-    check_adjoint, check_gradient, test_array, ArrayD, GradCheckOptions, IxDyn, Tape,
+    check_adjoint, check_gradient, test_array, AdjointReport, ArrayD, ArrayViewD, GradCheckOptions,
+    IxDyn, Tape,
 };
 use rand::SeedableRng;
 
@@ -78,55 +79,52 @@ fn conv_passes_finite_differences_in_1d_and_2d_for_both_paddings() {
 
 #[test]
 fn conv_is_linear_in_x_and_in_w_with_adjoints_that_pass_the_dot_product_test() {
-    use Arithmetic::Native;
     for padding in [Padding::Zero, Padding::Periodic] {
         let w = test_array::<f64>(&[3, 2, 3, 5], 4);
         let x = test_array::<f64>(&[2, 2, 6, 7], 5);
-        let zero_bias = ArrayD::zeros(ndarray::IxDyn(&[3]));
-        let y = test_array::<f64>(&[2, 3, 6, 7], 6);
-        let in_x = check_adjoint(
-            |x| conv_forward("conv", x, w.view(), zero_bias.view(), padding, Native).unwrap(),
-            |g| {
-                conv_vjp(
-                    "conv",
-                    x.view(),
-                    w.view(),
-                    g,
-                    padding,
-                    [true, false, false],
-                    Native,
-                )
-                .unwrap()
-                .0
-                .unwrap()
-            },
+        let [in_x, in_w] = conv_adjoints(&x, &w, padding, Arithmetic::Native);
+        assert!(in_x.passes(1e-14), "{in_x:?}");
+        assert!(in_w.passes(1e-14), "{in_w:?}");
+    }
+}
+
+/// The dot-product test of the convolution (no bias) in `x` and in `w`, at
+/// `x` and `w`, against a test array of the output's shape.
+fn conv_adjoints(
+    x: &ArrayD<f64>,
+    w: &ArrayD<f64>,
+    padding: Padding,
+    arithmetic: Arithmetic,
+) -> [AdjointReport; 2] {
+    let zero_bias = ArrayD::zeros(IxDyn(&[w.shape()[0]]));
+    let y_shape: Vec<usize> = [x.shape()[0], w.shape()[0]]
+        .iter()
+        .chain(&x.shape()[2..])
+        .copied()
+        .collect();
+    let y = test_array::<f64>(&y_shape, 6);
+    let forward = |x: ArrayViewD<'_, f64>, w: ArrayViewD<'_, f64>| {
+        conv_forward("conv", x, w, zero_bias.view(), padding, arithmetic).unwrap()
+    };
+    let vjp = |g: ArrayViewD<'_, f64>, needs| {
+        conv_vjp("conv", x.view(), w.view(), g, padding, needs, arithmetic).unwrap()
+    };
+    [
+        check_adjoint(
+            |x| forward(x, w.view()),
+            |g| vjp(g, [true, false, false]).0.unwrap(),
             x.view(),
             y.view(),
         )
-        .unwrap();
-        assert!(in_x.passes(1e-14), "{in_x:?}");
-        let in_w = check_adjoint(
-            |w| conv_forward("conv", x.view(), w, zero_bias.view(), padding, Native).unwrap(),
-            |g| {
-                conv_vjp(
-                    "conv",
-                    x.view(),
-                    w.view(),
-                    g,
-                    padding,
-                    [false, true, false],
-                    Native,
-                )
-                .unwrap()
-                .1
-                .unwrap()
-            },
+        .unwrap(),
+        check_adjoint(
+            |w| forward(x.view(), w),
+            |g| vjp(g, [false, true, false]).1.unwrap(),
             w.view(),
             y.view(),
         )
-        .unwrap();
-        assert!(in_w.passes(1e-14), "{in_w:?}");
-    }
+        .unwrap(),
+    ]
 }
 
 #[test]
@@ -211,34 +209,14 @@ fn conv_in_single_arithmetic_passes_the_dot_product_test_and_agrees_with_native_
             let x = test_array::<f64>(&x_shape, 5);
             let w = test_array::<f64>(&w_shape, 4);
             let bias = test_array::<f64>(&[w_shape[0]], 3);
-            let zero_bias = ArrayD::zeros(IxDyn(&[w_shape[0]]));
             let y_shape: Vec<usize> = [x_shape[0], w_shape[0]]
                 .iter()
                 .chain(&x_shape[2..])
                 .copied()
                 .collect();
             let y = test_array::<f64>(&y_shape, 6);
-            let in_x = check_adjoint(
-                |x| conv_forward("conv", x, w.view(), zero_bias.view(), padding, Single).unwrap(),
-                |g| {
-                    let grads = conv_vjp("conv", x.view(), w.view(), g, padding, [true; 3], Single);
-                    grads.unwrap().0.unwrap()
-                },
-                x.view(),
-                y.view(),
-            )
-            .unwrap();
+            let [in_x, in_w] = conv_adjoints(&x, &w, padding, Single);
             assert!(in_x.passes(1e-6), "{padding:?} {x_shape:?}: {in_x:?}");
-            let in_w = check_adjoint(
-                |w| conv_forward("conv", x.view(), w, zero_bias.view(), padding, Single).unwrap(),
-                |g| {
-                    let grads = conv_vjp("conv", x.view(), w.view(), g, padding, [true; 3], Single);
-                    grads.unwrap().1.unwrap()
-                },
-                w.view(),
-                y.view(),
-            )
-            .unwrap();
             assert!(in_w.passes(1e-6), "{padding:?} {x_shape:?}: {in_w:?}");
 
             // Against the f64 kernel: within f32's rounding, and not equal (the

@@ -26,21 +26,24 @@
 //! `--no-speed`, `--coarse-advection`,
 //! `--body cylinder|staircase|inscribed`, `--reference-scheme second-order|coarse`,
 //! `--small` (CI: 16 × 32),
-//! `--out DIR`, `--npy`. Tutorial: docs/11-wake-flow.md. Run:
+//! `--out DIR`, `--npy`. Every trained corrector is saved under
+//! `OUT/models/` with the settings that shaped it; `wake_flow evaluate
+//! --model DIR --held-out-re LIST` evaluates one at any Re in range without
+//! training. Tutorial: docs/11-wake-flow.md. Run:
 //! `cargo run --release --example wake_flow` (`-- --small` for CI).
 
 mod common;
 mod wake_flow_scene;
 
 use std::collections::BTreeMap;
-use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::Mutex;
 use std::time::Instant;
 
 use diffphys::flow::PressureSolver;
+use diffphys::learn::study::run_jobs;
 use diffphys::learn::{
-    rollout, select_best, Budget, Candidate, DataSeed, Hybrid, LrSchedule, Report, Schedule,
-    Simulator, Split, Splits, Strategy, TrainSeed, Trained, TrainedCorrector, Trainer, Trajectory,
+    rollout, select_best, Budget, Candidate, DataSeed, Hybrid, LrSchedule, Report, SavedModel,
+    Schedule, Simulator, Split, Splits, Strategy, TrainSeed, Trained, TrainedCorrector, Trainer,
+    Trajectory,
 };
 use diffphys::nn::{Arithmetic, Params};
 use diffphys_compare::harness::progress_bar;
@@ -48,10 +51,11 @@ use ndarray::Array3;
 use serde_json::{json, Value};
 
 use wake_flow_scene::data::{base_state, reference, Bump, Cache, Reference};
+use wake_flow_scene::model;
 use wake_flow_scene::study::{self, HeldOutRun};
 use wake_flow_scene::{
-    free_faces, reference_scene, uncorrected, Body, Coarse, Net, NetSize, Options, Sizes, Variant,
-    WakeError, MAIN_SIZE, SIZES, STEP_EVALUATIONS,
+    free_faces, reference_scene, uncorrected, Body, Coarse, Entry, Net, NetSize, Options, Sizes,
+    Variant, WakeError, MAIN_SIZE, SIZES, STEP_EVALUATIONS,
 };
 
 type BoxError = Box<dyn std::error::Error>;
@@ -118,6 +122,8 @@ struct Model {
     variant: Variant,
     size: NetSize,
     seed: u64,
+    lr: f64,
+    evaluations: usize,
     trained: Trained<TrainedCorrector>,
     seconds: f64,
     /// The kept parameters' validation error at each validation Re.
@@ -226,6 +232,8 @@ fn train_one(setup: &Setup<'_>, job: &Job) -> Result<Model, BoxError> {
         variant,
         size,
         seed,
+        lr,
+        evaluations,
         trained,
         seconds,
         validation_per_re,
@@ -246,46 +254,71 @@ fn per_trajectory(
         .collect()
 }
 
-/// Runs `f` on every job on `threads` worker threads (each training is
-/// deterministic for its seed, so the results do not depend on the
-/// scheduling); the results in job order.
-fn parallel<J: Sync, R: Send>(
-    jobs: &[J],
-    threads: usize,
-    f: impl Fn(&J) -> Result<R, String> + Sync,
-) -> Result<Vec<R>, BoxError> {
-    let next = AtomicUsize::new(0);
-    let slots: Vec<Mutex<Option<Result<R, String>>>> =
-        jobs.iter().map(|_| Mutex::new(None)).collect();
-    std::thread::scope(|s| {
-        for _ in 0..threads.clamp(1, jobs.len().max(1)) {
-            s.spawn(|| loop {
-                let i = next.fetch_add(1, Ordering::Relaxed);
-                if i >= jobs.len() {
-                    break;
-                }
-                let r = f(&jobs[i]);
-                if let Ok(mut slot) = slots[i].lock() {
-                    *slot = Some(r);
-                }
-            });
-        }
-    });
-    slots
-        .into_iter()
-        .map(|m| {
-            m.into_inner()
-                .ok()
-                .flatten()
-                .unwrap_or_else(|| Err("a job was not run".into()))
-                .map_err(BoxError::from)
+/// `wake_flow evaluate --model DIR [--held-out-re LIST] [--data-seed N]`
+/// with the scene's options: a saved corrector rolled out at each Re.
+fn evaluate_command(mut raw: Vec<String>) -> Result<(), BoxError> {
+    let run_start = Instant::now();
+    let mut take = |flag: &str| -> Result<Option<String>, BoxError> {
+        let Some(i) = raw.iter().position(|a| a == flag) else {
+            return Ok(None);
+        };
+        let value = raw
+            .get(i + 1)
+            .cloned()
+            .ok_or(format!("{flag} needs a value"))?;
+        raw.drain(i..i + 2);
+        Ok(Some(value))
+    };
+    let model_dir = take("--model")?
+        .ok_or("evaluate needs --model DIR (a folder OUT/models/... a training wrote)")?;
+    let data_seed = take("--data-seed")?
+        .map(|s| {
+            s.parse::<u64>()
+                .map_err(|_| format!("--data-seed: not a seed: {s}"))
         })
-        .collect()
+        .transpose()?;
+    let small = raw.iter().any(|a| a == "--small");
+    let options = Options::take(&mut raw, small)?;
+    let args = common::ExampleArgs::parse_from("wake_flow", raw.into_iter())?;
+    let sizes = Sizes::of(&options, small);
+    println!(
+        "wake flow: evaluating {model_dir} at Re {:?} ({} x {} coarse cells)",
+        options.held_out_re, sizes.ny, sizes.nx
+    );
+    // The error's own message (a mismatch names the field), not its debug form.
+    let result = model::evaluate(&model::Evaluation {
+        model: std::path::Path::new(&model_dir),
+        sizes: &sizes,
+        arithmetic: options.arithmetic,
+        re: &options.held_out_re,
+        data_seed,
+        out: &args.out,
+        threads: options.threads,
+    })
+    .map_err(|e| e.to_string())?;
+    common::print_json_line(&json!({
+        "example": "wake_flow",
+        "command": "evaluate",
+        "small": small,
+        "evaluation": result,
+        "peak_rss_bytes": common::peak_rss_bytes(),
+        "wall_s": run_start.elapsed().as_secs_f64(),
+    }));
+    let count = |k: &str| result.get(k).and_then(serde_json::Value::as_u64);
+    if count("identical_to_training") != count("compared_with_training") {
+        return Err(
+            "the reloaded corrector's figures differ from those of the run that trained it".into(),
+        );
+    }
+    Ok(())
 }
 
 fn main() -> Result<(), BoxError> {
     let run_start = Instant::now();
     let mut raw: Vec<String> = std::env::args().skip(1).collect();
+    if raw.first().map(String::as_str) == Some("evaluate") {
+        return evaluate_command(raw.split_off(1));
+    }
     let small = raw.iter().any(|a| a == "--small");
     let options = Options::take(&mut raw, small)?;
     let data_seed_given = raw
@@ -298,12 +331,7 @@ fn main() -> Result<(), BoxError> {
     if !data_seed_given {
         seeds.data = vec![1];
     }
-    let sizes = Sizes {
-        advection: options.coarse_advection,
-        body: options.body,
-        reference: options.reference,
-        ..if small { Sizes::small() } else { Sizes::full() }
-    };
+    let sizes = Sizes::of(&options, small);
     let threads = options.threads;
     let arithmetic = options.arithmetic;
     let coarse_scene = uncorrected(&sizes, 1, PressureSolver::Cholesky)?;
@@ -345,6 +373,9 @@ fn main() -> Result<(), BoxError> {
     let mut speed_inputs = None;
     let mut sigma_used = 0.0;
     let mut pinned_face_error = serde_json::Map::new();
+    // How often each data seed's held-out split was read (each trained model
+    // once; the baselines: src, the reference's last state, the speed study).
+    let mut held_out_readings = serde_json::Map::new();
     let mut params_count = serde_json::Map::new();
     for size in std::iter::once(MAIN_SIZE).chain(options.capacity.iter().copied()) {
         let (_, p) = new_net(size, 0)?;
@@ -376,7 +407,7 @@ fn main() -> Result<(), BoxError> {
                     let tick = |n| bar.inc(n);
                     let base = base_state(&cache, &sizes, &fine, bump, &tick)?;
                     // The Reynolds numbers of a split share the workers.
-                    parallel(list, threads, |&re| {
+                    Ok(run_jobs(list, threads, |&re| {
                         reference(
                             &cache,
                             &sizes,
@@ -387,7 +418,7 @@ fn main() -> Result<(), BoxError> {
                             &tick,
                         )
                         .map_err(|e| e.to_string())
-                    })
+                    })?)
                 };
                 run().map_err(|e| diffphys::learn::LearnError::Invalid {
                     what: "reference",
@@ -504,7 +535,7 @@ fn main() -> Result<(), BoxError> {
             validation: &validation,
         };
         let run = |jobs: &[Job]| {
-            parallel(jobs, threads, |job| {
+            run_jobs(jobs, threads, |job| {
                 train_one(&setup, job).map_err(|e| e.to_string())
             })
         };
@@ -641,11 +672,11 @@ fn main() -> Result<(), BoxError> {
         // Phase 4: selection on validation only.
         let candidate = |(v, g): (Variant, Vec<Model>)| {
             let score = g.iter().map(|m| m.trained.model.validation).sum::<f64>() / g.len() as f64;
-            Candidate::new(
-                format!("{}@{}", v.name(), g[0].size.label()),
-                Trained::new(g),
-                score,
-            )
+            let entry = Entry {
+                variant: v,
+                size: g[0].size,
+            };
+            Candidate::new(entry, Trained::new(g), score)
         };
         // Every SOL variant trained, at every size, is a candidate: the
         // unroll and the corrector's size are both chosen here.
@@ -657,12 +688,14 @@ fn main() -> Result<(), BoxError> {
         let mut selections = Vec::new();
         if !sols.is_empty() {
             let s = select_best(sols.into_iter().map(candidate).collect())?;
-            let (unroll, size) = s
-                .chosen_label()
-                .trim_start_matches("sol_")
-                .split_once('@')
-                .ok_or("a SOL candidate's label is sol_K@SIZE")?;
-            let k: usize = unroll.parse()?;
+            let Entry {
+                variant: Variant::Sol(k),
+                size,
+            } = *s.chosen_label()
+            else {
+                return Err("only SOL variants are candidates here".into());
+            };
+            let size = size.label();
             println!("  selected by validation: sol_{k} at {size}");
             selected_k.insert(ds.to_string(), json!(k));
             selected_size.insert(ds.to_string(), json!(size));
@@ -687,7 +720,7 @@ fn main() -> Result<(), BoxError> {
             let jobs: Vec<(usize, usize)> = (0..models.len())
                 .flat_map(|m| (0..refs.len()).map(move |r| (m, r)))
                 .collect();
-            let runs = parallel(&jobs, threads, |&(m, r)| {
+            let runs = run_jobs(&jobs, threads, |&(m, r)| {
                 let (params, size, seed) = models[m];
                 let (net, _) = new_net(size, seed).map_err(|e| e.to_string())?;
                 let h = Hybrid::new(coarse.clone(), net);
@@ -728,7 +761,22 @@ fn main() -> Result<(), BoxError> {
                     evaluate(&models, refs).map_err(invalid)
                 })?;
                 for (run, m) in e.result.iter().zip(&e.model) {
-                    let params = m.trained.model.params.count();
+                    let t = &m.trained.model;
+                    let card = model::card(&sizes, m.size, arithmetic)
+                        .provenance("variant", m.variant.name())
+                        .provenance("chosen_on_validation", e.chosen)
+                        .provenance("data_seed", ds)
+                        .provenance("train_seed", m.seed)
+                        .provenance("learning_rate", m.lr)
+                        .provenance("corrector_evaluations", m.evaluations)
+                        .provenance("kept_iteration", t.best_iteration)
+                        .provenance("validation", t.validation)
+                        .provenance("train_re", &options.train_re)
+                        .provenance("validation_re", &options.validation_re)
+                        .provenance("held_out_per_re", model::per_re_json(run));
+                    let name = model::dir_name(&m.variant.name(), m.size, ds, m.seed);
+                    SavedModel::save(args.out.join("models").join(name), &t.params, &card)?;
+                    let params = t.params.count();
                     if m.size != MAIN_SIZE || matches!(m.variant, Variant::Non | Variant::Sol(_)) {
                         let first_sol = options.unrolls().first().copied();
                         let in_sweep = m.variant == Variant::Non
@@ -758,6 +806,11 @@ fn main() -> Result<(), BoxError> {
         }
         bar.finish_and_clear();
         mem("held-out");
+        let (models_read, baseline_reads) = splits.held_out().readings();
+        held_out_readings.insert(
+            format!("data_{ds}"),
+            json!({"trained_models": models_read, "baseline_readings": baseline_reads}),
+        );
         if speed_inputs.is_none() {
             speed_inputs = Some((splits, probe));
         }
@@ -780,6 +833,11 @@ fn main() -> Result<(), BoxError> {
             })
         })?;
         speed = result;
+        let (models_read, baseline_reads) = splits.held_out().readings();
+        held_out_readings.insert(
+            format!("data_{}", splits.seed.0),
+            json!({"trained_models": models_read, "baseline_readings": baseline_reads}),
+        );
         mem("speed");
         pressure = study::pressure_solves(&sizes, options.validation_re[0])?;
     }
@@ -911,7 +969,7 @@ fn main() -> Result<(), BoxError> {
         "network_arithmetic": wake_flow_scene::arithmetic_label(arithmetic),
         "pinned_face_error": pinned_face_error,
     });
-    common::print_json_line(&json!({
+    let mut line = json!({
         "example": "wake_flow",
         "small": args.small,
         "grid_coarse": [sizes.ny, sizes.nx],
@@ -962,7 +1020,11 @@ fn main() -> Result<(), BoxError> {
         "floors_met": floors,
         "peak_rss_bytes": common::peak_rss_bytes(),
         "wall_s": run_start.elapsed().as_secs_f64(),
-    }));
+    });
+    // Beside the macro: its recursion is deep already.
+    line["held_out_readings"] = held_out_readings.into();
+    line["saved_models"] = json!(args.out.join("models").display().to_string());
+    common::print_json_line(&line);
     Ok(())
 }
 

@@ -346,3 +346,59 @@ fn a_budget_becomes_adam_steps_and_zero_stays_zero() {
     assert_eq!(Variant::Sol(16).adam_steps(4), 1);
     assert_eq!(Variant::Sol(4).adam_steps(0), 0);
 }
+
+/// `wake_flow evaluate` refuses a saved corrector whose settings do not fit
+/// the scene it is asked to run in, naming the field, before it generates any
+/// reference.
+#[test]
+fn evaluate_refuses_a_model_saved_for_another_scene() {
+    use diffphys::learn::SavedModel;
+    use wake_flow_scene::model::{card, evaluate, Evaluation};
+    use wake_flow_scene::{Body, MAIN_SIZE};
+
+    let sizes = Sizes::small();
+    let c = coarse();
+    let (_, params) = Net::new(
+        &c.scene,
+        MAIN_SIZE,
+        Arithmetic::Single,
+        &mut TrainSeed(1).init_rng(),
+    )
+    .unwrap();
+    let dir = std::env::temp_dir().join(format!("diffphys-wake-model-{}", std::process::id()));
+    SavedModel::save(&dir, &params, &card(&sizes, MAIN_SIZE, Arithmetic::Single)).unwrap();
+    let staircase = Sizes {
+        body: Body::Staircase,
+        ..Sizes::small()
+    };
+    let full = Sizes::full();
+    for (scene, arithmetic, field) in [
+        (&staircase, Arithmetic::Single, "body"),
+        (&sizes, Arithmetic::Native, "network_arithmetic"),
+        (&full, Arithmetic::Single, "dt_coarse"),
+    ] {
+        let asked = Evaluation {
+            model: &dir,
+            sizes: scene,
+            arithmetic,
+            re: &[283.0],
+            data_seed: None,
+            out: &dir.join("out"),
+            threads: 1,
+        };
+        match evaluate(&asked) {
+            Err(WakeError::Learn(LearnError::SettingsMismatch { field: f, .. })) => {
+                assert_eq!(f, field)
+            }
+            other => panic!(
+                "expected a mismatch on {field}, got {:?}",
+                other.map(|_| ())
+            ),
+        }
+    }
+    assert!(
+        !dir.join("out").exists(),
+        "nothing was generated for a refused model"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}

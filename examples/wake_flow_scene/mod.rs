@@ -23,6 +23,7 @@
 //! corner ([`diffphys::flow::packed`]), so one batch mixes Reynolds numbers.
 
 pub mod data;
+pub mod model;
 pub mod study;
 
 use diffphys::flow::{
@@ -291,6 +292,16 @@ pub struct Sizes {
 }
 
 impl Sizes {
+    /// The full or small scene with the schemes and body of `options`.
+    pub fn of(options: &Options, small: bool) -> Self {
+        Sizes {
+            advection: options.coarse_advection,
+            body: options.body,
+            reference: options.reference,
+            ..if small { Sizes::small() } else { Sizes::full() }
+        }
+    }
+
     /// The full scene.
     pub fn full() -> Self {
         Sizes {
@@ -619,6 +630,22 @@ pub fn free_faces(scene: &Scene) -> ArrayD<f64> {
         }
     }
     m
+}
+
+/// A variant at a corrector size: what selection on validation chooses among
+/// (the typed label of a candidate, printed `sol_4@w16b2`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Entry {
+    /// The variant.
+    pub variant: Variant,
+    /// The corrector's size.
+    pub size: NetSize,
+}
+
+impl std::fmt::Display for Entry {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}@{}", self.variant.name(), self.size.label())
+    }
 }
 
 /// The corrector's size: a ResNet of `width` channels and `blocks` residual

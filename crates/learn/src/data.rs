@@ -48,7 +48,7 @@
 //! splits.held_out().evaluate(model, |_, _| Ok(1.0)).unwrap();
 //! ```
 
-use std::cell::RefCell;
+use std::cell::{Cell, RefCell};
 use std::collections::HashSet;
 use std::fmt;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -163,19 +163,21 @@ impl<M> Trained<M> {
 }
 
 /// A trained model and its validation score (lower is better), offered to
-/// [`select_best`].
+/// [`select_best`]. Its label `L` is whatever names a candidate in the study:
+/// a string, or a typed variant (`Variant::Sol(4)` at a size) that selection
+/// hands back as it was given, so nothing has to be parsed out of a name.
 #[derive(Debug, Clone)]
-pub struct Candidate<M> {
-    label: String,
+pub struct Candidate<M, L = String> {
+    label: L,
     trained: Trained<M>,
     validation: f64,
 }
 
-impl<M> Candidate<M> {
+impl<M, L> Candidate<M, L> {
     /// `trained`, labelled, with its score on the validation split.
-    pub fn new(label: impl Into<String>, trained: Trained<M>, validation: f64) -> Self {
+    pub fn new(label: L, trained: Trained<M>, validation: f64) -> Self {
         Candidate {
-            label: label.into(),
+            label,
             trained,
             validation,
         }
@@ -184,17 +186,17 @@ impl<M> Candidate<M> {
 
 /// A model released for its one held-out evaluation by [`select_best`].
 #[derive(Debug)]
-pub struct Selected<M> {
+pub struct Selected<M, L = String> {
     id: ModelId,
-    label: String,
+    label: L,
     model: M,
     validation: f64,
     chosen: bool,
 }
 
-impl<M> Selected<M> {
+impl<M, L> Selected<M, L> {
     /// The candidate's label.
-    pub fn label(&self) -> &str {
+    pub fn label(&self) -> &L {
         &self.label
     }
     /// Its validation score.
@@ -214,16 +216,16 @@ impl<M> Selected<M> {
 /// The outcome of [`select_best`]: which candidate validation chose, and every
 /// candidate released for its one held-out evaluation.
 #[derive(Debug)]
-pub struct Selection<M> {
+pub struct Selection<M, L = String> {
     /// The index of the chosen candidate in `models`.
     pub chosen: usize,
     /// Every candidate, in the order given.
-    pub models: Vec<Selected<M>>,
+    pub models: Vec<Selected<M, L>>,
 }
 
-impl<M> Selection<M> {
+impl<M, L> Selection<M, L> {
     /// The chosen candidate's label.
-    pub fn chosen_label(&self) -> &str {
+    pub fn chosen_label(&self) -> &L {
         &self.models[self.chosen].label
     }
 }
@@ -233,7 +235,7 @@ impl<M> Selection<M> {
 ///
 /// # Errors
 /// [`LearnError::Selection`] without candidates or when no score is finite.
-pub fn select_best<M>(candidates: Vec<Candidate<M>>) -> Result<Selection<M>> {
+pub fn select_best<M, L>(candidates: Vec<Candidate<M, L>>) -> Result<Selection<M, L>> {
     let chosen = candidates
         .iter()
         .enumerate()
@@ -262,9 +264,9 @@ pub fn select_best<M>(candidates: Vec<Candidate<M>>) -> Result<Selection<M>> {
 
 /// A held-out evaluation's result, with the model it came from.
 #[derive(Debug)]
-pub struct Evaluated<M, R> {
+pub struct Evaluated<M, R, L = String> {
     /// The candidate's label.
-    pub label: String,
+    pub label: L,
     /// Whether validation chose it.
     pub chosen: bool,
     /// Its validation score.
@@ -275,29 +277,47 @@ pub struct Evaluated<M, R> {
     pub result: R,
 }
 
-/// The held-out split: readable only through [`HeldOut::evaluate`].
+/// The held-out split: sealed, readable only through [`HeldOut::evaluate`]
+/// (once per trained model) and [`HeldOut::evaluate_baseline`] (models without
+/// trained parameters), and counting every reading ([`HeldOut::readings`]) so
+/// that a report can say how often the split was read.
 #[derive(Debug)]
 pub struct HeldOut<D> {
     data: D,
     seen: RefCell<HashSet<ModelId>>,
+    baseline_readings: Cell<usize>,
 }
 
 impl<D> HeldOut<D> {
+    fn sealed(data: D) -> Self {
+        HeldOut {
+            data,
+            seen: RefCell::new(HashSet::new()),
+            baseline_readings: Cell::new(0),
+        }
+    }
+
+    /// How often the split was read: `(trained models evaluated, baseline
+    /// readings)`. A trained model is evaluated at most once.
+    pub fn readings(&self) -> (usize, usize) {
+        (self.seen.borrow().len(), self.baseline_readings.get())
+    }
+
     /// Runs `f` on the selected model and the held-out data, once per trained
     /// model.
     ///
     /// # Errors
     /// [`LearnError::HeldOutReused`] if this model (or a clone of it) was
     /// evaluated here before; whatever `f` returns.
-    pub fn evaluate<M, R>(
+    pub fn evaluate<M, R, L: fmt::Display>(
         &self,
-        selected: Selected<M>,
+        selected: Selected<M, L>,
         f: impl FnOnce(&M, &D) -> Result<R>,
-    ) -> Result<Evaluated<M, R>> {
+    ) -> Result<Evaluated<M, R, L>> {
         if !self.seen.borrow_mut().insert(selected.id) {
             return Err(LearnError::HeldOutReused {
                 model: selected.id.0,
-                label: selected.label,
+                label: selected.label.to_string(),
             });
         }
         let result = f(&selected.model, &self.data)?;
@@ -317,6 +337,7 @@ impl<D> HeldOut<D> {
     /// # Errors
     /// Whatever `f` returns.
     pub fn evaluate_baseline<R>(&self, f: impl FnOnce(&D) -> Result<R>) -> Result<R> {
+        self.baseline_readings.set(self.baseline_readings.get() + 1);
         f(&self.data)
     }
 }
@@ -366,10 +387,7 @@ impl<D> Splits<D> {
             seed,
             train,
             validation,
-            held_out: HeldOut {
-                data: held_out,
-                seen: RefCell::new(HashSet::new()),
-            },
+            held_out: HeldOut::sealed(held_out),
         })
     }
 
@@ -436,7 +454,7 @@ mod tests {
         ])
         .unwrap();
         assert_eq!(selection.chosen, 1);
-        assert_eq!(selection.chosen_label(), "b");
+        assert_eq!(*selection.chosen_label(), "b");
         for model in selection.models {
             let e = splits
                 .held_out()
@@ -456,7 +474,7 @@ mod tests {
     #[test]
     fn selection_without_finite_scores_is_an_error() {
         assert!(matches!(
-            select_best::<()>(vec![]),
+            select_best::<(), String>(vec![]),
             Err(LearnError::Selection { .. })
         ));
         assert!(matches!(

@@ -75,6 +75,24 @@ pub enum LearnError {
         /// What is wrong.
         message: String,
     },
+    /// A saved model whose settings differ from the scene it is loaded into.
+    #[error("the saved model's {field} is {saved}, the scene's is {expected}: it was trained for another setting")]
+    SettingsMismatch {
+        /// The setting (`kind` for another kind of model).
+        field: String,
+        /// Its value in the saved model (JSON; `null` if it has none).
+        saved: String,
+        /// Its value in the scene (JSON; `null` if the scene has none).
+        expected: String,
+    },
+    /// A model directory that cannot be written or read.
+    #[error("saved model {}: {message}", path.display())]
+    Model {
+        /// The file or directory.
+        path: std::path::PathBuf,
+        /// What went wrong.
+        message: String,
+    },
     /// Any other invalid argument.
     #[error("invalid {what}: {message}")]
     Invalid {

@@ -25,6 +25,13 @@
 //!   or from a fixed set, with the same budget and early stopping on validation.
 //! - [`guess`] trains a network's initial guess for conjugate gradient, with CG
 //!   iterations as virtual time.
+//! - A [`study::Plan`] of variants × sizes × training seeds runs several
+//!   trainings at once ([`study::run_jobs`]) and groups them back for
+//!   selection on typed labels; the held-out split counts its readings
+//!   ([`HeldOut::readings`]).
+//! - [`saved`] writes a trained model's parameters with the settings that
+//!   shaped them ([`ModelCard`]) and refuses to load it into a scene whose
+//!   settings differ ([`LearnError::SettingsMismatch`]).
 //!
 //! A corrector for a decaying state, trained with solver in the loop and
 //! evaluated once on the held-out split:
@@ -93,7 +100,9 @@ pub mod guess;
 pub mod hybrid;
 pub mod metrics;
 pub mod report;
+pub mod saved;
 pub mod strategy;
+pub mod study;
 pub mod supervised;
 pub mod train;
 
@@ -106,6 +115,7 @@ pub use error::{LearnError, Result};
 pub use hybrid::{frozen, Corrector, Hybrid, Simulator};
 pub use metrics::{batch_of, relative_l2, rollout, states_at, Rollout, Trajectory};
 pub use report::{Report, RunRecord, Summary};
+pub use saved::{ModelCard, SavedModel};
 pub use strategy::{Budget, LrSchedule, Strategy};
 pub use supervised::{mean_squared_error, Pair, PairSource, SupervisedTrainer, TrainedNet};
 pub use train::{standard_normal, Batch, TrainedCorrector, Trainer};

@@ -13,16 +13,16 @@
 
 use std::sync::Arc;
 
-use diffphys_nn::{check_loss, Bound, Params};
+use diffphys_nn::{Bound, Params};
 use diffphys_ops::cg::{conjugate_gradient, CgParams};
 use diffphys_ops::tape_ops::LinearOp;
 use diffphys_ops::LinearOperator;
-use diffphys_tape::pool::BufferPool;
-use diffphys_tape::{Adam, ArrayD, ArrayViewD, IxDyn, Tape, Var};
+use diffphys_tape::{ArrayD, ArrayViewD, IxDyn, Tape, Var};
 use ndarray::{ArrayViewMutD, Axis};
 use rand::rngs::StdRng;
 
 use crate::data::{Split, Trained};
+use crate::fit::{Fit, Validation};
 use crate::hybrid::frozen;
 use crate::metrics::batch_of;
 use crate::strategy::LrSchedule;
@@ -370,7 +370,7 @@ impl GuessTrainer {
         &self,
         op: &A,
         guesser: &G,
-        mut params: Params<f64>,
+        params: Params<f64>,
         loss: GuessLoss,
         draw: &mut dyn FnMut(&mut StdRng) -> Result<GuessProblem>,
         mut data: StdRng,
@@ -398,53 +398,41 @@ impl GuessTrainer {
                 context: format!("early stopping of the {} guess", loss.name()),
             });
         }
-        let score = |params: &Params<f64>| {
-            mean_iterations(
-                op,
-                guesser,
-                Some(params),
-                validation,
-                &self.validation_tolerances,
-            )
+        let fit = Fit {
+            steps: self.steps,
+            learning_rate: self.learning_rate,
+            schedule: self.schedule,
+            validate_every: self.validate_every,
+            validation: Validation::Strict,
         };
-        let mut adam = Adam::new(self.learning_rate);
-        let mut losses = Vec::with_capacity(self.steps);
-        let mut curve = Vec::new();
-        let mut best: Option<(usize, f64, Params<f64>)> = None;
-        let pool = BufferPool::new(); // the steps' tapes share it; freed after training
-        for step in 0..self.steps {
-            let batch = (0..self.batch)
-                .map(|_| draw(&mut data))
-                .collect::<Result<Vec<_>>>()?;
-            let tape = Tape::with_pool(&pool);
-            let p = params.bind(&tape);
-            let refs: Vec<&GuessProblem> = batch.iter().collect();
-            let l = guess_loss(&tape, op, guesser, &p, loss, &refs)?;
-            losses.push(check_loss(step, l.item()?)?);
-            let grads = tape.backward(l, p.vars())?;
-            adam.lr = self.schedule.at(self.learning_rate, step, self.steps);
-            params.step(&mut adam, &grads, &p)?;
-            tick();
-            let done = step + 1;
-            let due = self.validate_every > 0 && done % self.validate_every == 0;
-            if due || done == self.steps {
-                let s = score(&params)?;
-                curve.push((done, s));
-                if crate::metrics::improves(s, best.as_ref().map(|b| b.1)) {
-                    best = Some((done, s, params.clone()));
-                }
-            }
-        }
-        let (best_step, validation_score, params) = best.ok_or(LearnError::ZeroIterations {
-            trainer: "guess trainer",
-        })?;
+        let fitted = fit.run(
+            "guess trainer",
+            params,
+            |_, tape, p| {
+                let batch = (0..self.batch)
+                    .map(|_| draw(&mut data))
+                    .collect::<Result<Vec<_>>>()?;
+                let refs: Vec<&GuessProblem> = batch.iter().collect();
+                guess_loss(tape, op, guesser, p, loss, &refs)
+            },
+            |params| {
+                mean_iterations(
+                    op,
+                    guesser,
+                    Some(params),
+                    validation,
+                    &self.validation_tolerances,
+                )
+            },
+            tick,
+        )?;
         Ok(Trained::new(TrainedGuess {
             loss,
-            params,
-            losses,
-            validation_curve: curve,
-            best_step,
-            validation: validation_score,
+            params: fitted.params,
+            losses: fitted.losses,
+            validation_curve: fitted.curve,
+            best_step: fitted.best_step,
+            validation: fitted.validation,
         }))
     }
 }

@@ -96,6 +96,7 @@
 
 pub mod data;
 mod error;
+pub mod fit;
 pub mod guess;
 pub mod hybrid;
 pub mod metrics;

@@ -4,13 +4,13 @@
 
 use std::time::Instant;
 
-use diffphys_nn::{check_loss, Layer, Params};
-use diffphys_tape::pool::BufferPool;
-use diffphys_tape::{Adam, ArrayD, Tape};
+use diffphys_nn::{Layer, Params};
+use diffphys_tape::{ArrayD, Tape};
 use rand::rngs::StdRng;
 use rand::Rng;
 
 use crate::data::{Split, Trained};
+use crate::fit::{Fit, Validation};
 use crate::hybrid::frozen;
 use crate::metrics::batch_of;
 use crate::strategy::LrSchedule;
@@ -99,7 +99,7 @@ impl SupervisedTrainer {
     pub fn train<L: Layer<f64>>(
         &self,
         net: &L,
-        mut params: Params<f64>,
+        params: Params<f64>,
         mut source: PairSource<'_>,
         rng: &mut StdRng,
         validation: &[Pair],
@@ -127,59 +127,48 @@ impl SupervisedTrainer {
                 context: "early stopping of a supervised training".into(),
             });
         }
-        let mut adam = Adam::new(self.learning_rate);
-        let (mut losses, mut curve) = (Vec::with_capacity(self.steps), Vec::new());
-        let mut best: Option<(usize, f64, Params<f64>)> = None;
-        let (mut seconds_data, mut seconds_network) = (0.0, 0.0);
-        let pool = BufferPool::new(); // the steps' tapes share it; freed after training
-        for step in 0..self.steps {
-            let start = Instant::now();
-            let pairs: Vec<Pair> = match &mut source {
-                PairSource::Stream(draw) => {
-                    (0..self.batch).map(|_| draw(rng)).collect::<Result<_>>()?
-                }
-                PairSource::Fixed(set) => (0..self.batch)
-                    .map(|_| set[rng.random_range(0..set.len())].clone())
-                    .collect(),
-            };
-            let inputs: Vec<&ArrayD<f64>> = pairs.iter().map(|p| &p.input).collect();
-            let targets: Vec<&ArrayD<f64>> = pairs.iter().map(|p| &p.target).collect();
-            let (x, target) = (batch_of(&inputs)?, batch_of(&targets)?);
-            let made = Instant::now();
-            seconds_data += (made - start).as_secs_f64();
-            let tape = Tape::with_pool(&pool);
-            let p = params.bind(&tape);
-            let loss = net
-                .forward(&p, tape.constant(x))?
-                .sub(tape.constant(target))?
-                .powi(2)?
-                .mean()?;
-            losses.push(check_loss(step, loss.item()?)?);
-            let grads = tape.backward(loss, p.vars())?;
-            adam.lr = self.schedule.at(self.learning_rate, step, self.steps);
-            params.step(&mut adam, &grads, &p)?;
-            seconds_network += made.elapsed().as_secs_f64();
-            tick();
-            let done = step + 1;
-            if (self.validate_every > 0 && done % self.validate_every == 0) || done == self.steps {
-                let score = mean_squared_error(net, &params, validation)?;
-                curve.push((done, score));
-                if crate::metrics::improves(score, best.as_ref().map(|b| b.1)) {
-                    best = Some((done, score, params.clone()));
-                }
-            }
-        }
-        let (best_step, validation_score, params) = best.ok_or(LearnError::ZeroIterations {
-            trainer: "supervised trainer",
-        })?;
-        Ok(Trained::new(TrainedNet {
+        let fit = Fit {
+            steps: self.steps,
+            learning_rate: self.learning_rate,
+            schedule: self.schedule,
+            validate_every: self.validate_every,
+            validation: Validation::Strict,
+        };
+        let mut seconds_data = 0.0;
+        let fitted = fit.run(
+            "supervised trainer",
             params,
-            losses,
-            validation_curve: curve,
-            best_step,
-            validation: validation_score,
+            |_, tape, p| {
+                let start = Instant::now();
+                let pairs: Vec<Pair> = match &mut source {
+                    PairSource::Stream(draw) => {
+                        (0..self.batch).map(|_| draw(rng)).collect::<Result<_>>()?
+                    }
+                    PairSource::Fixed(set) => (0..self.batch)
+                        .map(|_| set[rng.random_range(0..set.len())].clone())
+                        .collect(),
+                };
+                let inputs: Vec<&ArrayD<f64>> = pairs.iter().map(|p| &p.input).collect();
+                let targets: Vec<&ArrayD<f64>> = pairs.iter().map(|p| &p.target).collect();
+                let (x, target) = (batch_of(&inputs)?, batch_of(&targets)?);
+                seconds_data += start.elapsed().as_secs_f64();
+                Ok(net
+                    .forward(p, tape.constant(x))?
+                    .sub(tape.constant(target))?
+                    .powi(2)?
+                    .mean()?)
+            },
+            |params| mean_squared_error(net, params, validation),
+            tick,
+        )?;
+        Ok(Trained::new(TrainedNet {
+            params: fitted.params,
+            losses: fitted.losses,
+            validation_curve: fitted.curve,
+            best_step: fitted.best_step,
+            validation: fitted.validation,
+            seconds_network: fitted.seconds - seconds_data,
             seconds_data,
-            seconds_network,
         }))
     }
 }

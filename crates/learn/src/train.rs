@@ -3,13 +3,13 @@
 
 use std::rc::Rc;
 
-use diffphys_nn::{check_loss, Bound, Params};
-use diffphys_tape::pool::BufferPool;
-use diffphys_tape::{Adam, ArrayD, Tape, Var};
+use diffphys_nn::{Bound, Params};
+use diffphys_tape::{ArrayD, Tape, Var};
 use rand::rngs::StdRng;
 use rand::Rng;
 
 use crate::data::{Split, TrainSeed, Trained};
+use crate::fit::{Fit, Validation};
 use crate::hybrid::{Corrector, Hybrid, Simulator};
 use crate::metrics::{batch_of, rollout, Trajectory};
 use crate::strategy::{Budget, LrSchedule, Strategy};
@@ -171,14 +171,13 @@ impl Trainer {
     pub fn train<S: Simulator + 'static, C: Corrector + 'static>(
         &self,
         hybrid: &Hybrid<S, C>,
-        mut params: Params<f64>,
+        params: Params<f64>,
         strategy: Strategy,
         train: &[Trajectory],
         validation: &[Trajectory],
         seed: TrainSeed,
         tick: &dyn Fn(),
     ) -> Result<Trained<TrainedCorrector>> {
-        let iterations = self.budget.iterations;
         self.budget.windows(&strategy)?;
         if validation.is_empty() {
             return Err(LearnError::EmptySplit {
@@ -199,57 +198,31 @@ impl Trainer {
         let probe = self.draw(&strategy, train, &mut rng.clone(), &perturb)?;
         hybrid.check_shapes(&params, &probe.start)?;
 
-        let mut adam = Adam::new(self.learning_rate);
-        let mut losses = Vec::with_capacity(iterations);
-        let mut curve = Vec::new();
-        let mut failures = Vec::new();
-        // The untrained model is a candidate too: early stopping may keep it.
-        let initial = validation_score(hybrid, &params, validation, self.validation_steps)
-            .map_err(|message| LearnError::Selection {
-                message: format!(
-                    "the untrained model's validation rollout already fails ({message}); \
-                         there is nothing to stop early against"
-                ),
-            })?;
-        curve.push((0, initial));
-        let mut best: (usize, f64, Params<f64>) = (0, initial, params.clone());
-        // One buffer pool for the tapes of all iterations (each step records
-        // the same shapes, so it holds what one step asks for), freed when
-        // training ends.
-        let pool = BufferPool::new();
-        for it in 0..iterations {
-            let batch = self.draw(&strategy, train, &mut rng, &perturb)?;
-            let tape = Tape::with_pool(&pool);
-            let p = params.bind(&tape);
-            let loss = Self::batch_loss(hybrid, &tape, &p, &strategy, &batch)?;
-            losses.push(check_loss(it, loss.item()?)?);
-            let grads = tape.backward(loss, p.vars())?;
-            adam.lr = self.schedule.at(self.learning_rate, it, iterations);
-            params.step(&mut adam, &grads, &p)?;
-            tick();
-            let done = it + 1;
-            let due = self.validate_every > 0 && done % self.validate_every == 0;
-            if due || done == iterations {
-                let score = validation_score(hybrid, &params, validation, self.validation_steps)
-                    .unwrap_or_else(|message| {
-                        failures.push((done, message));
-                        f64::INFINITY
-                    });
-                curve.push((done, score));
-                if score < best.1 {
-                    best = (done, score, params.clone());
-                }
-            }
-        }
-        let (best_iteration, validation_score, params) = best;
+        let fit = Fit {
+            steps: self.budget.iterations,
+            learning_rate: self.learning_rate,
+            schedule: self.schedule,
+            validate_every: self.validate_every,
+            validation: Validation::FromUntrained,
+        };
+        let fitted = fit.run(
+            "trainer",
+            params,
+            |_, tape, p| {
+                let batch = self.draw(&strategy, train, &mut rng, &perturb)?;
+                Ok(Self::batch_loss(hybrid, tape, p, &strategy, &batch)?)
+            },
+            |params| validation_score(hybrid, params, validation, self.validation_steps),
+            tick,
+        )?;
         Ok(Trained::new(TrainedCorrector {
             strategy,
-            params,
-            losses,
-            validation_curve: curve,
-            best_iteration,
-            validation: validation_score,
-            validation_failures: failures,
+            params: fitted.params,
+            losses: fitted.losses,
+            validation_curve: fitted.curve,
+            best_iteration: fitted.best_step,
+            validation: fitted.validation,
+            validation_failures: fitted.failures,
         }))
     }
 }
@@ -262,19 +235,13 @@ pub fn standard_normal(rng: &mut impl Rng) -> f64 {
 }
 
 /// The mean relative L2 error of a validation rollout of the hybrid with
-/// `params`, or why there is none: the rollout's error, or a NaN error (a
-/// state gone non-finite without a step refusing it).
+/// `params` (NaN where a state went non-finite without a step refusing it:
+/// the fit loop lists that as a failure).
 fn validation_score<S: Simulator + 'static, C: Corrector + 'static>(
     hybrid: &Hybrid<S, C>,
     params: &Params<f64>,
     validation: &[Trajectory],
     steps: usize,
-) -> std::result::Result<f64, String> {
-    let score = rollout(hybrid, Some(params), validation, steps)
-        .map_err(|e| e.to_string())?
-        .mean();
-    if score.is_nan() {
-        return Err("the rollout's error is NaN".into());
-    }
-    Ok(score)
+) -> Result<f64> {
+    Ok(rollout(hybrid, Some(params), validation, steps)?.mean())
 }

@@ -40,10 +40,11 @@
 //! Every op joins a tape the same way: an op value recorded with
 //! `tape.apply(op, &[inputs])` (`tape.apply_multi` for several outputs); the
 //! primitives are also methods on [`Var`](tape::Var) (`x.mul(y)?`). The README's
-//! "Use it" section is a first program (advect, solve, differentiate, step an
-//! optimizer), compiled and run as a doctest; the tutorials in `docs/` walk
-//! through the examples in `examples/`, starting with
-//! `docs/01-tape-and-custom-ops.md` (`cargo run --release --example custom_op`).
+//! "A first program" section is a first program (advect, solve, differentiate,
+//! step an optimizer), compiled and run as a doctest; the tutorials in `docs/`
+//! walk through the examples in `examples/`, starting with
+//! `docs/01-tape-and-custom-ops.md` (`cargo run --release --example custom_op`),
+//! and `.ci/book` renders them as a book (mdBook) with this reference beside it.
 //! ARCHITECTURE.md draws the layers.
 #![warn(missing_docs)]
 

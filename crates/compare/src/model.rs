@@ -2,7 +2,7 @@
 //! ([`Method`]), in which precision ([`Precision`]), how the run ended
 //! ([`RunStatus`]), the row it produced ([`ResultRow`]) and the floors judged
 //! from rows ([`Floor`]). The operator of a scene is
-//! [`OperatorKind`](crate::problem::OperatorKind).
+//! [`OperatorKind`].
 //!
 //! The methods produce rows, the harness and the studies collect them and the
 //! report renders them; all of them import this module, and it imports none of

@@ -152,7 +152,7 @@ impl MacGrid {
 
     /// The same grid with the boundary faces of one side closed: `axis` 0 (x)
     /// or 1 (y), `high` the side at the axis' end. On a
-    /// [`Boundary::ZeroDirichlet`](crate::Boundary::ZeroDirichlet) axis this
+    /// [`Boundary::ZeroDirichlet`] axis this
     /// makes that side a wall for the pressure (zero Neumann, its face
     /// velocities fixed) while the other stays open: a channel with a
     /// prescribed inflow at one end and an open outflow at the other. Faces

@@ -50,7 +50,9 @@ fn unroll_scene(n: usize, cfl: f64) -> Result<(Grid1, AdvectionParams, [Array1<f
 }
 
 /// Study 6, one run: `L = ½‖d_N − d*‖²` after `steps` upwind steps of the
-/// [`unroll_scene`], recorded on the tape, and the norms of `∂L/∂d⁰` and `∂L/∂u`.
+/// unroll's scene (`n` periodic cells, `u = 1 + 0.2 sin 2πx`, a Gaussian pulse
+/// `d⁰` at `x = 0.3`, the target `d*` at `x = 0.6`, largest Courant number
+/// `cfl`), recorded on the tape, and the norms of `∂L/∂d⁰` and `∂L/∂u`.
 ///
 /// # Errors
 /// [`CompareError::UnrollStep`] naming the step and the op (a non-finite value

@@ -18,15 +18,8 @@
 //! corrector sizes. The speed study rolls out the uncorrected solver at 1×, 2×
 //! and 4× the resolution and the corrected coarse one, timed.
 //!
-//! Options: `--data-seed N` (default 1; `--data-seeds a,b` for several, each
-//! with its own reference), `--train-seeds a,b,c` (default 1, 2, 3), `--held-out-re LIST` (any
-//! Re in [50, 3200]; its reference is generated and cached), `--train-re`,
-//! `--validation-re`, `--variants src,non,noise,sol4,sol16`, `--lrs LIST`,
-//! `--iterations N` (a budget of 4N corrector evaluations), `--no-capacity`,
-//! `--no-speed`, `--coarse-advection`,
-//! `--body cylinder|staircase|inscribed`, `--reference-scheme second-order|coarse`,
-//! `--small` (CI: 16 × 32),
-//! `--out DIR`, `--npy`. Every trained corrector is saved under
+//! Options: `wake_flow --help` lists every flag with its default (the scene's
+//! own in `wake_flow_scene::cli`). Every trained corrector is saved under
 //! `OUT/models/` with the settings that shaped it; `wake_flow evaluate
 //! --model DIR --held-out-re LIST` evaluates one at any Re in range without
 //! training. Tutorial: docs/11-wake-flow.md. Run:
@@ -50,6 +43,8 @@ use diffphys_compare::harness::progress_bar;
 use ndarray::Array3;
 use serde_json::{json, Value};
 
+use clap::Parser;
+use wake_flow_scene::cli::{self, Cli, Command, EvaluateArgs};
 use wake_flow_scene::data::{base_state, reference, Bump, Cache, Reference};
 use wake_flow_scene::model;
 use wake_flow_scene::study::{self, HeldOutRun};
@@ -256,43 +251,27 @@ fn per_trajectory(
 
 /// `wake_flow evaluate --model DIR [--held-out-re LIST] [--data-seed N]`
 /// with the scene's options: a saved corrector rolled out at each Re.
-fn evaluate_command(mut raw: Vec<String>) -> Result<(), BoxError> {
+fn evaluate_command(e: EvaluateArgs) -> Result<(), BoxError> {
     let run_start = Instant::now();
-    let mut take = |flag: &str| -> Result<Option<String>, BoxError> {
-        let Some(i) = raw.iter().position(|a| a == flag) else {
-            return Ok(None);
-        };
-        let value = raw
-            .get(i + 1)
-            .cloned()
-            .ok_or(format!("{flag} needs a value"))?;
-        raw.drain(i..i + 2);
-        Ok(Some(value))
-    };
-    let model_dir = take("--model")?
-        .ok_or("evaluate needs --model DIR (a folder OUT/models/... a training wrote)")?;
-    let data_seed = take("--data-seed")?
-        .map(|s| {
-            s.parse::<u64>()
-                .map_err(|_| format!("--data-seed: not a seed: {s}"))
-        })
-        .transpose()?;
-    let small = raw.iter().any(|a| a == "--small");
-    let options = Options::take(&mut raw, small)?;
-    let args = common::ExampleArgs::parse_from("wake_flow", raw.into_iter())?;
+    let small = e.scene.small;
+    let options = e.scene.options()?;
+    let out = e.scene.out();
     let sizes = Sizes::of(&options, small);
     println!(
-        "wake flow: evaluating {model_dir} at Re {:?} ({} x {} coarse cells)",
-        options.held_out_re, sizes.ny, sizes.nx
+        "wake flow: evaluating {} at Re {:?} ({} x {} coarse cells)",
+        e.model.display(),
+        options.held_out_re,
+        sizes.ny,
+        sizes.nx
     );
     // The error's own message (a mismatch names the field), not its debug form.
     let result = model::evaluate(&model::Evaluation {
-        model: std::path::Path::new(&model_dir),
+        model: &e.model,
         sizes: &sizes,
         arithmetic: options.arithmetic,
         re: &options.held_out_re,
-        data_seed,
-        out: &args.out,
+        data_seed: e.data_seed,
+        out: &out,
         threads: options.threads,
     })
     .map_err(|e| e.to_string())?;
@@ -315,22 +294,24 @@ fn evaluate_command(mut raw: Vec<String>) -> Result<(), BoxError> {
 
 fn main() -> Result<(), BoxError> {
     let run_start = Instant::now();
-    let mut raw: Vec<String> = std::env::args().skip(1).collect();
-    if raw.first().map(String::as_str) == Some("evaluate") {
-        return evaluate_command(raw.split_off(1));
+    let cli = Cli::parse();
+    if let Some(Command::Evaluate(e)) = cli.command {
+        return evaluate_command(e);
     }
-    let small = raw.iter().any(|a| a == "--small");
-    let options = Options::take(&mut raw, small)?;
-    let data_seed_given = raw
-        .iter()
-        .any(|a| a == "--data-seed" || a == "--data-seeds");
-    let mut seeds = common::Seeds::take(&mut raw, small)?;
-    let args = common::ExampleArgs::parse_from("wake_flow", raw.into_iter())?;
-    // One data seed unless asked: each costs its own reference (~27,000 steps
-    // at 128 x 256); the spread comes from the training seeds.
-    if !data_seed_given {
-        seeds.data = vec![1];
-    }
+    let small = cli.train.scene.small;
+    let options = Options::from_args(&cli.train)?;
+    let (data_seeds, train_seeds) = cli::seeds(&cli.train)?;
+    let seeds = common::Seeds {
+        data: data_seeds,
+        train: train_seeds,
+    };
+    let args = common::ExampleArgs {
+        small,
+        out: cli.train.scene.out(),
+        iterations: cli.train.iterations,
+        npy: cli.train.npy,
+    };
+    std::fs::create_dir_all(&args.out)?;
     let sizes = Sizes::of(&options, small);
     let threads = options.threads;
     let arithmetic = options.arithmetic;

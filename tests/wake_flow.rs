@@ -9,39 +9,72 @@
 #[path = "../examples/wake_flow_scene/mod.rs"]
 mod wake_flow_scene;
 
+use clap::Parser;
 use diffphys::flow::{FlowState, PressureSolver};
 use diffphys::learn::{Hybrid, LearnError, Simulator, Split, TrainSeed};
 use diffphys::nn::Arithmetic;
 use ndarray::Array2;
+use wake_flow_scene::cli::{seeds, Cli, Command};
 use wake_flow_scene::{
     free_faces, uncorrected, viscosity, Coarse, Net, NetSize, Options, Sizes, Variant, WakeError,
 };
 
+/// The command line `wake_flow --small ARGS`, parsed by clap (which must
+/// accept it) and made typed options by the scene.
+fn cli(args: &[&str]) -> Cli {
+    let line = ["wake_flow", "--small"].iter().chain(args);
+    Cli::try_parse_from(line).expect("clap accepts the flags")
+}
+
 fn options(args: &[&str]) -> Result<Options, WakeError> {
-    let mut v: Vec<String> = args.iter().map(|s| s.to_string()).collect();
-    Options::take(&mut v, true)
+    Options::from_args(&cli(args).train)
 }
 
 #[test]
-fn options_parse_and_leave_the_common_ones() {
-    let mut v: Vec<String> = [
-        "--small",
-        "--variants",
-        "non,sol8",
-        "--held-out-re",
-        "300,3000",
-    ]
-    .iter()
-    .map(|s| s.to_string())
-    .collect();
-    let o = Options::take(&mut v, true).unwrap();
+fn options_parse_with_the_small_defaults() {
+    let o = options(&["--variants", "non,sol8", "--held-out-re", "300,3000"]).unwrap();
     assert_eq!(
         o.variants,
         vec![Variant::Src, Variant::Non, Variant::Sol(8)]
     );
     assert_eq!(o.held_out_re, vec![300.0, 3000.0]);
-    assert_eq!(v, vec!["--small".to_string()]);
+    assert_eq!(o.train_re, vec![200.0, 400.0, 800.0]);
     assert!(!o.inside(3000.0));
+    let (data, train) = seeds(&cli(&["--train-seeds", "4,5"]).train).unwrap();
+    assert_eq!((data, train), (vec![1], vec![4, 5]));
+    assert!(matches!(
+        seeds(&cli(&["--train-seeds", "4,x"]).train),
+        Err(WakeError::Argument { .. })
+    ));
+    assert!(matches!(
+        options(&["--lrs", "1e-3,-1"]),
+        Err(WakeError::Argument { .. })
+    ));
+}
+
+#[test]
+fn an_unknown_flag_and_evaluate_without_a_model_are_usage_errors() {
+    assert!(Cli::try_parse_from(["wake_flow", "--magic"]).is_err());
+    assert!(Cli::try_parse_from(["wake_flow", "evaluate", "--small"]).is_err());
+    let c = Cli::try_parse_from([
+        "wake_flow",
+        "evaluate",
+        "--model",
+        "m",
+        "--body",
+        "staircase",
+    ])
+    .unwrap();
+    match c.command {
+        Some(Command::Evaluate(e)) => {
+            assert_eq!(e.model, std::path::PathBuf::from("m"));
+            assert_eq!(
+                e.scene.options().unwrap().body,
+                wake_flow_scene::Body::Staircase
+            );
+        }
+        None => panic!("evaluate parses as the subcommand"),
+    }
 }
 
 #[test]

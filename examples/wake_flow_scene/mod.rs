@@ -22,6 +22,7 @@
 //! A coarse state is packed as `[2, nx + 1, ny + 1]` with its viscosity in a
 //! corner ([`diffphys::flow::packed`]), so one batch mixes Reynolds numbers.
 
+pub mod cli;
 pub mod data;
 pub mod model;
 pub mod study;
@@ -255,6 +256,33 @@ pub fn parse_re_list(option: &str, text: &str, split: Split) -> Result<Vec<f64>>
     Ok(list)
 }
 
+/// A comma-separated list, each entry parsed by `parse` (`None`: not
+/// `what`).
+///
+/// # Errors
+/// [`WakeError::Argument`] for an entry `parse` refuses, or no entry.
+pub fn checked_list<T>(
+    option: &str,
+    what: &str,
+    text: &str,
+    parse: impl Fn(&str) -> Option<T>,
+) -> Result<Vec<T>> {
+    let argument = |message: String| WakeError::Argument {
+        option: option.into(),
+        message,
+    };
+    let list = text
+        .split(',')
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .map(|s| parse(s).ok_or_else(|| argument(format!("not {what}: {s:?}"))))
+        .collect::<Result<Vec<T>>>()?;
+    if list.is_empty() {
+        return Err(argument(format!("lists no {what}")));
+    }
+    Ok(list)
+}
+
 /// The scene's sizes and schedule of one run (full or `--small`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Sizes {
@@ -414,7 +442,7 @@ fn name_in<T: PartialEq>(table: &[(&'static str, T)], value: T) -> &'static str 
 
 /// The value named `name` in a table of names; an argument error for
 /// `option` listing the names otherwise.
-fn parse_named<T: Copy>(table: &[(&'static str, T)], option: &str, name: &str) -> Result<T> {
+pub fn parse_named<T: Copy>(table: &[(&'static str, T)], option: &str, name: &str) -> Result<T> {
     table
         .iter()
         .find(|(n, _)| *n == name.trim())
@@ -883,110 +911,6 @@ impl Options {
             reference: ReferenceScheme::SecondOrder,
             arithmetic: Arithmetic::Single,
         }
-    }
-
-    /// Takes `--variants LIST`, `--train-re LIST`, `--validation-re LIST`,
-    /// `--held-out-re LIST`, `--lrs LIST`, `--threads N`, `--capacity-sizes
-    /// w8b1,w24b2`, `--no-capacity`, `--no-speed`, `--coarse-advection`,
-    /// `--body`, `--reference-scheme`, `--network-arithmetic` out of
-    /// `args`, the rest left for the common options.
-    ///
-    /// # Errors
-    /// [`WakeError::UnknownVariant`]; [`LearnError::ZeroUnroll`] for `sol0`;
-    /// [`WakeError::ReOutOfRange`]; [`LearnError::EmptySplit`] for an empty Re
-    /// list; [`WakeError::Argument`] for a missing value, an unparsable number
-    /// or a learning rate that is not positive.
-    pub fn take(args: &mut Vec<String>, small: bool) -> Result<Self> {
-        let mut o = Self::defaults(small);
-        let mut i = 0;
-        while i < args.len() {
-            let flag = args[i].clone();
-            let value = |args: &Vec<String>| {
-                args.get(i + 1).cloned().ok_or_else(|| WakeError::Argument {
-                    option: flag.clone(),
-                    message: "needs a value".into(),
-                })
-            };
-            let mut took = 2;
-            match flag.as_str() {
-                "--variants" => {
-                    let v = value(args)?;
-                    let mut variants = vec![Variant::Src];
-                    for name in v.split(',').filter(|s| !s.trim().is_empty()) {
-                        let variant = Variant::parse(name)?;
-                        if !variants.contains(&variant) {
-                            variants.push(variant);
-                        }
-                    }
-                    o.variants = variants;
-                }
-                "--train-re" => o.train_re = parse_re_list(&flag, &value(args)?, Split::Train)?,
-                "--validation-re" => {
-                    o.validation_re = parse_re_list(&flag, &value(args)?, Split::Validation)?
-                }
-                "--held-out-re" => {
-                    o.held_out_re = parse_re_list(&flag, &value(args)?, Split::HeldOut)?
-                }
-                "--lrs" => {
-                    let v = value(args)?;
-                    o.learning_rates = v
-                        .split(',')
-                        .map(|s| match s.trim().parse::<f64>() {
-                            Ok(x) if x.is_finite() && x > 0.0 => Ok(x),
-                            _ => Err(WakeError::Argument {
-                                option: flag.clone(),
-                                message: format!("not a positive learning rate: {s:?}"),
-                            }),
-                        })
-                        .collect::<Result<_>>()?;
-                }
-                "--threads" => {
-                    let v = value(args)?;
-                    o.threads = match v.trim().parse::<usize>() {
-                        Ok(n) if n > 0 => n,
-                        _ => {
-                            return Err(WakeError::Argument {
-                                option: flag.clone(),
-                                message: format!("not a positive thread count: {v:?}"),
-                            })
-                        }
-                    };
-                }
-                "--no-capacity" => {
-                    o.capacity = Vec::new();
-                    took = 1;
-                }
-                "--capacity-sizes" => {
-                    let v = value(args)?;
-                    o.capacity = v
-                        .split(',')
-                        .filter(|s| !s.trim().is_empty())
-                        .map(|s| NetSize::parse(s.trim()))
-                        .filter(|s| s.as_ref().map_or(true, |s| *s != MAIN_SIZE))
-                        .collect::<Result<_>>()?;
-                }
-                "--coarse-advection" => {
-                    o.coarse_advection = parse_named(&ADVECTIONS, &flag, &value(args)?)?
-                }
-                "--body" => o.body = parse_named(&Body::ALL, &flag, &value(args)?)?,
-                "--reference-scheme" => {
-                    o.reference = parse_named(&ReferenceScheme::ALL, &flag, &value(args)?)?
-                }
-                "--network-arithmetic" => {
-                    o.arithmetic = parse_named(&ARITHMETICS, &flag, &value(args)?)?
-                }
-                "--no-speed" => {
-                    o.speed = false;
-                    took = 1;
-                }
-                _ => {
-                    i += 1;
-                    continue;
-                }
-            }
-            args.drain(i..i + took);
-        }
-        Ok(o)
     }
 
     /// The unrolls of the SOL variants, in order.

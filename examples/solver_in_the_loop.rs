@@ -180,19 +180,16 @@ fn main() -> Result<(), BoxError> {
         // over the training seeds; non and noise have nothing to choose.
         let candidate = |(s, g): (Strategy, Vec<Trained<TrainedCorrector>>)| {
             let v = g.iter().map(|t| t.model.validation).sum::<f64>() / g.len() as f64;
-            Candidate::new(s.name(), Trained::new(g), v)
+            Candidate::new(s, Trained::new(g), v)
         };
         let sols = groups.split_off(2);
         let mut selections = vec![select_best(sols.into_iter().map(candidate).collect())?];
         for g in groups {
             selections.push(select_best(vec![candidate(g)])?);
         }
-        let chosen = selections[0].chosen_label().to_string();
+        let chosen = *selections[0].chosen_label();
         println!("  selected by validation: {chosen}");
-        selected_k.insert(
-            ds.to_string(),
-            json!(chosen.trim_start_matches("sol_").parse::<usize>()?),
-        );
+        selected_k.insert(ds.to_string(), json!(chosen.unroll()));
         let coarse = splits
             .held_out()
             .evaluate_baseline(|d| rollout(&hybrid, None, d, steps))?;
@@ -211,8 +208,8 @@ fn main() -> Result<(), BoxError> {
                         .collect::<Result<Vec<_>, _>>()
                 })?;
                 for ((r, &ts), t) in e.result.iter().zip(&seeds.train).zip(&e.model) {
-                    let mut names = vec![e.label.clone()];
-                    if e.label.starts_with("sol_") && e.chosen {
+                    let mut names = vec![e.label.name()];
+                    if matches!(e.label, Strategy::SolverInTheLoop { .. }) && e.chosen {
                         names.push("sol_selected".into());
                         probe_model.get_or_insert((ds, t.model.params.clone()));
                     }

@@ -32,7 +32,7 @@ use std::collections::BTreeMap;
 use std::time::Instant;
 
 use diffphys::flow::PressureSolver;
-use diffphys::learn::study::run_jobs;
+use diffphys::learn::study::{run_jobs, Group, Plan};
 use diffphys::learn::{
     rollout, select_best, Budget, Candidate, DataSeed, Hybrid, LrSchedule, Report, SavedModel,
     Schedule, Simulator, Split, Splits, Strategy, TrainSeed, Trained, TrainedCorrector, Trainer,
@@ -597,23 +597,27 @@ fn main() -> Result<(), BoxError> {
                 plan.push((variant, size));
             }
         }
+        let plan = Plan::new(plan, seeds.train.iter().map(|&s| TrainSeed(s)).collect());
         let jobs: Vec<Job> = plan
-            .iter()
-            .flat_map(|&(variant, size)| {
-                seeds.train.iter().map(move |&seed| Job {
-                    variant,
-                    size,
-                    seed,
-                    lr: lr_for(variant),
-                    evaluations,
-                })
+            .jobs()
+            .into_iter()
+            .map(|j| Job {
+                variant: j.variant,
+                size: j.size,
+                seed: j.seed.0,
+                lr: lr_for(j.variant),
+                evaluations,
             })
             .collect();
-        let mut models = run(&jobs)?.into_iter();
         let mut groups: Vec<(Variant, Vec<Model>)> = Vec::new();
         let mut capacity_groups: Vec<(Variant, Vec<Model>)> = Vec::new();
-        for &(variant, size) in &plan {
-            let group: Vec<Model> = models.by_ref().take(seeds.train.len()).collect();
+        for Group {
+            variant,
+            size,
+            runs: group,
+            ..
+        } in plan.groups(run(&jobs)?)?
+        {
             for m in &group {
                 let key = if size == MAIN_SIZE {
                     validation_report.add(

@@ -35,14 +35,17 @@
 use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
 use ndarray::{Array1, Array2, ArrayView1, ArrayView2};
 
-use crate::boundaries::{view1, view2, FaceKind};
+use std::sync::Arc;
+
+use crate::boundaries::{view1, view2, FaceKind, Faces};
 use crate::buffers::{
     give_back, in_blocks, join, narrow, scratch, walls_of, wide, zero_pairs, zeros,
 };
 use crate::grid::{FlowGrid, Lattice};
-use crate::{Result, Scene};
+use crate::sides::Side;
+use crate::Result;
 
-/// The advection scheme of a scene.
+/// An advection scheme.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Advection {
     /// First order, unconditionally stable.
@@ -253,7 +256,7 @@ pub(crate) struct Stencil {
 impl Sampler {
     pub(crate) fn new(grid: &FlowGrid, lattice: Lattice) -> Self {
         let sides = &grid.sides;
-        let ghost = |lo: crate::Side, hi: crate::Side, n: usize| {
+        let ghost = |lo: Side, hi: Side, n: usize| {
             let (fl, wl) = sides.get(lo).ghost();
             let (fh, wh) = sides.get(hi).ghost();
             AxisRule::Ghost {
@@ -266,12 +269,12 @@ impl Sampler {
         let [na, nb] = grid.shape(lattice);
         let rx = match (lattice, px) {
             (_, true) => AxisRule::Wrap { n: na },
-            (Lattice::FaceY, false) => ghost(crate::Side::Left, crate::Side::Right, na),
+            (Lattice::FaceY, false) => ghost(Side::Left, Side::Right, na),
             _ => AxisRule::Clamp { n: na },
         };
         let ry = match (lattice, py) {
             (_, true) => AxisRule::Wrap { n: nb },
-            (Lattice::FaceX, false) => ghost(crate::Side::Bottom, crate::Side::Top, nb),
+            (Lattice::FaceX, false) => ghost(Side::Bottom, Side::Top, nb),
             _ => AxisRule::Clamp { n: nb },
         };
         Sampler {
@@ -1002,22 +1005,22 @@ impl Grads {
     }
 }
 
-fn field_of<'a>(scene: &'a Scene, lattice: Lattice) -> Field<'a> {
+fn field_of<'a>(grid: &FlowGrid, faces: &'a Faces, lattice: Lattice) -> Field<'a> {
     Field {
         lattice,
-        sampler: Sampler::new(scene.grid(), lattice),
-        kinds: scene.faces().of(lattice),
+        sampler: Sampler::new(grid, lattice),
+        kinds: faces.of(lattice),
     }
 }
 
-fn tracer<'a>(scene: &'a Scene, ux: &'a [f64], uy: &'a [f64], walls: [f64; 4]) -> Tracer<'a> {
+fn tracer<'a>(grid: &'a FlowGrid, ux: &'a [f64], uy: &'a [f64], walls: [f64; 4]) -> Tracer<'a> {
     Tracer {
-        grid: scene.grid(),
+        grid,
         ux,
         uy,
         walls,
-        sx: Sampler::new(scene.grid(), Lattice::FaceX),
-        sy: Sampler::new(scene.grid(), Lattice::FaceY),
+        sx: Sampler::new(grid, Lattice::FaceX),
+        sy: Sampler::new(grid, Lattice::FaceY),
     }
 }
 
@@ -1061,23 +1064,38 @@ const SCALAR: &str = "scalar advection";
 /// # Errors
 /// [`crate::FlowError::Shape`] for arrays of the wrong shapes.
 pub fn advect_velocity<T: Real>(
-    scene: &Scene,
+    grid: &FlowGrid,
+    faces: &Faces,
     scheme: Advection,
     dt: f64,
     field: (ArrayView2<'_, T>, ArrayView2<'_, T>),
     velocity: (ArrayView2<'_, T>, ArrayView2<'_, T>),
     wall_speed: ArrayView1<'_, T>,
 ) -> Result<(Array2<T>, Array2<T>)> {
-    scene.check_velocity(VELOCITY, field.0, field.1)?;
-    scene.check_velocity(VELOCITY, velocity.0, velocity.1)?;
-    scene.check_walls(VELOCITY, wall_speed)?;
+    grid.check_velocity(VELOCITY, field.0, field.1)?;
+    grid.check_velocity(VELOCITY, velocity.0, velocity.1)?;
+    grid.check_walls(VELOCITY, wall_speed)?;
     let (ux, uy) = (wide(velocity.0), wide(velocity.1));
-    let tr = tracer(scene, &ux, &uy, walls_of(wall_speed));
-    let g = scene.grid();
+    let tr = tracer(grid, &ux, &uy, walls_of(wall_speed));
+    let g = grid;
     // the two components are independent: on two threads when there are
     let (ox, oy) = join(
-        || tr.step(&field_of(scene, Lattice::FaceX), &wide(field.0), dt, scheme),
-        || tr.step(&field_of(scene, Lattice::FaceY), &wide(field.1), dt, scheme),
+        || {
+            tr.step(
+                &field_of(grid, faces, Lattice::FaceX),
+                &wide(field.0),
+                dt,
+                scheme,
+            )
+        },
+        || {
+            tr.step(
+                &field_of(grid, faces, Lattice::FaceY),
+                &wide(field.1),
+                dt,
+                scheme,
+            )
+        },
     );
     Ok((narrow(g.shape_x(), ox), narrow(g.shape_y(), oy)))
 }
@@ -1087,8 +1105,10 @@ pub fn advect_velocity<T: Real>(
 ///
 /// # Errors
 /// As [`advect_velocity`].
+#[allow(clippy::too_many_arguments)]
 pub fn advect_velocity_vjp<T: Real>(
-    scene: &Scene,
+    grid: &FlowGrid,
+    faces: &Faces,
     scheme: Advection,
     dt: f64,
     field: (ArrayView2<'_, T>, ArrayView2<'_, T>),
@@ -1096,19 +1116,19 @@ pub fn advect_velocity_vjp<T: Real>(
     wall_speed: ArrayView1<'_, T>,
     grad: (ArrayView2<'_, T>, ArrayView2<'_, T>),
 ) -> Result<VelocityAdvectionGrads<T>> {
-    scene.check_velocity(VELOCITY, field.0, field.1)?;
-    scene.check_velocity(VELOCITY, velocity.0, velocity.1)?;
-    scene.check_velocity(VELOCITY, grad.0, grad.1)?;
-    scene.check_walls(VELOCITY, wall_speed)?;
+    grid.check_velocity(VELOCITY, field.0, field.1)?;
+    grid.check_velocity(VELOCITY, velocity.0, velocity.1)?;
+    grid.check_velocity(VELOCITY, grad.0, grad.1)?;
+    grid.check_walls(VELOCITY, wall_speed)?;
     let (ux, uy) = (wide(velocity.0), wide(velocity.1));
-    let tr = tracer(scene, &ux, &uy, walls_of(wall_speed));
+    let tr = tracer(grid, &ux, &uy, walls_of(wall_speed));
     let (nx, ny) = (ux.len(), uy.len());
     // each component's products land in gradients of its own, added after
     // in a fixed order: on two threads, the same bits as on one
     let component = |lattice: Lattice, q: ArrayView2<'_, T>, g: ArrayView2<'_, T>, nq: usize| {
         let mut grads = Grads::zeros(nq, nx, ny);
         tr.step_vjp(
-            &field_of(scene, lattice),
+            &field_of(grid, faces, lattice),
             &wide(q),
             dt,
             scheme,
@@ -1127,7 +1147,7 @@ pub fn advect_velocity_vjp<T: Real>(
     }
     give_back(gy.ux);
     give_back(gy.uy);
-    let g = scene.grid();
+    let g = grid;
     Ok(VelocityAdvectionGrads {
         field_x: narrow(g.shape_x(), gx.q),
         field_y: narrow(g.shape_y(), gy.q),
@@ -1144,8 +1164,10 @@ pub fn advect_velocity_vjp<T: Real>(
 ///
 /// # Errors
 /// [`FlowError::Shape`] for arrays of the wrong shapes.
+#[allow(clippy::too_many_arguments)]
 pub fn advect_scalar<T: Real>(
-    scene: &Scene,
+    grid: &FlowGrid,
+    faces: &Faces,
     scheme: Advection,
     dt: f64,
     s: ArrayView2<'_, T>,
@@ -1153,13 +1175,13 @@ pub fn advect_scalar<T: Real>(
     uy: ArrayView2<'_, T>,
     wall_speed: ArrayView1<'_, T>,
 ) -> Result<Array2<T>> {
-    scene.check_velocity(SCALAR, ux, uy)?;
-    scene.check_cells(SCALAR, "scalar", s)?;
-    scene.check_walls(SCALAR, wall_speed)?;
+    grid.check_velocity(SCALAR, ux, uy)?;
+    grid.check_cells(SCALAR, "scalar", s)?;
+    grid.check_walls(SCALAR, wall_speed)?;
     let (ux, uy) = (wide(ux), wide(uy));
-    let tr = tracer(scene, &ux, &uy, walls_of(wall_speed));
-    let out = tr.step(&field_of(scene, Lattice::Cell), &wide(s), dt, scheme);
-    Ok(narrow(scene.grid().cell_shape(), out))
+    let tr = tracer(grid, &ux, &uy, walls_of(wall_speed));
+    let out = tr.step(&field_of(grid, faces, Lattice::Cell), &wide(s), dt, scheme);
+    Ok(narrow(grid.cell_shape(), out))
 }
 
 /// The vector–Jacobian product of [`advect_scalar`] with the gradient `grad`
@@ -1169,7 +1191,8 @@ pub fn advect_scalar<T: Real>(
 /// As [`advect_scalar`].
 #[allow(clippy::too_many_arguments)]
 pub fn advect_scalar_vjp<T: Real>(
-    scene: &Scene,
+    grid: &FlowGrid,
+    faces: &Faces,
     scheme: Advection,
     dt: f64,
     s: ArrayView2<'_, T>,
@@ -1178,23 +1201,22 @@ pub fn advect_scalar_vjp<T: Real>(
     wall_speed: ArrayView1<'_, T>,
     grad: ArrayView2<'_, T>,
 ) -> Result<ScalarAdvectionGrads<T>> {
-    scene.check_velocity(SCALAR, ux, uy)?;
-    scene.check_cells(SCALAR, "scalar", s)?;
-    scene.check_cells(SCALAR, "gradient", grad)?;
-    scene.check_walls(SCALAR, wall_speed)?;
+    grid.check_velocity(SCALAR, ux, uy)?;
+    grid.check_cells(SCALAR, "scalar", s)?;
+    grid.check_cells(SCALAR, "gradient", grad)?;
+    grid.check_walls(SCALAR, wall_speed)?;
     let (uxw, uyw) = (wide(ux), wide(uy));
-    let tr = tracer(scene, &uxw, &uyw, walls_of(wall_speed));
+    let tr = tracer(grid, &uxw, &uyw, walls_of(wall_speed));
     let sw = wide(s);
     let mut g = Grads::zeros(sw.len(), uxw.len(), uyw.len());
     tr.step_vjp(
-        &field_of(scene, Lattice::Cell),
+        &field_of(grid, faces, Lattice::Cell),
         &sw,
         dt,
         scheme,
         &wide(grad),
         &mut g,
     );
-    let grid = scene.grid();
     Ok(ScalarAdvectionGrads {
         scalar: narrow(grid.cell_shape(), g.q),
         ux: narrow(grid.shape_x(), g.ux),
@@ -1207,8 +1229,10 @@ pub fn advect_scalar_vjp<T: Real>(
 /// wall_speed]`, outputs `[q_x', q_y']`.
 #[derive(Debug, Clone)]
 pub struct AdvectVelocity {
-    /// The scene.
-    pub scene: Scene,
+    /// The grid.
+    pub grid: FlowGrid,
+    /// Its faces: fixed ones are passed through.
+    pub faces: Arc<Faces>,
     /// The scheme.
     pub scheme: Advection,
     /// The time step.
@@ -1223,7 +1247,8 @@ impl<T: Real> Op<T> for AdvectVelocity {
     fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
         TapeError::check_arity(VELOCITY, 5, inputs.len())?;
         let (a, b) = advect_velocity(
-            &self.scene,
+            &self.grid,
+            &self.faces,
             self.scheme,
             self.dt,
             (view2(&inputs[0])?, view2(&inputs[1])?),
@@ -1240,7 +1265,8 @@ impl<T: Real> Op<T> for AdvectVelocity {
         let gx = args.grad_output_or_zeros(0);
         let gy = args.grad_output_or_zeros(1);
         let g = advect_velocity_vjp(
-            &self.scene,
+            &self.grid,
+            &self.faces,
             self.scheme,
             self.dt,
             (view2(args.input(0))?, view2(args.input(1))?),
@@ -1262,8 +1288,10 @@ impl<T: Real> Op<T> for AdvectVelocity {
 /// output `[s']`.
 #[derive(Debug, Clone)]
 pub struct AdvectScalar {
-    /// The scene.
-    pub scene: Scene,
+    /// The grid.
+    pub grid: FlowGrid,
+    /// Its faces: fixed ones are passed through.
+    pub faces: Arc<Faces>,
     /// The scheme.
     pub scheme: Advection,
     /// The time step.
@@ -1278,7 +1306,8 @@ impl<T: Real> Op<T> for AdvectScalar {
     fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
         TapeError::check_arity(SCALAR, 4, inputs.len())?;
         let s = advect_scalar(
-            &self.scene,
+            &self.grid,
+            &self.faces,
             self.scheme,
             self.dt,
             view2(&inputs[0])?,
@@ -1294,7 +1323,8 @@ impl<T: Real> Op<T> for AdvectScalar {
         args: &BackwardArgs<'_, T>,
     ) -> diffphys_tape::Result<Vec<Option<ArrayD<T>>>> {
         let g = advect_scalar_vjp(
-            &self.scene,
+            &self.grid,
+            &self.faces,
             self.scheme,
             self.dt,
             view2(args.input(0))?,
@@ -1315,7 +1345,21 @@ impl<T: Real> Op<T> for AdvectScalar {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::Sides;
+    use crate::sides::Sides;
+    use ndarray::Array2;
+
+    /// A grid of `nx × ny` cells over `size` with `sides`, no obstacle.
+    fn grid_and_faces(nx: usize, ny: usize, size: [f64; 2], sides: Sides) -> (FlowGrid, Faces) {
+        let grid = FlowGrid {
+            nx,
+            ny,
+            dx: size[0] / nx as f64,
+            dy: size[1] / ny as f64,
+            sides,
+        };
+        let faces = Faces::classify(&grid, &Array2::from_elem((nx, ny), false));
+        (grid, faces)
+    }
 
     /// A value in [-1, 1) from an index, deterministic.
     fn wobble(k: usize, a: usize, b: usize) -> f64 {
@@ -1326,16 +1370,10 @@ mod tests {
     /// every entry of every lattice, beside walls and a moving lid too.
     #[test]
     fn table_scatter_matches_the_stencils() {
-        let lid = Scene::builder(7, 6, [1.0, 1.0])
-            .sides(Sides::cavity(0.8))
-            .build()
-            .unwrap();
-        let periodic = Scene::builder(6, 5, [1.0, 1.0])
-            .sides(Sides::periodic())
-            .build()
-            .unwrap();
-        for scene in [lid, periodic] {
-            let g = scene.grid();
+        let lid = grid_and_faces(7, 6, [1.0, 1.0], Sides::cavity(0.8)).0;
+        let periodic = grid_and_faces(6, 5, [1.0, 1.0], Sides::periodic()).0;
+        for grid in [lid, periodic] {
+            let g = &grid;
             for lattice in [Lattice::FaceX, Lattice::FaceY, Lattice::Cell] {
                 let [na, nb] = g.shape(lattice);
                 for sampled in [Lattice::FaceX, Lattice::FaceY] {
@@ -1364,11 +1402,8 @@ mod tests {
     /// for displacements of several cells either way (wraps included).
     #[test]
     fn periodic_path_matches_the_stencils() {
-        let scene = Scene::builder(13, 9, [1.3, 0.7])
-            .sides(Sides::periodic())
-            .build()
-            .unwrap();
-        let g = scene.grid();
+        let (grid, faces) = grid_and_faces(13, 9, [1.3, 0.7], Sides::periodic());
+        let g = &grid;
         let (nx, ny) = (
             g.shape_x().iter().product::<usize>(),
             g.shape_y().iter().product::<usize>(),
@@ -1376,10 +1411,10 @@ mod tests {
         let ux: Vec<f64> = (0..nx).map(|k| 3.0 * wobble(k, 37, 101)).collect();
         let uy: Vec<f64> = (0..ny).map(|k| 3.0 * wobble(k, 53, 89)).collect();
         let walls = [0.0; 4];
-        let tr = tracer(&scene, &ux, &uy, walls);
+        let tr = tracer(g, &ux, &uy, walls);
         let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         for lattice in [Lattice::FaceX, Lattice::FaceY, Lattice::Cell] {
-            let field = field_of(&scene, lattice);
+            let field = field_of(g, &faces, lattice);
             assert!(field.sampler.periodic().is_some());
             let n = g.shape(lattice).iter().product::<usize>();
             let q: Vec<f64> = (0..n).map(|k| wobble(k, 17, 71)).collect();

@@ -6,7 +6,7 @@
 //! `2U − u`, see [`crate::boundaries`]) or, along the normal, repeats the face
 //! (zero gradient at an outflow). Fixed faces (walls, inflow, obstacle) are
 //! read as they are. So the Laplacian is affine: `L u = L₀ u + c(U)`, with `L₀`
-//! assembled once per scene and `c` linear in the wall speeds.
+//! assembled once per grid and `c` linear in the wall speeds.
 //!
 //! ```text
 //! explicit:  u' = u + ν dt L u                       (free faces)
@@ -40,13 +40,16 @@ use diffphys_ops::LinearOperator;
 use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
 use ndarray::{Array1, Array2, ArrayView1, ArrayView2, ArrayViewMutD, IxDyn};
 
+use std::sync::Arc;
+
 use crate::boundaries::{scalar_of, view1, view2, FaceKind, Faces};
 use crate::buffers::{
     copied, for_row_blocks, give_back, join, narrow, owned, scratch, walls_of, wide, zeros,
 };
 use crate::grid::{FlowGrid, Lattice};
 use crate::sparse::Csr;
-use crate::{FlowError, Result, Scene};
+use crate::spectral::PeriodicPoisson;
+use crate::{FlowError, Result};
 
 /// How viscosity is stepped.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -55,6 +58,54 @@ pub enum ViscosityMode {
     Explicit,
     /// Backward Euler, a Helmholtz solve per component.
     Implicit,
+}
+
+/// The viscous operator of a grid with its faces, assembled once: the vector
+/// Laplacian with the side conditions, the Fourier solves of a periodic box,
+/// and the conjugate gradient of the implicit step. What [`diffuse`] steps.
+#[derive(Debug, Clone)]
+pub struct Diffusion {
+    grid: FlowGrid,
+    laplacian: VectorLaplacian,
+    /// The Fourier solves of a box periodic in both axes without obstacle.
+    spectral: Option<Arc<PeriodicPoisson>>,
+    /// The implicit step's solve.
+    solver: CgParams,
+}
+
+impl Diffusion {
+    /// Assembles the Laplacian of `grid` with its `faces`; `solver` is the
+    /// implicit step's CG (where the transform does not solve it).
+    pub fn new(grid: &FlowGrid, faces: &Faces, solver: CgParams) -> Self {
+        let spectral = PeriodicPoisson::for_grid(grid, faces).map(Arc::new);
+        Self::with_spectral(grid, faces, solver, spectral)
+    }
+
+    /// [`Diffusion::new`] sharing the Fourier solves of a periodic box.
+    pub(crate) fn with_spectral(
+        grid: &FlowGrid,
+        faces: &Faces,
+        solver: CgParams,
+        spectral: Option<Arc<PeriodicPoisson>>,
+    ) -> Self {
+        Diffusion {
+            grid: grid.clone(),
+            laplacian: VectorLaplacian::new(grid, faces),
+            spectral,
+            solver,
+        }
+    }
+
+    /// The grid.
+    pub fn grid(&self) -> &FlowGrid {
+        &self.grid
+    }
+
+    /// The Laplacians of both components.
+    #[cfg(test)]
+    pub(crate) fn laplacian(&self) -> &VectorLaplacian {
+        &self.laplacian
+    }
 }
 
 /// The Laplacian of one velocity component, split by the kind of column.
@@ -371,7 +422,7 @@ impl LinearOperator<f64> for Helmholtz<'_> {
 /// Solves `M x = r` from `guess`: by FFT on a box periodic in both axes
 /// without obstacle (every face free, `M` circulant; exact), by CG otherwise.
 fn helmholtz_solve(
-    scene: &Scene,
+    diffusion: &Diffusion,
     lap: &ComponentLaplacian,
     nu_dt: f64,
     r: Vec<f64>,
@@ -381,13 +432,13 @@ fn helmholtz_solve(
     if n == 0 {
         return Ok(r);
     }
-    if let Some(fft) = scene.spectral() {
+    if let Some(fft) = &diffusion.spectral {
         if lap.free.len() == lap.len {
             crate::spectral::check_finite("viscosity solve", "right-hand side", &r)?;
             return Ok(fft.solve_helmholtz(&r, nu_dt));
         }
     }
-    let params = &scene.settings().viscosity_solver;
+    let params = &diffusion.solver;
     let op = Helmholtz {
         lap,
         nu_dt,
@@ -442,7 +493,7 @@ fn check_nu(nu: f64) -> Result<()> {
 /// `ν ≤ 0`, [`FlowError::Solve`] if the implicit solve fails.
 #[allow(clippy::too_many_arguments)]
 pub fn diffuse<T: Real>(
-    scene: &Scene,
+    diffusion: &Diffusion,
     mode: ViscosityMode,
     dt: f64,
     ux: ArrayView2<'_, T>,
@@ -450,13 +501,12 @@ pub fn diffuse<T: Real>(
     nu: T,
     wall_speed: ArrayView1<'_, T>,
 ) -> Result<(Array2<T>, Array2<T>)> {
-    scene.check_velocity(NAME, ux, uy)?;
-    scene.check_walls(NAME, wall_speed)?;
+    let (grid, lap) = (&diffusion.grid, &diffusion.laplacian);
+    grid.check_velocity(NAME, ux, uy)?;
+    grid.check_walls(NAME, wall_speed)?;
     let nu = nu.as_f64();
     check_nu(nu)?;
     let walls = walls_of(wall_speed);
-    let lap = scene.laplacian();
-    let grid = scene.grid();
     // the two components are independent: on two threads
     let component = |lat: Lattice, u: ArrayView2<'_, T>| -> Result<Array2<T>> {
         let l = lap.of(lat);
@@ -478,7 +528,7 @@ pub fn diffuse<T: Real>(
                 r.iter_mut()
                     .zip(&uf)
                     .for_each(|(r, u)| *r = u + nu * dt * *r);
-                let new_free = helmholtz_solve(scene, l, nu * dt, r, uf)?;
+                let new_free = helmholtz_solve(diffusion, l, nu * dt, r, uf)?;
                 for (&k, v) in l.free.iter().zip(new_free) {
                     u[k] = v;
                 }
@@ -502,7 +552,7 @@ pub fn diffuse<T: Real>(
 /// As [`diffuse`].
 #[allow(clippy::too_many_arguments)]
 pub fn diffuse_vjp<T: Real>(
-    scene: &Scene,
+    diffusion: &Diffusion,
     mode: ViscosityMode,
     dt: f64,
     ux: ArrayView2<'_, T>,
@@ -512,15 +562,14 @@ pub fn diffuse_vjp<T: Real>(
     out: (ArrayView2<'_, T>, ArrayView2<'_, T>),
     grad: (ArrayView2<'_, T>, ArrayView2<'_, T>),
 ) -> Result<DiffusionGrads<T>> {
-    scene.check_velocity(NAME, ux, uy)?;
-    scene.check_velocity(NAME, out.0, out.1)?;
-    scene.check_velocity(NAME, grad.0, grad.1)?;
-    scene.check_walls(NAME, wall_speed)?;
+    let (grid, lap) = (&diffusion.grid, &diffusion.laplacian);
+    grid.check_velocity(NAME, ux, uy)?;
+    grid.check_velocity(NAME, out.0, out.1)?;
+    grid.check_velocity(NAME, grad.0, grad.1)?;
+    grid.check_walls(NAME, wall_speed)?;
     let nu = nu.as_f64();
     check_nu(nu)?;
     let walls = walls_of(wall_speed);
-    let lap = scene.laplacian();
-    let grid = scene.grid();
     // each component's gradient, wall and ν terms of its own, on two threads
     // and added after in a fixed order
     let component = |lat: Lattice,
@@ -549,7 +598,7 @@ pub fn diffuse_vjp<T: Real>(
                     gu[k] = 0.0;
                 }
                 let g_free = l.gather(&g);
-                let s = helmholtz_solve(scene, l, nu * dt, g_free.clone(), g_free)?;
+                let s = helmholtz_solve(diffusion, l, nu * dt, g_free.clone(), g_free)?;
                 for (&k, &sv) in l.free.iter().zip(&s) {
                     gu[k] += sv;
                 }
@@ -580,8 +629,8 @@ pub fn diffuse_vjp<T: Real>(
 /// `[u_x', u_y']`.
 #[derive(Debug, Clone)]
 pub struct Diffuse {
-    /// The scene.
-    pub scene: Scene,
+    /// The viscous operator.
+    pub diffusion: Arc<Diffusion>,
     /// Explicit or implicit.
     pub mode: ViscosityMode,
     /// The time step.
@@ -596,7 +645,7 @@ impl<T: Real> Op<T> for Diffuse {
     fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
         TapeError::check_arity(NAME, 4, inputs.len())?;
         let (a, b) = diffuse(
-            &self.scene,
+            &self.diffusion,
             self.mode,
             self.dt,
             view2(&inputs[0])?,
@@ -614,7 +663,7 @@ impl<T: Real> Op<T> for Diffuse {
         let gx = args.grad_output_or_zeros(0);
         let gy = args.grad_output_or_zeros(1);
         let g = diffuse_vjp(
-            &self.scene,
+            &self.diffusion,
             self.mode,
             self.dt,
             view2(args.input(0))?,
@@ -645,7 +694,8 @@ pub(crate) fn default_viscosity_solver() -> CgParams {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::{Boundary, Obstacle, Sides};
+    use crate::boundaries::Obstacle;
+    use crate::sides::{Boundary, Sides};
 
     /// `(L u)_F` from the assembled blocks `L_FF u_F + L_FX u + c(U)`.
     fn assembled(l: &ComponentLaplacian, u: &[f64], walls: &[f64; 4]) -> Vec<f64> {
@@ -658,33 +708,55 @@ mod tests {
         out
     }
 
-    fn scenes() -> Vec<Scene> {
+    /// The viscous operators of a few grids: walls of every kind with an
+    /// obstacle, periodic boxes, a channel periodic along x.
+    fn operators() -> Vec<Diffusion> {
+        let grid = |n: usize, m: usize, size: [f64; 2], sides: Sides| FlowGrid {
+            nx: n,
+            ny: m,
+            dx: size[0] / n as f64,
+            dy: size[1] / m as f64,
+            sides,
+        };
         let mixed = |n: usize, m: usize| {
-            Scene::builder(n, m, [1.0, 0.8])
-                .sides(Sides {
+            let g = grid(
+                n,
+                m,
+                [1.0, 0.8],
+                Sides {
                     left: Boundary::NoSlip,
                     right: Boundary::Outflow,
                     bottom: Boundary::MovingWall { speed: 0.5 },
                     top: Boundary::FreeSlip,
-                })
-                .obstacle(Obstacle::rectangle([0.4, 0.3], [0.7, 0.65]))
+                },
+            );
+            let solid = Obstacle::rectangle([0.4, 0.3], [0.7, 0.65])
+                .rasterise(&g)
+                .unwrap();
+            (g, solid)
         };
-        let periodic_x = Scene::builder(9, 7, [1.0, 1.0]).sides(Sides {
+        let plain = |g: FlowGrid| {
+            let solid = ndarray::Array2::from_elem((g.nx, g.ny), false);
+            (g, solid)
+        };
+        let periodic_x = Sides {
             left: Boundary::Periodic,
             right: Boundary::Periodic,
             bottom: Boundary::NoSlip,
             top: Boundary::MovingWall { speed: -0.3 },
-        });
+        };
         [
             mixed(8, 7),
             // large enough that the stencil splits across threads
             mixed(300, 240),
-            Scene::builder(6, 5, [1.0, 1.0]).sides(Sides::periodic()),
-            Scene::builder(2, 3, [1.0, 1.0]).sides(Sides::periodic()),
-            periodic_x,
+            plain(grid(6, 5, [1.0, 1.0], Sides::periodic())),
+            plain(grid(2, 3, [1.0, 1.0], Sides::periodic())),
+            plain(grid(9, 7, [1.0, 1.0], periodic_x)),
         ]
         .into_iter()
-        .map(|b| b.viscosity(0.01).dt(0.01).build().unwrap())
+        .map(|(g, solid)| {
+            Diffusion::new(&g, &Faces::classify(&g, &solid), default_viscosity_solver())
+        })
         .collect()
     }
 
@@ -693,8 +765,8 @@ mod tests {
     #[test]
     fn stencil_rows_match_the_assembled_blocks() {
         let walls = [0.3, -0.7, 1.1, 0.4];
-        for scene in scenes() {
-            for l in [&scene.laplacian().x, &scene.laplacian().y] {
+        for diffusion in operators() {
+            for l in [&diffusion.laplacian().x, &diffusion.laplacian().y] {
                 let u: Vec<f64> = (0..l.len).map(|k| ((k * 37 % 101) as f64).sin()).collect();
                 let fast = l.apply(&u, &walls);
                 let slow = assembled(l, &u, &walls);

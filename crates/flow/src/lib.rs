@@ -61,19 +61,22 @@ pub mod forcing;
 pub mod grid;
 pub mod packed;
 pub mod pressure;
+pub mod sides;
 mod sparse;
 mod spectral;
+mod staggered;
 pub mod step;
 pub mod validation;
 
 pub use advection::Advection;
-pub use boundaries::{Boundary, Obstacle, Side, Sides};
+pub use boundaries::{Faces, Obstacle};
 pub use diffusion::ViscosityMode;
 pub use error::{FlowError, Result};
 pub use forcing::Buoyancy;
 pub use grid::{FlowGrid, Lattice};
 pub use packed::{batch_of_packed, restrict_velocity};
 pub use pressure::PressureSolver;
+pub use sides::{Boundary, Side, Sides};
 pub use step::{
     Exec, FlowParams, FlowState, FlowVars, ParamVars, Scene, SceneBuilder, Settings, Splitting,
     StepInfo,

@@ -43,21 +43,22 @@ use diffphys_ops::cg::CgParams;
 use diffphys_tape::{
     checkpointed_steps, parallel, ArrayD, Op, Real, Schedule, StepFn, Tape, TapeError, Var,
 };
-use ndarray::{Array1, Array2, ArrayView1, ArrayView2, Ix2, IxDyn};
+use ndarray::{Array1, Array2, ArrayView2, Ix2, IxDyn};
 
 use crate::advection::{AdvectScalar, AdvectVelocity, Advection};
-use crate::boundaries::{EnforceBoundaries, Faces, Obstacle, Side, Sides};
+use crate::boundaries::{inflow_side, EnforceBoundaries, Faces, Obstacle};
 use crate::diagnostics::ForceWeights;
 use crate::diffusion::{
-    default_viscosity_solver, explicit_diffusion_number, Diffuse, VectorLaplacian, ViscosityMode,
+    default_viscosity_solver, explicit_diffusion_number, Diffuse, Diffusion, ViscosityMode,
 };
 use crate::forcing::{Buoyancy, Buoyant};
 use crate::grid::FlowGrid;
 use crate::pressure::{
     PressureSolver, PressureSystem, Project, SolveCounter, SubtractPressureGradient,
 };
+use crate::sides::{Boundary, Side, Sides};
 use crate::spectral::PeriodicPoisson;
-use crate::{Boundary, FlowError, Result};
+use crate::{FlowError, Result};
 
 /// How the pressure enters the step (see the [module docs](self)).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -104,17 +105,14 @@ impl Default for Settings {
 
 #[derive(Debug)]
 struct SceneInner {
-    /// The Fourier solves of a box periodic in both axes without obstacle.
-    spectral: Option<Arc<PeriodicPoisson>>,
     grid: FlowGrid,
     solid: Array2<bool>,
-    faces: Faces,
-    /// Some face is fixed (a wall, an inflow, an obstacle): the step sets
-    /// them; otherwise enforcing the boundaries is the identity and skipped.
-    constrained: bool,
-    laplacian: VectorLaplacian,
-    pressure: PressureSystem,
-    forces: ForceWeights,
+    /// Which faces are fixed; with none (a periodic box without obstacle)
+    /// enforcing the boundaries is the identity and skipped.
+    faces: Arc<Faces>,
+    diffusion: Arc<Diffusion>,
+    pressure: Arc<PressureSystem>,
+    forces: Arc<ForceWeights>,
     viscosity: f64,
     dt: f64,
     inflow: Array1<f64>,
@@ -423,11 +421,16 @@ impl SceneBuilder {
                 ));
             }
         }
-        let faces = Faces::classify(&grid, &solid);
-        let laplacian = VectorLaplacian::new(&grid, &faces);
-        let spectral = (grid.periodic_x() && grid.periodic_y() && !solid.iter().any(|&s| s))
-            .then(|| Arc::new(PeriodicPoisson::new(grid.nx, grid.ny, grid.dx, grid.dy)));
-        let pressure = PressureSystem::new(
+        let faces = Arc::new(Faces::classify(&grid, &solid));
+        // one set of Fourier solves for the viscosity and the pressure
+        let spectral = PeriodicPoisson::for_grid(&grid, &faces).map(Arc::new);
+        let diffusion = Diffusion::with_spectral(
+            &grid,
+            &faces,
+            settings.viscosity_solver.clone(),
+            spectral.clone(),
+        );
+        let pressure = PressureSystem::with_spectral(
             &grid,
             &faces,
             &solid,
@@ -435,16 +438,13 @@ impl SceneBuilder {
             spectral.as_ref(),
         )?;
         let forces = ForceWeights::new(&grid, &solid);
-        let constrained = !faces.all_free();
         Ok(Scene(Arc::new(SceneInner {
-            spectral,
             grid,
             solid,
-            constrained,
             faces,
-            laplacian,
-            pressure,
-            forces,
+            diffusion: Arc::new(diffusion),
+            pressure: Arc::new(pressure),
+            forces: Arc::new(forces),
             viscosity,
             dt,
             inflow,
@@ -454,12 +454,6 @@ impl SceneBuilder {
             settings,
         })))
     }
-}
-
-fn inflow_side(sides: &Sides) -> Option<Side> {
-    Side::ALL
-        .into_iter()
-        .find(|&s| sides.get(s) == Boundary::Inflow)
 }
 
 /// The state of a flow without a tape.
@@ -734,32 +728,28 @@ impl Scene {
 
     /// Whether the pressure operator is singular (no outflow side).
     pub fn pressure_is_singular(&self) -> bool {
-        self.0.pressure.singular
+        self.0.pressure.is_singular()
     }
 
-    pub(crate) fn faces(&self) -> &Faces {
+    /// The condition on every face (the sides and the obstacle resolved):
+    /// what [`crate::boundaries::enforce_boundaries`], the advection, the
+    /// buoyancy and the pressure gradient take.
+    pub fn faces(&self) -> &Arc<Faces> {
         &self.0.faces
     }
 
-    /// Whether some face is fixed (a wall, an inflow, an obstacle).
-    pub(crate) fn constrained(&self) -> bool {
-        self.0.constrained
+    /// The viscous operator, for [`crate::diffusion::diffuse`].
+    pub fn diffusion(&self) -> &Arc<Diffusion> {
+        &self.0.diffusion
     }
 
-    /// The Fourier solves, on a box periodic in both axes without obstacle.
-    pub(crate) fn spectral(&self) -> Option<&PeriodicPoisson> {
-        self.0.spectral.as_deref()
-    }
-
-    pub(crate) fn laplacian(&self) -> &VectorLaplacian {
-        &self.0.laplacian
-    }
-
-    pub(crate) fn pressure_system(&self) -> &PressureSystem {
+    /// The pressure system, for [`crate::pressure::project`].
+    pub fn pressure_system(&self) -> &Arc<PressureSystem> {
         &self.0.pressure
     }
 
-    pub(crate) fn force_weights(&self) -> &ForceWeights {
+    /// The obstacle's surface, for [`crate::diagnostics::obstacle_force`].
+    pub fn force_weights(&self) -> &Arc<ForceWeights> {
         &self.0.forces
     }
 
@@ -777,60 +767,6 @@ impl Scene {
         }
     }
 
-    pub(crate) fn check_component<T>(
-        &self,
-        step: &str,
-        quantity: &str,
-        shape: [usize; 2],
-        a: ArrayView2<'_, T>,
-    ) -> Result<()> {
-        if a.shape() == shape {
-            Ok(())
-        } else {
-            Err(FlowError::shape(step, quantity, &shape, a.shape()))
-        }
-    }
-
-    pub(crate) fn check_velocity<T>(
-        &self,
-        step: &str,
-        ux: ArrayView2<'_, T>,
-        uy: ArrayView2<'_, T>,
-    ) -> Result<()> {
-        self.check_component(step, "x-velocity", self.grid().shape_x(), ux)?;
-        self.check_component(step, "y-velocity", self.grid().shape_y(), uy)
-    }
-
-    pub(crate) fn check_cells<T>(
-        &self,
-        step: &str,
-        quantity: &str,
-        a: ArrayView2<'_, T>,
-    ) -> Result<()> {
-        self.check_component(step, quantity, self.grid().cell_shape(), a)
-    }
-
-    pub(crate) fn check_walls<T>(&self, step: &str, w: ArrayView1<'_, T>) -> Result<()> {
-        if w.len() == 4 {
-            Ok(())
-        } else {
-            Err(FlowError::shape(step, "wall speeds", &[4], w.shape()))
-        }
-    }
-
-    pub(crate) fn check_inflow<T>(&self, step: &str, p: ArrayView1<'_, T>) -> Result<()> {
-        if p.len() == self.inflow_len() {
-            Ok(())
-        } else {
-            Err(FlowError::shape(
-                step,
-                "inflow profile",
-                &[self.inflow_len()],
-                p.shape(),
-            ))
-        }
-    }
-
     /// `max |u_x| dt/dx + … `: the Courant number `max(|u_x|/dx, |u_y|/dy) · dt`.
     pub fn courant<T: Real>(&self, ux: ArrayView2<'_, T>, uy: ArrayView2<'_, T>, dt: f64) -> f64 {
         let m = |a: ArrayView2<'_, T>, h: f64| max_abs(a) / h;
@@ -840,8 +776,9 @@ impl Scene {
     /// Checks a state and parameters and picks the number of substeps.
     fn plan<T: Real>(&self, s: &StateView<'_, T>, p: &FlowParams<T>) -> Result<(usize, f64)> {
         const STEP: &str = "flow step";
-        self.check_velocity(STEP, s.ux, s.uy)?;
-        self.check_cells(STEP, "pressure", s.pressure)?;
+        let grid = self.grid();
+        grid.check_velocity(STEP, s.ux, s.uy)?;
+        grid.check_cells(STEP, "pressure", s.pressure)?;
         if s.scalars.len() != self.scalars() {
             return Err(FlowError::shape(
                 STEP,
@@ -851,10 +788,10 @@ impl Scene {
             ));
         }
         for a in &s.scalars {
-            self.check_cells(STEP, "scalar", *a)?;
+            grid.check_cells(STEP, "scalar", *a)?;
         }
-        self.check_walls(STEP, p.wall_speed.view())?;
-        self.check_inflow(STEP, p.inflow.view())?;
+        grid.check_walls(STEP, p.wall_speed.view())?;
+        self.faces().check_inflow(STEP, p.inflow.view())?;
         let finite = |quantity: &str, count: usize| -> Result<()> {
             if count == 0 {
                 Ok(())
@@ -885,7 +822,7 @@ impl Scene {
         let dt = self.dt();
         // The inflow enters the domain too.
         let inflow_max = p.inflow.iter().fold(0.0f64, |m, v| m.max(v.as_f64().abs()));
-        let h = self.grid().dx.min(self.grid().dy);
+        let h = grid.dx.min(grid.dy);
         let courant = self.courant(s.ux, s.uy, dt).max(inflow_max * dt / h);
         let limit = self.settings().max_courant;
         let mut n = 1;
@@ -901,7 +838,7 @@ impl Scene {
             n = (courant / limit).ceil() as usize;
         }
         if self.settings().viscosity_mode == ViscosityMode::Explicit {
-            let d = explicit_diffusion_number(self.grid(), nu, dt);
+            let d = explicit_diffusion_number(grid, nu, dt);
             if d > 0.5 {
                 if !self.settings().substepping {
                     return Err(FlowError::Cfl {
@@ -1122,6 +1059,12 @@ impl Scene {
     }
 }
 
+impl AsRef<FlowGrid> for Scene {
+    fn as_ref(&self) -> &FlowGrid {
+        self.grid()
+    }
+}
+
 /// How many of the values are NaN or infinite.
 fn nonfinite<'a, T: Real>(values: impl Iterator<Item = &'a T>) -> usize {
     values.filter(|v| !v.is_finite()).count()
@@ -1225,17 +1168,22 @@ fn substep<T: Real, E: Exec<T>>(
     dt: f64,
     counter: &SolveCounter,
 ) -> Result<StateOf<E::V>> {
-    let (settings, sc) = (scene.settings(), scene.clone());
-    let (ux, uy) = if scene.constrained() {
+    let settings = scene.settings();
+    let (grid, faces) = (scene.grid(), scene.faces());
+    let (ux, uy) = if faces.all_free() {
+        (s.ux, s.uy)
+    } else {
         two(e.run(
-            EnforceBoundaries { scene: sc.clone() },
+            EnforceBoundaries {
+                grid: grid.clone(),
+                faces: Arc::clone(faces),
+            },
             &[&s.ux, &s.uy, &p.inflow],
         )?)
-    } else {
-        (s.ux, s.uy)
     };
     let advect = AdvectScalar {
-        scene: sc.clone(),
+        grid: grid.clone(),
+        faces: Arc::clone(faces),
         scheme: settings.advection,
         dt,
     };
@@ -1251,7 +1199,8 @@ fn substep<T: Real, E: Exec<T>>(
     let (qx, qy) = if incremental {
         two(e.run(
             SubtractPressureGradient {
-                scene: sc.clone(),
+                grid: grid.clone(),
+                faces: Arc::clone(faces),
                 c: dt / 2.0,
             },
             &[&ux, &uy, &s.pressure],
@@ -1260,7 +1209,8 @@ fn substep<T: Real, E: Exec<T>>(
         (ux.clone(), uy.clone())
     };
     let advect = AdvectVelocity {
-        scene: sc.clone(),
+        grid: grid.clone(),
+        faces: Arc::clone(faces),
         scheme: settings.advection,
         dt,
     };
@@ -1269,7 +1219,8 @@ fn substep<T: Real, E: Exec<T>>(
         uy = e
             .run(
                 Buoyant {
-                    scene: sc.clone(),
+                    grid: grid.clone(),
+                    faces: Arc::clone(faces),
                     beta: b.beta,
                     dt,
                 },
@@ -1279,7 +1230,7 @@ fn substep<T: Real, E: Exec<T>>(
     }
     let (ux, uy) = two(e.run(
         Diffuse {
-            scene: sc.clone(),
+            diffusion: Arc::clone(scene.diffusion()),
             mode: settings.viscosity_mode,
             dt,
         },
@@ -1288,7 +1239,7 @@ fn substep<T: Real, E: Exec<T>>(
     let tau = if incremental { dt / 2.0 } else { dt };
     let mut out = e.run(
         Project {
-            scene: sc,
+            system: Arc::clone(scene.pressure_system()),
             tau,
             counter: counter.clone(),
         },

@@ -120,7 +120,13 @@ fn start(scene: &Scene) -> FlowState<f64> {
 
 /// `(cD, cL)` of a state.
 fn coefficients(scene: &Scene, s: &FlowState<f64>, ubar: f64) -> Result<(f64, f64)> {
-    let f = obstacle_force(scene, s.ux.view(), s.uy.view(), s.pressure.view(), NU)?;
+    let f = obstacle_force(
+        scene.force_weights(),
+        s.ux.view(),
+        s.uy.view(),
+        s.pressure.view(),
+        NU,
+    )?;
     let c = 2.0 / (ubar * ubar * D);
     Ok((c * f[0], c * f[1]))
 }

@@ -23,151 +23,14 @@
 //! are set from them by [`enforce_boundaries`], whose adjoint hands the
 //! gradient of the fixed faces to the profile.
 
+use std::sync::Arc;
+
 use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
 use ndarray::{Array1, Array2, ArrayView1, ArrayView2};
 
 use crate::grid::{FlowGrid, Lattice};
-use crate::{FlowError, Result, Scene};
-
-/// One side of the rectangular domain.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Side {
-    /// `x = 0`.
-    Left,
-    /// `x = lx`.
-    Right,
-    /// `y = 0`.
-    Bottom,
-    /// `y = ly`.
-    Top,
-}
-
-impl Side {
-    /// The four sides in the order of [`crate::FlowParams::wall_speed`].
-    pub const ALL: [Side; 4] = [Side::Left, Side::Right, Side::Bottom, Side::Top];
-
-    /// Its position in [`Side::ALL`].
-    pub fn index(self) -> usize {
-        self as usize
-    }
-}
-
-impl std::fmt::Display for Side {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            Side::Left => "left",
-            Side::Right => "right",
-            Side::Bottom => "bottom",
-            Side::Top => "top",
-        })
-    }
-}
-
-/// The condition on one side (see the [module docs](self)).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Boundary {
-    /// A wall with zero velocity.
-    NoSlip,
-    /// A wall with zero normal velocity and zero shear.
-    FreeSlip,
-    /// A wall moving along itself at `speed` (the lid of a driven cavity):
-    /// positive along +x on the bottom and top, along +y on the left and right.
-    /// `speed` is the default of [`crate::FlowParams::wall_speed`].
-    MovingWall {
-        /// Tangential speed of the wall.
-        speed: f64,
-    },
-    /// The side wraps to the opposite one, which must be periodic too.
-    Periodic,
-    /// A prescribed normal velocity: the inflow profile, one value per cell
-    /// along the side ([`crate::SceneBuilder::inflow`]).
-    Inflow,
-    /// An open side: zero-gradient velocity, zero pressure outside.
-    Outflow,
-}
-
-impl Boundary {
-    /// Whether this side wraps.
-    pub fn is_periodic(&self) -> bool {
-        matches!(self, Boundary::Periodic)
-    }
-
-    /// Whether this is a wall (no-slip, free-slip or moving).
-    pub fn is_wall(&self) -> bool {
-        matches!(
-            self,
-            Boundary::NoSlip | Boundary::FreeSlip | Boundary::MovingWall { .. }
-        )
-    }
-
-    /// The tangential ghost value as `factor · u_inner + wall · U`.
-    pub(crate) fn ghost(&self) -> (f64, f64) {
-        match self {
-            Boundary::NoSlip | Boundary::Inflow => (-1.0, 0.0),
-            Boundary::MovingWall { .. } => (-1.0, 2.0),
-            Boundary::FreeSlip | Boundary::Outflow | Boundary::Periodic => (1.0, 0.0),
-        }
-    }
-}
-
-/// The conditions on the four sides.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Sides {
-    /// `x = 0`.
-    pub left: Boundary,
-    /// `x = lx`.
-    pub right: Boundary,
-    /// `y = 0`.
-    pub bottom: Boundary,
-    /// `y = ly`.
-    pub top: Boundary,
-}
-
-impl Sides {
-    /// The same condition on all four sides.
-    pub fn all(b: Boundary) -> Self {
-        Sides {
-            left: b,
-            right: b,
-            bottom: b,
-            top: b,
-        }
-    }
-
-    /// A periodic box.
-    pub fn periodic() -> Self {
-        Self::all(Boundary::Periodic)
-    }
-
-    /// A lid-driven cavity: no-slip walls, the top moving at `speed` along +x.
-    pub fn cavity(speed: f64) -> Self {
-        Sides {
-            top: Boundary::MovingWall { speed },
-            ..Self::all(Boundary::NoSlip)
-        }
-    }
-
-    /// A channel along x: inflow on the left, outflow on the right, no-slip
-    /// walls at the bottom and top.
-    pub fn channel() -> Self {
-        Sides {
-            left: Boundary::Inflow,
-            right: Boundary::Outflow,
-            bottom: Boundary::NoSlip,
-            top: Boundary::NoSlip,
-        }
-    }
-
-    /// The condition on `side`.
-    pub fn get(&self, side: Side) -> Boundary {
-        match side {
-            Side::Left => self.left,
-            Side::Right => self.right,
-            Side::Bottom => self.bottom,
-            Side::Top => self.top,
-        }
-    }
-}
+pub use crate::sides::{Boundary, Side, Sides};
+use crate::{FlowError, Result};
 
 /// A solid body in the flow: a mask of solid cells.
 #[derive(Debug, Clone, PartialEq)]
@@ -297,22 +160,41 @@ pub(crate) enum FaceKind {
     Inflow(usize),
 }
 
-/// The kind of every face of both components, in row-major order.
+/// The condition on every face of a grid, resolved from its side conditions
+/// and its solid cells: which faces are unknowns of the flow, which are zero,
+/// which take the inflow profile. Built once ([`Faces::classify`]); the
+/// operators that treat fixed faces apart read it.
 #[derive(Debug, Clone, PartialEq)]
-pub(crate) struct Faces {
+pub struct Faces {
+    /// The kinds of the x-faces, in row-major order.
     pub(crate) x: Vec<FaceKind>,
+    /// The kinds of the y-faces, in row-major order.
     pub(crate) y: Vec<FaceKind>,
+    /// The length of the inflow profile (0 without an inflow side).
+    inflow_len: usize,
+    /// Some face is fixed (a wall, an inflow, an obstacle).
+    constrained: bool,
 }
 
 impl Faces {
     /// Whether every face is free (a periodic box without obstacle): then
     /// [`enforce_boundaries`] is the identity.
-    pub(crate) fn all_free(&self) -> bool {
-        self.x.iter().chain(&self.y).all(|k| *k == FaceKind::Free)
+    pub fn all_free(&self) -> bool {
+        !self.constrained
+    }
+
+    /// The length of the inflow profile: the cells along the inflow side (0
+    /// without one).
+    pub fn inflow_len(&self) -> usize {
+        self.inflow_len
     }
 
     /// Classifies the faces of `grid` with the solid cells `solid` (`[nx, ny]`).
-    pub(crate) fn classify(grid: &FlowGrid, solid: &Array2<bool>) -> Faces {
+    ///
+    /// # Panics
+    /// If `solid` is not `[nx, ny]` (an [`Obstacle::rasterise`]d mask is).
+    pub fn classify(grid: &FlowGrid, solid: &Array2<bool>) -> Faces {
+        assert_eq!(solid.shape(), grid.cell_shape(), "one solid flag per cell");
         let (nx, ny) = (grid.nx, grid.ny);
         let [nfx, _] = grid.shape_x();
         let [_, nfy] = grid.shape_y();
@@ -346,7 +228,32 @@ impl Faces {
                 }
             }
         }
-        Faces { x, y }
+        let inflow_len = match inflow_side(&grid.sides) {
+            Some(Side::Left | Side::Right) => ny,
+            Some(Side::Bottom | Side::Top) => nx,
+            None => 0,
+        };
+        let constrained = x.iter().chain(&y).any(|k| *k != FaceKind::Free);
+        Faces {
+            x,
+            y,
+            inflow_len,
+            constrained,
+        }
+    }
+
+    /// `p` holds one value per cell along the inflow side.
+    pub(crate) fn check_inflow<T>(&self, step: &str, p: ArrayView1<'_, T>) -> Result<()> {
+        if p.len() == self.inflow_len {
+            Ok(())
+        } else {
+            Err(FlowError::shape(
+                step,
+                "inflow profile",
+                &[self.inflow_len],
+                p.shape(),
+            ))
+        }
     }
 
     /// The kinds of one component.
@@ -381,18 +288,18 @@ fn enforce_component<T: Real>(kinds: &[FaceKind], u: &mut [T], inflow: &[T]) {
 /// # Errors
 /// [`FlowError::Shape`] for a velocity or profile of the wrong shape.
 pub fn enforce_boundaries<T: Real>(
-    scene: &Scene,
+    grid: &FlowGrid,
+    faces: &Faces,
     ux: ArrayView2<'_, T>,
     uy: ArrayView2<'_, T>,
     inflow: ArrayView1<'_, T>,
 ) -> Result<(Array2<T>, Array2<T>)> {
     const STEP: &str = "enforce_boundaries";
-    scene.check_velocity(STEP, ux, uy)?;
-    scene.check_inflow(STEP, inflow)?;
+    grid.check_velocity(STEP, ux, uy)?;
+    faces.check_inflow(STEP, inflow)?;
     let inflow = inflow.to_vec();
     let mut ux = ux.as_standard_layout().into_owned();
     let mut uy = uy.as_standard_layout().into_owned();
-    let faces = scene.faces();
     enforce_component(&faces.x, ux.as_slice_mut().expect("standard"), &inflow);
     enforce_component(&faces.y, uy.as_slice_mut().expect("standard"), &inflow);
     Ok((ux, uy))
@@ -404,14 +311,14 @@ pub fn enforce_boundaries<T: Real>(
 /// # Errors
 /// [`FlowError::Shape`] for gradients of the wrong shape.
 pub fn enforce_boundaries_vjp<T: Real>(
-    scene: &Scene,
+    grid: &FlowGrid,
+    faces: &Faces,
     grad_x: ArrayView2<'_, T>,
     grad_y: ArrayView2<'_, T>,
 ) -> Result<(Array2<T>, Array2<T>, Array1<T>)> {
     const STEP: &str = "enforce_boundaries (adjoint)";
-    scene.check_velocity(STEP, grad_x, grad_y)?;
-    let mut g_inflow = Array1::<T>::zeros(scene.inflow_len());
-    let faces = scene.faces();
+    grid.check_velocity(STEP, grad_x, grad_y)?;
+    let mut g_inflow = Array1::<T>::zeros(faces.inflow_len());
     let mut split = |kinds: &[FaceKind], g: ArrayView2<'_, T>| {
         let mut g = g.as_standard_layout().into_owned();
         for (v, k) in g.iter_mut().zip(kinds) {
@@ -435,8 +342,10 @@ pub fn enforce_boundaries_vjp<T: Real>(
 /// `[u_x', u_y']`.
 #[derive(Debug, Clone)]
 pub struct EnforceBoundaries {
-    /// The scene whose faces are fixed.
-    pub scene: Scene,
+    /// The grid.
+    pub grid: FlowGrid,
+    /// Its faces, fixed and free.
+    pub faces: Arc<Faces>,
 }
 
 impl<T: Real> Op<T> for EnforceBoundaries {
@@ -448,7 +357,7 @@ impl<T: Real> Op<T> for EnforceBoundaries {
         TapeError::check_arity("enforce_boundaries", 3, inputs.len())?;
         let (ux, uy) = (view2(&inputs[0])?, view2(&inputs[1])?);
         let inflow = view1(&inputs[2])?;
-        let (a, b) = enforce_boundaries(&self.scene, ux, uy, inflow)?;
+        let (a, b) = enforce_boundaries(&self.grid, &self.faces, ux, uy, inflow)?;
         Ok(vec![a.into_dyn(), b.into_dyn()])
     }
 
@@ -458,14 +367,25 @@ impl<T: Real> Op<T> for EnforceBoundaries {
     ) -> diffphys_tape::Result<Vec<Option<ArrayD<T>>>> {
         let gx = args.grad_output_or_zeros(0);
         let gy = args.grad_output_or_zeros(1);
-        let (gx, gy, gi) =
-            enforce_boundaries_vjp(&self.scene, view2(&gx.view())?, view2(&gy.view())?)?;
+        let (gx, gy, gi) = enforce_boundaries_vjp(
+            &self.grid,
+            &self.faces,
+            view2(&gx.view())?,
+            view2(&gy.view())?,
+        )?;
         Ok(vec![
             args.needs(0).then(|| gx.into_dyn()),
             args.needs(1).then(|| gy.into_dyn()),
             args.needs(2).then(|| gi.into_dyn()),
         ])
     }
+}
+
+/// The inflow side of `sides`, if any (the first; a scene allows one).
+pub(crate) fn inflow_side(sides: &Sides) -> Option<Side> {
+    Side::ALL
+        .into_iter()
+        .find(|&s| sides.get(s) == Boundary::Inflow)
 }
 
 /// A tape array as a 2D view.

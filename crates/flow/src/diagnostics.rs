@@ -1,4 +1,4 @@
-//! What a scene reports: divergence, vorticity, and the force of the flow on
+//! What a flow reports: divergence, vorticity, and the force of the flow on
 //! the obstacle (drag and lift) as differentiable scalars.
 //!
 //! - **Divergence** `D u` per cell over all faces (`(u_x[i+1,j] − u_x[i,j])/dx +
@@ -20,56 +20,65 @@
 //!   cell. Linear in `(u, P)` for a given `ν`; adjoint the same weights, and
 //!   `∂F/∂ν` the shear term over `ν`. A staircase body converges at first
 //!   order in `h`.
+//!
+//! Divergence and vorticity read only the grid: they take a [`FlowGrid`] or
+//! anything that holds one (`AsRef<FlowGrid>`, such as a [`crate::Scene`]).
+
+use std::sync::Arc;
 
 use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
 use ndarray::{Array1, Array2, ArrayView2, IxDyn};
 
 use crate::boundaries::{scalar_of, view2};
 use crate::buffers::{narrow, wide};
-use crate::pressure::{divergence_wide, gradient_wide};
-use crate::{Result, Scene};
+use crate::grid::FlowGrid;
+use crate::staggered::{divergence_wide, gradient_wide};
+use crate::Result;
 
 /// `D u` on the cells.
 ///
 /// # Errors
 /// [`crate::FlowError::Shape`] for wrong shapes.
-pub fn divergence<T: Real>(
-    scene: &Scene,
+pub fn divergence<T: Real, G: AsRef<FlowGrid> + ?Sized>(
+    grid: &G,
     ux: ArrayView2<'_, T>,
     uy: ArrayView2<'_, T>,
 ) -> Result<Array2<T>> {
-    scene.check_velocity("divergence", ux, uy)?;
-    let d = divergence_wide(scene, &wide(ux), &wide(uy), false);
-    Ok(narrow(scene.grid().cell_shape(), d))
+    let grid = grid.as_ref();
+    grid.check_velocity("divergence", ux, uy)?;
+    let d = divergence_wide(grid, None, &wide(ux), &wide(uy));
+    Ok(narrow(grid.cell_shape(), d))
 }
 
 /// The vector–Jacobian product of [`divergence`]: `Dᵀ g = −G g`.
 ///
 /// # Errors
 /// [`crate::FlowError::Shape`] for wrong shapes.
-pub fn divergence_vjp<T: Real>(
-    scene: &Scene,
+pub fn divergence_vjp<T: Real, G: AsRef<FlowGrid> + ?Sized>(
+    grid: &G,
     grad: ArrayView2<'_, T>,
 ) -> Result<(Array2<T>, Array2<T>)> {
-    scene.check_cells("divergence", "gradient", grad)?;
-    let (gx, gy) = gradient_wide(scene, &wide(grad), false);
-    let g = scene.grid();
+    let g = grid.as_ref();
+    g.check_cells("divergence", "gradient", grad)?;
+    let (gx, gy) = gradient_wide(g, None, &wide(grad));
     let neg = |v: Vec<f64>| v.into_iter().map(|x| -x).collect::<Vec<_>>();
     Ok((narrow(g.shape_x(), neg(gx)), narrow(g.shape_y(), neg(gy))))
 }
 
-/// `max |D u|` over the fluid cells.
+/// `max |D u|` over the fluid cells (`solid`: the solid cells, `[nx, ny]`).
 ///
 /// # Errors
 /// [`crate::FlowError::Shape`] for wrong shapes.
 pub fn max_divergence<T: Real>(
-    scene: &Scene,
+    grid: &FlowGrid,
+    solid: &Array2<bool>,
     ux: ArrayView2<'_, T>,
     uy: ArrayView2<'_, T>,
 ) -> Result<f64> {
-    let d = divergence(scene, ux, uy)?;
+    grid.check_component("divergence", "solid cells", grid.cell_shape(), solid.view())?;
+    let d = divergence(grid, ux, uy)?;
     Ok(d.iter()
-        .zip(scene.solid().iter())
+        .zip(solid.iter())
         .filter(|(_, &s)| !s)
         .fold(0.0, |m, (v, _)| m.max(v.as_f64().abs())))
 }
@@ -78,8 +87,7 @@ pub fn max_divergence<T: Real>(
 type Term = (usize, usize, usize, f64);
 
 /// The terms of the vorticity and its shape.
-fn vorticity_terms(scene: &Scene) -> ([usize; 2], Vec<Term>) {
-    let g = scene.grid();
+fn vorticity_terms(g: &FlowGrid) -> ([usize; 2], Vec<Term>) {
     let (nx, ny) = (g.nx, g.ny);
     let is: Vec<usize> = if g.periodic_x() {
         (0..nx).collect()
@@ -113,13 +121,14 @@ fn vorticity_terms(scene: &Scene) -> ([usize; 2], Vec<Term>) {
 ///
 /// # Errors
 /// [`crate::FlowError::Shape`] for wrong shapes.
-pub fn vorticity<T: Real>(
-    scene: &Scene,
+pub fn vorticity<T: Real, G: AsRef<FlowGrid> + ?Sized>(
+    grid: &G,
     ux: ArrayView2<'_, T>,
     uy: ArrayView2<'_, T>,
 ) -> Result<Array2<T>> {
-    scene.check_velocity("vorticity", ux, uy)?;
-    let (shape, terms) = vorticity_terms(scene);
+    let grid = grid.as_ref();
+    grid.check_velocity("vorticity", ux, uy)?;
+    let (shape, terms) = vorticity_terms(grid);
     let u = [wide(ux), wide(uy)];
     let mut w = vec![0.0; shape[0] * shape[1]];
     for (n, c, f, k) in terms {
@@ -132,14 +141,14 @@ pub fn vorticity<T: Real>(
 ///
 /// # Errors
 /// [`crate::FlowError::Shape`] for a gradient of the wrong shape.
-pub fn vorticity_vjp<T: Real>(
-    scene: &Scene,
+pub fn vorticity_vjp<T: Real, G: AsRef<FlowGrid> + ?Sized>(
+    grid: &G,
     grad: ArrayView2<'_, T>,
 ) -> Result<(Array2<T>, Array2<T>)> {
-    let (shape, terms) = vorticity_terms(scene);
-    scene.check_component("vorticity", "gradient", shape, grad)?;
+    let grid = grid.as_ref();
+    let (shape, terms) = vorticity_terms(grid);
+    grid.check_component("vorticity", "gradient", shape, grad)?;
     let g = wide(grad);
-    let grid = scene.grid();
     let mut out = [
         vec![0.0; grid.shape_x().iter().product()],
         vec![0.0; grid.shape_y().iter().product()],
@@ -151,9 +160,12 @@ pub fn vorticity_vjp<T: Real>(
     Ok((narrow(grid.shape_x(), ox), narrow(grid.shape_y(), oy)))
 }
 
-/// The weights of the obstacle force: `F_d = Σ P_c wp + ν Σ u_f wu`.
-#[derive(Debug, Clone, PartialEq, Default)]
-pub(crate) struct ForceWeights {
+/// The staircase surface of an obstacle as the weights of its force,
+/// `F_d = Σ P_c wp + ν Σ u_f wu` (see the [module docs](self)): what
+/// [`obstacle_force`] sums. Built once per grid and obstacle.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ForceWeights {
+    grid: FlowGrid,
     /// `(cell, direction, weight)`.
     pressure: Vec<(usize, usize, f64)>,
     /// `(component, face, direction, weight)`.
@@ -161,9 +173,18 @@ pub(crate) struct ForceWeights {
 }
 
 impl ForceWeights {
-    pub(crate) fn new(grid: &crate::FlowGrid, solid: &Array2<bool>) -> Self {
+    /// The weights of the faces between fluid and `solid` cells of `grid`.
+    ///
+    /// # Panics
+    /// If `solid` is not `[nx, ny]`.
+    pub fn new(grid: &FlowGrid, solid: &Array2<bool>) -> Self {
+        assert_eq!(solid.shape(), grid.cell_shape(), "one solid flag per cell");
         let (nx, ny) = (grid.nx, grid.ny);
-        let mut w = ForceWeights::default();
+        let mut w = ForceWeights {
+            grid: grid.clone(),
+            pressure: Vec::new(),
+            shear: Vec::new(),
+        };
         let [nfx, _] = grid.shape_x();
         let [_, nfy] = grid.shape_y();
         // x-faces: pressure along x, shear along y from u_y.
@@ -241,15 +262,14 @@ const FORCE: &str = "obstacle force";
 /// # Errors
 /// [`crate::FlowError::Shape`] for wrong shapes.
 pub fn obstacle_force<T: Real>(
-    scene: &Scene,
+    w: &ForceWeights,
     ux: ArrayView2<'_, T>,
     uy: ArrayView2<'_, T>,
     pressure: ArrayView2<'_, T>,
     nu: T,
 ) -> Result<Array1<T>> {
-    scene.check_velocity(FORCE, ux, uy)?;
-    scene.check_cells(FORCE, "pressure", pressure)?;
-    let w = scene.force_weights();
+    w.grid.check_velocity(FORCE, ux, uy)?;
+    w.grid.check_cells(FORCE, "pressure", pressure)?;
     let (u, p) = ([wide(ux), wide(uy)], wide(pressure));
     let mut f = [0.0; 2];
     for &(c, d, k) in &w.pressure {
@@ -267,15 +287,14 @@ pub fn obstacle_force<T: Real>(
 /// # Errors
 /// [`crate::FlowError::Shape`] for wrong shapes.
 pub fn obstacle_force_vjp<T: Real>(
-    scene: &Scene,
+    w: &ForceWeights,
     ux: ArrayView2<'_, T>,
     uy: ArrayView2<'_, T>,
     nu: T,
     grad: [T; 2],
 ) -> Result<ForceGrads<T>> {
-    scene.check_velocity(FORCE, ux, uy)?;
-    let grid = scene.grid();
-    let w = scene.force_weights();
+    let grid = &w.grid;
+    grid.check_velocity(FORCE, ux, uy)?;
     let g = [grad[0].as_f64(), grad[1].as_f64()];
     let u = [wide(ux), wide(uy)];
     let mut gu = [vec![0.0; u[0].len()], vec![0.0; u[1].len()]];
@@ -300,8 +319,8 @@ pub fn obstacle_force_vjp<T: Real>(
 /// [`divergence`] as a tape op: inputs `[u_x, u_y]`, output `[D u]`.
 #[derive(Debug, Clone)]
 pub struct Divergence {
-    /// The scene.
-    pub scene: Scene,
+    /// The grid.
+    pub grid: FlowGrid,
 }
 
 impl<T: Real> Op<T> for Divergence {
@@ -311,7 +330,7 @@ impl<T: Real> Op<T> for Divergence {
     fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
         TapeError::check_arity("divergence", 2, inputs.len())?;
         Ok(vec![divergence(
-            &self.scene,
+            &self.grid,
             view2(&inputs[0])?,
             view2(&inputs[1])?,
         )?
@@ -321,7 +340,7 @@ impl<T: Real> Op<T> for Divergence {
         &self,
         args: &BackwardArgs<'_, T>,
     ) -> diffphys_tape::Result<Vec<Option<ArrayD<T>>>> {
-        let (a, b) = divergence_vjp(&self.scene, view2(args.grad_out())?)?;
+        let (a, b) = divergence_vjp(&self.grid, view2(args.grad_out())?)?;
         Ok(vec![
             args.needs(0).then(|| a.into_dyn()),
             args.needs(1).then(|| b.into_dyn()),
@@ -332,8 +351,8 @@ impl<T: Real> Op<T> for Divergence {
 /// [`vorticity`] as a tape op: inputs `[u_x, u_y]`, output `[ω]`.
 #[derive(Debug, Clone)]
 pub struct Vorticity {
-    /// The scene.
-    pub scene: Scene,
+    /// The grid.
+    pub grid: FlowGrid,
 }
 
 impl<T: Real> Op<T> for Vorticity {
@@ -343,7 +362,7 @@ impl<T: Real> Op<T> for Vorticity {
     fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
         TapeError::check_arity("vorticity", 2, inputs.len())?;
         Ok(vec![vorticity(
-            &self.scene,
+            &self.grid,
             view2(&inputs[0])?,
             view2(&inputs[1])?,
         )?
@@ -353,7 +372,7 @@ impl<T: Real> Op<T> for Vorticity {
         &self,
         args: &BackwardArgs<'_, T>,
     ) -> diffphys_tape::Result<Vec<Option<ArrayD<T>>>> {
-        let (a, b) = vorticity_vjp(&self.scene, view2(args.grad_out())?)?;
+        let (a, b) = vorticity_vjp(&self.grid, view2(args.grad_out())?)?;
         Ok(vec![
             args.needs(0).then(|| a.into_dyn()),
             args.needs(1).then(|| b.into_dyn()),
@@ -365,8 +384,8 @@ impl<T: Real> Op<T> for Vorticity {
 /// `[F]` of shape `[2]` (drag, lift).
 #[derive(Debug, Clone)]
 pub struct ObstacleForce {
-    /// The scene.
-    pub scene: Scene,
+    /// The obstacle's surface.
+    pub weights: Arc<ForceWeights>,
 }
 
 impl<T: Real> Op<T> for ObstacleForce {
@@ -376,7 +395,7 @@ impl<T: Real> Op<T> for ObstacleForce {
     fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
         TapeError::check_arity(FORCE, 4, inputs.len())?;
         let f = obstacle_force(
-            &self.scene,
+            &self.weights,
             view2(&inputs[0])?,
             view2(&inputs[1])?,
             view2(&inputs[2])?,
@@ -391,7 +410,7 @@ impl<T: Real> Op<T> for ObstacleForce {
         let g = args.grad_out();
         let grad = [g[[0]], g[[1]]];
         let r = obstacle_force_vjp(
-            &self.scene,
+            &self.weights,
             view2(args.input(0))?,
             view2(args.input(1))?,
             scalar_of(args.input(3), "viscosity")?,

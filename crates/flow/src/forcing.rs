@@ -13,9 +13,12 @@
 use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
 use ndarray::{Array2, ArrayView2};
 
-use crate::boundaries::{view2, FaceKind};
+use std::sync::Arc;
+
+use crate::boundaries::{view2, FaceKind, Faces};
 use crate::buffers::{narrow, wide};
-use crate::{Result, Scene};
+use crate::grid::FlowGrid;
+use crate::Result;
 
 /// Buoyancy of one of the state's scalars.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -29,14 +32,13 @@ pub struct Buoyancy {
 const NAME: &str = "buoyancy";
 
 /// The `(face, cell, weight)` terms of `s̄` on the free y-faces.
-fn terms(scene: &Scene) -> Vec<(usize, usize, f64)> {
-    let g = scene.grid();
+fn terms(g: &FlowGrid, faces: &Faces) -> Vec<(usize, usize, f64)> {
     let [_, nfy] = g.shape_y();
     let mut t = Vec::new();
     for i in 0..g.nx {
         for f in 0..nfy {
             let k = i * nfy + f;
-            if scene.faces().y[k] != FaceKind::Free {
+            if faces.y[k] != FaceKind::Free {
                 continue;
             }
             let (lo, hi) = g.y_face_cells(f);
@@ -55,20 +57,21 @@ fn terms(scene: &Scene) -> Vec<(usize, usize, f64)> {
 /// # Errors
 /// [`crate::FlowError::Shape`] for wrong shapes.
 pub fn buoyancy<T: Real>(
-    scene: &Scene,
+    grid: &FlowGrid,
+    faces: &Faces,
     beta: f64,
     dt: f64,
     uy: ArrayView2<'_, T>,
     s: ArrayView2<'_, T>,
 ) -> Result<Array2<T>> {
-    scene.check_component(NAME, "y-velocity", scene.grid().shape_y(), uy)?;
-    scene.check_cells(NAME, "scalar", s)?;
+    grid.check_component(NAME, "y-velocity", grid.shape_y(), uy)?;
+    grid.check_cells(NAME, "scalar", s)?;
     let mut u = wide(uy).into_owned();
     let s = wide(s);
-    for (k, c, w) in terms(scene) {
+    for (k, c, w) in terms(grid, faces) {
         u[k] += dt * beta * w * s[c];
     }
-    Ok(narrow(scene.grid().shape_y(), u))
+    Ok(narrow(grid.shape_y(), u))
 }
 
 /// The vector–Jacobian product of [`buoyancy`]: `(∂L/∂u_y, ∂L/∂s)`.
@@ -76,25 +79,28 @@ pub fn buoyancy<T: Real>(
 /// # Errors
 /// [`crate::FlowError::Shape`] for wrong shapes.
 pub fn buoyancy_vjp<T: Real>(
-    scene: &Scene,
+    grid: &FlowGrid,
+    faces: &Faces,
     beta: f64,
     dt: f64,
     grad: ArrayView2<'_, T>,
 ) -> Result<(Array2<T>, Array2<T>)> {
-    scene.check_component(NAME, "gradient", scene.grid().shape_y(), grad)?;
+    grid.check_component(NAME, "gradient", grid.shape_y(), grad)?;
     let g = wide(grad);
-    let mut gs = vec![0.0; scene.grid().nx * scene.grid().ny];
-    for (k, c, w) in terms(scene) {
+    let mut gs = vec![0.0; grid.nx * grid.ny];
+    for (k, c, w) in terms(grid, faces) {
         gs[c] += dt * beta * w * g[k];
     }
-    Ok((grad.to_owned(), narrow(scene.grid().cell_shape(), gs)))
+    Ok((grad.to_owned(), narrow(grid.cell_shape(), gs)))
 }
 
 /// [`buoyancy`] as a tape op: inputs `[u_y, s]`, output `[u_y']`.
 #[derive(Debug, Clone)]
 pub struct Buoyant {
-    /// The scene.
-    pub scene: Scene,
+    /// The grid.
+    pub grid: FlowGrid,
+    /// Its faces: the force acts on the free ones.
+    pub faces: Arc<Faces>,
     /// `β`.
     pub beta: f64,
     /// The time step.
@@ -109,7 +115,8 @@ impl<T: Real> Op<T> for Buoyant {
     fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
         TapeError::check_arity(NAME, 2, inputs.len())?;
         let u = buoyancy(
-            &self.scene,
+            &self.grid,
+            &self.faces,
             self.beta,
             self.dt,
             view2(&inputs[0])?,
@@ -122,7 +129,13 @@ impl<T: Real> Op<T> for Buoyant {
         &self,
         args: &BackwardArgs<'_, T>,
     ) -> diffphys_tape::Result<Vec<Option<ArrayD<T>>>> {
-        let (gu, gs) = buoyancy_vjp(&self.scene, self.beta, self.dt, view2(args.grad_out())?)?;
+        let (gu, gs) = buoyancy_vjp(
+            &self.grid,
+            &self.faces,
+            self.beta,
+            self.dt,
+            view2(args.grad_out())?,
+        )?;
         Ok(vec![
             args.needs(0).then(|| gu.into_dyn()),
             args.needs(1).then(|| gs.into_dyn()),

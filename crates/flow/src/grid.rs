@@ -16,7 +16,10 @@
 //! non-periodic axis stores its two boundary faces (`0` and `n`), whose values
 //! the side conditions fix or leave free (see [`crate::boundaries`]).
 
-use crate::boundaries::{Side, Sides};
+use ndarray::{ArrayView1, ArrayView2};
+
+use crate::error::{FlowError, Result};
+use crate::sides::{Side, Sides};
 
 /// The cells and faces of a flow domain with its four side conditions.
 #[derive(Debug, Clone, PartialEq)]
@@ -115,6 +118,61 @@ impl FlowGrid {
                 _ => None,
             },
             _ => None,
+        }
+    }
+}
+
+impl AsRef<FlowGrid> for FlowGrid {
+    fn as_ref(&self) -> &FlowGrid {
+        self
+    }
+}
+
+/// Shape checks of the arrays an operator is handed, naming the operator
+/// (`step`) and the quantity in the error.
+impl FlowGrid {
+    /// `a` has `shape`.
+    pub(crate) fn check_component<T>(
+        &self,
+        step: &str,
+        quantity: &str,
+        shape: [usize; 2],
+        a: ArrayView2<'_, T>,
+    ) -> Result<()> {
+        if a.shape() == shape {
+            Ok(())
+        } else {
+            Err(FlowError::shape(step, quantity, &shape, a.shape()))
+        }
+    }
+
+    /// `(u_x, u_y)` lie on the faces.
+    pub(crate) fn check_velocity<T>(
+        &self,
+        step: &str,
+        ux: ArrayView2<'_, T>,
+        uy: ArrayView2<'_, T>,
+    ) -> Result<()> {
+        self.check_component(step, "x-velocity", self.shape_x(), ux)?;
+        self.check_component(step, "y-velocity", self.shape_y(), uy)
+    }
+
+    /// `a` lies on the cells.
+    pub(crate) fn check_cells<T>(
+        &self,
+        step: &str,
+        quantity: &str,
+        a: ArrayView2<'_, T>,
+    ) -> Result<()> {
+        self.check_component(step, quantity, self.cell_shape(), a)
+    }
+
+    /// `w` holds one wall speed per side.
+    pub(crate) fn check_walls<T>(&self, step: &str, w: ArrayView1<'_, T>) -> Result<()> {
+        if w.len() == Side::ALL.len() {
+            Ok(())
+        } else {
+            Err(FlowError::shape(step, "wall speeds", &[4], w.shape()))
         }
     }
 }

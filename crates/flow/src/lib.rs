@@ -8,15 +8,24 @@
 //! | module | operator |
 //! | --- | --- |
 //! | [`grid`] | cells, faces, array layout |
-//! | [`boundaries`] | per-side conditions, obstacles, [`boundaries::enforce_boundaries`] |
+//! | [`sides`] | the side vocabulary: [`Side`], [`Boundary`], [`Sides`] |
+//! | [`boundaries`] | obstacles, the condition of every face ([`Faces`]), [`boundaries::enforce_boundaries`] |
 //! | [`advection`] | semi-Lagrangian and MacCormack self-advection, passive scalars |
-//! | [`diffusion`] | explicit and implicit viscosity |
-//! | [`pressure`] | projection with the obstacle, implicit adjoint, warm start |
+//! | [`diffusion`] | explicit and implicit viscosity ([`diffusion::Diffusion`]) |
+//! | [`pressure`] | projection with the obstacle, implicit adjoint, warm start ([`pressure::PressureSystem`]) |
 //! | [`forcing`] | Boussinesq buoyancy |
-//! | [`packed`] | batches of states as one array, restriction by face averages |
 //! | [`diagnostics`] | divergence, vorticity, drag and lift |
 //! | [`step`] | the [`Scene`] and the step composed of the above |
+//! | [`packed`] | batches of states as one array, restriction by face averages |
 //! | [`validation`] | the Taylor–Green vortex |
+//!
+//! The operators take what they act on (the grid, its [`Faces`], an
+//! assembled operator, the fields, `ν`, `dt`), never a scene; the [`Scene`]
+//! owns those pieces ([`Scene::faces`], [`Scene::diffusion`],
+//! [`Scene::pressure_system`], [`Scene::force_weights`]) and composes the step.
+//! Inside the crate the modules depend downwards only: grid and sides at the
+//! bottom; boundaries, buffers, sparse, spectral and the staggered `D` and `G`;
+//! the operators; the step; packed and validation on top.
 //!
 //! A scene is described once; a rollout is a loop of [`Scene::step`] on a tape
 //! (or [`Scene::rollout`], checkpointed), and the gradient of any loss of the
@@ -61,19 +70,22 @@ pub mod forcing;
 pub mod grid;
 pub mod packed;
 pub mod pressure;
+pub mod sides;
 mod sparse;
 mod spectral;
+mod staggered;
 pub mod step;
 pub mod validation;
 
 pub use advection::Advection;
-pub use boundaries::{Boundary, Obstacle, Side, Sides};
+pub use boundaries::{Faces, Obstacle};
 pub use diffusion::ViscosityMode;
 pub use error::{FlowError, Result};
 pub use forcing::Buoyancy;
 pub use grid::{FlowGrid, Lattice};
 pub use packed::{batch_of_packed, restrict_velocity};
 pub use pressure::PressureSolver;
+pub use sides::{Boundary, Side, Sides};
 pub use step::{
     Exec, FlowParams, FlowState, FlowVars, ParamVars, Scene, SceneBuilder, Settings, Splitting,
     StepInfo,

@@ -49,7 +49,8 @@ impl Scene {
     /// # Errors
     /// [`FlowError::Shape`] for a velocity of the wrong shape.
     pub fn pack<T: Real>(&self, state: &FlowState<T>, nu: T) -> Result<Array3<T>> {
-        self.check_velocity(STEP, state.ux.view(), state.uy.view())?;
+        self.grid()
+            .check_velocity(STEP, state.ux.view(), state.uy.view())?;
         let [c, a, b] = self.packed_shape();
         let mut out = Array3::zeros((c, a, b));
         let [x0, x1] = self.grid().shape_x();

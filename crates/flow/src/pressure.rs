@@ -46,11 +46,13 @@ use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
 use ndarray::{Array2, ArrayView2, ArrayViewMutD, IxDyn};
 
 use crate::boundaries::{view2, FaceKind, Faces};
-use crate::buffers::{for_row_blocks, give_back, narrow, owned, wide, zeros};
+use crate::buffers::{give_back, narrow, owned, wide};
 use crate::grid::FlowGrid;
+use crate::sides::Boundary;
 use crate::sparse::Csr;
 use crate::spectral::PeriodicPoisson;
-use crate::{Boundary, FlowError, Result, Scene};
+use crate::staggered::{divergence_wide, gradient_wide};
+use crate::{FlowError, Result};
 
 /// How the pressure system is solved.
 #[derive(Debug, Clone, PartialEq)]
@@ -134,21 +136,42 @@ enum Direct {
     Fourier(Arc<PeriodicPoisson>),
 }
 
-/// The pressure system of a scene, built once.
+/// The pressure system of a grid with its faces and solid cells, assembled
+/// once (and factorised, for the direct solvers): what [`project`] solves.
 #[derive(Debug, Clone)]
-pub(crate) struct PressureSystem {
+pub struct PressureSystem {
+    grid: FlowGrid,
+    faces: Arc<Faces>,
     matrix: PoissonMatrix,
     fluid: Vec<bool>,
     direct: Option<Direct>,
     cg: CgParams,
     /// Whether the operator is singular (no outflow).
-    pub(crate) singular: bool,
+    singular: bool,
 }
 
 impl PressureSystem {
-    pub(crate) fn new(
+    /// Assembles `A` on `grid` with its `faces` and `solid` cells and
+    /// prepares `solver`.
+    ///
+    /// # Errors
+    /// [`FlowError::InvalidScene`] for the Fourier solver on a grid that is
+    /// not a box periodic in both axes without obstacle; the factorisation's
+    /// or the multigrid hierarchy's errors.
+    pub fn new(
         grid: &FlowGrid,
-        faces: &Faces,
+        faces: &Arc<Faces>,
+        solid: &Array2<bool>,
+        solver: &PressureSolver,
+    ) -> Result<Self> {
+        let spectral = PeriodicPoisson::for_grid(grid, faces).map(Arc::new);
+        Self::with_spectral(grid, faces, solid, solver, spectral.as_ref())
+    }
+
+    /// [`PressureSystem::new`] sharing the Fourier solves of a periodic box.
+    pub(crate) fn with_spectral(
+        grid: &FlowGrid,
+        faces: &Arc<Faces>,
         solid: &Array2<bool>,
         solver: &PressureSolver,
         spectral: Option<&Arc<PeriodicPoisson>>,
@@ -231,12 +254,25 @@ impl PressureSystem {
             }
         }
         Ok(PressureSystem {
+            grid: grid.clone(),
+            faces: Arc::clone(faces),
             matrix,
             fluid,
             direct,
             cg,
             singular: !open,
         })
+    }
+
+    /// The grid.
+    pub fn grid(&self) -> &FlowGrid {
+        &self.grid
+    }
+
+    /// Whether the operator is singular (no outflow side): constants on the
+    /// fluid cells are its null space.
+    pub fn is_singular(&self) -> bool {
+        self.singular
     }
 
     /// Whether the solve iterates (CG or MG-PCG: a guess helps), not direct.
@@ -340,141 +376,6 @@ fn push_face(t: &mut Vec<(usize, usize, f64)>, lo: Option<usize>, hi: Option<usi
     }
 }
 
-/// `D u` on the cells, over all faces: `(u_x[i+1,j] − u_x[i,j])/dx + (u_y[i,j+1] − u_y[i,j])/dy`.
-/// With `free_only`, fixed faces count as zero (`D_F`).
-pub(crate) fn divergence_wide(scene: &Scene, ux: &[f64], uy: &[f64], free_only: bool) -> Vec<f64> {
-    // with every face free there is nothing to leave out
-    let free_only = free_only && scene.constrained();
-    let g = scene.grid();
-    let faces = scene.faces();
-    let (nx, ny) = (g.nx, g.ny);
-    let [nfx, _] = g.shape_x();
-    let [_, nfy] = g.shape_y();
-    // Each cell's faces (at most two) in ascending face order with the sign
-    // of their flow (+ where the cell is the face's low side): the order in
-    // which a loop over the faces would add them, so the sums are that loop's.
-    type Touching = ([(usize, bool); 2], usize);
-    let touching =
-        |n: usize, nf: usize, cells: &dyn Fn(usize) -> (Option<usize>, Option<usize>)| {
-            let mut of: Vec<Touching> = vec![([(0, false); 2], 0); n];
-            for f in 0..nf {
-                let (lo, hi) = cells(f);
-                for (cell, low) in [(lo, true), (hi, false)] {
-                    if let Some(c) = cell {
-                        let (faces, len) = &mut of[c];
-                        faces[*len] = (f, low);
-                        *len += 1;
-                    }
-                }
-            }
-            of
-        };
-    let x_of = touching(nx, nfx, &|f| g.x_face_cells(f));
-    let y_of = touching(ny, nfy, &|f| g.y_face_cells(f));
-    let mut d = zeros(nx * ny);
-    if ny == 0 {
-        return d;
-    }
-    // `acc − flow` is `acc + (−flow)` exactly, and adding −0 leaves any sum
-    // as it is (a skipped face)
-    let term = |v: f64, h: f64, low: bool, skip: bool| {
-        if skip {
-            -0.0
-        } else if low {
-            v / h
-        } else {
-            -(v / h)
-        }
-    };
-    for_row_blocks(&mut d, ny, |off, block| {
-        let (mut plus, mut minus) = (vec![0.0; nfy], vec![0.0; nfy]);
-        for (r, row) in block.chunks_mut(ny).enumerate() {
-            let i = off / ny + r;
-            // the x-faces of the row, whole face rows at a time
-            let (faces_x, len) = &x_of[i];
-            for &(f, low) in &faces_x[..*len] {
-                let (u, kinds) = (&ux[f * ny..(f + 1) * ny], &faces.x[f * ny..(f + 1) * ny]);
-                for ((acc, &v), kind) in row.iter_mut().zip(u).zip(kinds) {
-                    *acc += term(v, g.dx, low, free_only && *kind != FaceKind::Free);
-                }
-            }
-            // the y-faces of the row: each face's term for the cell on its
-            // low side and on its high side, then each cell's two
-            let (u, kinds) = (
-                &uy[i * nfy..(i + 1) * nfy],
-                &faces.y[i * nfy..(i + 1) * nfy],
-            );
-            for (((lo, hi), &v), kind) in plus.iter_mut().zip(minus.iter_mut()).zip(u).zip(kinds) {
-                let skip = free_only && *kind != FaceKind::Free;
-                *lo = term(v, g.dy, true, skip);
-                *hi = term(v, g.dy, false, skip);
-            }
-            for (acc, (faces_y, len)) in row.iter_mut().zip(&y_of) {
-                for &(f, low) in &faces_y[..*len] {
-                    *acc += if low { plus[f] } else { minus[f] };
-                }
-            }
-        }
-    });
-    d
-}
-
-/// `G p` on the faces (`(p_hi − p_lo)/h`, zero outside); with `free_only`, on
-/// the free faces only (`G_F`). Rows of faces on all cores for a large grid.
-pub(crate) fn gradient_wide(scene: &Scene, p: &[f64], free_only: bool) -> (Vec<f64>, Vec<f64>) {
-    let free_only = free_only && scene.constrained();
-    let g = scene.grid();
-    let faces = scene.faces();
-    let (nx, ny) = (g.nx, g.ny);
-    let [nfx, _] = g.shape_x();
-    let [_, nfy] = g.shape_y();
-    let mut gx = zeros(nfx * ny);
-    let mut gy = zeros(nx * nfy);
-    if ny == 0 || nfy == 0 {
-        return (gx, gy);
-    }
-    // `at(c)` is the pressure of cell c, 0 outside: the difference of the
-    // two, divided by h, written out per case so that a row is one loop
-    let zeros = vec![0.0; ny];
-    let row_of = |c: Option<usize>| c.map_or(&zeros[..], |i| &p[i * ny..(i + 1) * ny]);
-    for_row_blocks(&mut gx, ny, |off, block| {
-        for (r, row) in block.chunks_mut(ny).enumerate() {
-            let f = off / ny + r;
-            let (lo, hi) = g.x_face_cells(f);
-            let (pl, ph) = (row_of(lo), row_of(hi));
-            let kinds = &faces.x[f * ny..(f + 1) * ny];
-            for (((out, &a), &b), kind) in row.iter_mut().zip(ph).zip(pl).zip(kinds) {
-                if !(free_only && *kind != FaceKind::Free) {
-                    *out = (a - b) / g.dx;
-                }
-            }
-        }
-    });
-    // along y: the cells of each face as indices into the row with a zero
-    // appended (index ny), the same differences
-    let index = |c: Option<usize>| c.unwrap_or(ny);
-    let (lo_of, hi_of): (Vec<usize>, Vec<usize>) = (0..nfy)
-        .map(|f| {
-            let (lo, hi) = g.y_face_cells(f);
-            (index(lo), index(hi))
-        })
-        .unzip();
-    for_row_blocks(&mut gy, nfy, |off, block| {
-        let mut pi = vec![0.0; ny + 1];
-        for (r, row) in block.chunks_mut(nfy).enumerate() {
-            let i = off / nfy + r;
-            pi[..ny].copy_from_slice(&p[i * ny..(i + 1) * ny]);
-            let kinds = &faces.y[i * nfy..(i + 1) * nfy];
-            for (f, (out, kind)) in row.iter_mut().zip(kinds).enumerate() {
-                if !(free_only && *kind != FaceKind::Free) {
-                    *out = (pi[hi_of[f]] - pi[lo_of[f]]) / g.dy;
-                }
-            }
-        }
-    });
-    (gx, gy)
-}
-
 /// The outputs of [`project`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct Projected<T> {
@@ -498,31 +399,30 @@ const NAME: &str = "pressure projection";
 /// [`FlowError::Shape`] for wrong shapes, [`FlowError::Solve`] or
 /// [`FlowError::Direct`] if the solve fails.
 pub fn project<T: Real>(
-    scene: &Scene,
+    system: &PressureSystem,
     tau: f64,
     ux: ArrayView2<'_, T>,
     uy: ArrayView2<'_, T>,
     pressure_guess: Option<ArrayView2<'_, T>>,
 ) -> Result<Projected<T>> {
-    scene.check_velocity(NAME, ux, uy)?;
+    let (grid, faces) = (&system.grid, &*system.faces);
+    grid.check_velocity(NAME, ux, uy)?;
     if let Some(p) = pressure_guess {
-        scene.check_cells(NAME, "pressure guess", p)?;
+        grid.check_cells(NAME, "pressure guess", p)?;
     }
     let (mut ux, mut uy) = (owned(wide(ux)), owned(wide(uy)));
-    let mut b = divergence_wide(scene, &ux, &uy, false);
+    let mut b = divergence_wide(grid, None, &ux, &uy);
     b.iter_mut().for_each(|d| *d = -*d);
-    let system = scene.pressure_system();
     // a guess only where the solve iterates
     let guess = pressure_guess
         .filter(|_| system.iterates())
         .map(|p| p.iter().map(|v| v.as_f64() * tau).collect());
     let (p, iterations) = system.solve(b, guess)?;
-    let (gx, gy) = gradient_wide(scene, &p, true);
+    let (gx, gy) = gradient_wide(grid, Some(faces), &p);
     ux.iter_mut().zip(&gx).for_each(|(u, g)| *u -= g);
     uy.iter_mut().zip(&gy).for_each(|(u, g)| *u -= g);
     give_back(gx);
     give_back(gy);
-    let grid = scene.grid();
     let mut pressure = p;
     pressure.iter_mut().for_each(|v| *v /= tau);
     Ok(Projected {
@@ -539,30 +439,30 @@ pub fn project<T: Real>(
 /// # Errors
 /// As [`project`].
 pub fn project_vjp<T: Real>(
-    scene: &Scene,
+    system: &PressureSystem,
     tau: f64,
     grad_x: ArrayView2<'_, T>,
     grad_y: ArrayView2<'_, T>,
     grad_pressure: Option<ArrayView2<'_, T>>,
 ) -> Result<(Array2<T>, Array2<T>)> {
-    scene.check_velocity(NAME, grad_x, grad_y)?;
+    let (grid, faces) = (&system.grid, &*system.faces);
+    grid.check_velocity(NAME, grad_x, grad_y)?;
     let (mut gx, mut gy) = (owned(wide(grad_x)), owned(wide(grad_y)));
-    let mut rhs = divergence_wide(scene, &gx, &gy, true);
+    let mut rhs = divergence_wide(grid, Some(faces), &gx, &gy);
     rhs.iter_mut().for_each(|d| *d = -*d);
     if let Some(gp) = grad_pressure {
-        scene.check_cells(NAME, "pressure gradient", gp)?;
+        grid.check_cells(NAME, "pressure gradient", gp)?;
         rhs.iter_mut()
             .zip(gp.iter())
             .for_each(|(r, g)| *r -= g.as_f64() / tau);
     }
-    let (s, _) = scene.pressure_system().solve(rhs, None)?;
-    let (sx, sy) = gradient_wide(scene, &s, false);
+    let (s, _) = system.solve(rhs, None)?;
+    let (sx, sy) = gradient_wide(grid, None, &s);
     gx.iter_mut().zip(&sx).for_each(|(g, s)| *g -= s);
     gy.iter_mut().zip(&sy).for_each(|(g, s)| *g -= s);
     for v in [s, sx, sy] {
         give_back(v);
     }
-    let grid = scene.grid();
     Ok((narrow(grid.shape_x(), gx), narrow(grid.shape_y(), gy)))
 }
 
@@ -591,8 +491,8 @@ impl SolveCounter {
 /// on it); [`Op::saved_bytes`] is 0.
 #[derive(Debug, Clone)]
 pub struct Project {
-    /// The scene.
-    pub scene: Scene,
+    /// The pressure system.
+    pub system: Arc<PressureSystem>,
     /// The pressure time scale `τ`.
     pub tau: f64,
     /// Where the forward solves' iteration counts go.
@@ -607,7 +507,7 @@ impl<T: Real> Op<T> for Project {
     fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
         TapeError::check_arity(NAME, 3, inputs.len())?;
         let out = project(
-            &self.scene,
+            &self.system,
             self.tau,
             view2(&inputs[0])?,
             view2(&inputs[1])?,
@@ -632,7 +532,7 @@ impl<T: Real> Op<T> for Project {
         let gy = args.grad_output_or_zeros(1);
         let gp = args.grad_outputs[2].as_ref().map(view2).transpose()?;
         let (a, b) = project_vjp(
-            &self.scene,
+            &self.system,
             self.tau,
             view2(&gx.view())?,
             view2(&gy.view())?,
@@ -653,22 +553,22 @@ impl<T: Real> Op<T> for Project {
 /// # Errors
 /// [`FlowError::Shape`] for wrong shapes.
 pub fn subtract_pressure_gradient<T: Real>(
-    scene: &Scene,
+    grid: &FlowGrid,
+    faces: &Faces,
     c: f64,
     ux: ArrayView2<'_, T>,
     uy: ArrayView2<'_, T>,
     pressure: ArrayView2<'_, T>,
 ) -> Result<(Array2<T>, Array2<T>)> {
     const STEP: &str = "pressure gradient";
-    scene.check_velocity(STEP, ux, uy)?;
-    scene.check_cells(STEP, "pressure", pressure)?;
+    grid.check_velocity(STEP, ux, uy)?;
+    grid.check_cells(STEP, "pressure", pressure)?;
     let (mut ux, mut uy) = (owned(wide(ux)), owned(wide(uy)));
-    let (gx, gy) = gradient_wide(scene, &wide(pressure), true);
+    let (gx, gy) = gradient_wide(grid, Some(faces), &wide(pressure));
     ux.iter_mut().zip(&gx).for_each(|(u, g)| *u -= c * g);
     uy.iter_mut().zip(&gy).for_each(|(u, g)| *u -= c * g);
     give_back(gx);
     give_back(gy);
-    let grid = scene.grid();
     Ok((narrow(grid.shape_x(), ux), narrow(grid.shape_y(), uy)))
 }
 
@@ -678,18 +578,19 @@ pub fn subtract_pressure_gradient<T: Real>(
 /// # Errors
 /// [`FlowError::Shape`] for wrong shapes.
 pub fn subtract_pressure_gradient_vjp<T: Real>(
-    scene: &Scene,
+    grid: &FlowGrid,
+    faces: &Faces,
     c: f64,
     grad_x: ArrayView2<'_, T>,
     grad_y: ArrayView2<'_, T>,
 ) -> Result<(Array2<T>, Array2<T>, Array2<T>)> {
-    scene.check_velocity("pressure gradient", grad_x, grad_y)?;
-    let mut gp = divergence_wide(scene, &wide(grad_x), &wide(grad_y), true);
+    grid.check_velocity("pressure gradient", grad_x, grad_y)?;
+    let mut gp = divergence_wide(grid, Some(faces), &wide(grad_x), &wide(grad_y));
     gp.iter_mut().for_each(|v| *v *= c);
     Ok((
         grad_x.to_owned(),
         grad_y.to_owned(),
-        narrow(scene.grid().cell_shape(), gp),
+        narrow(grid.cell_shape(), gp),
     ))
 }
 
@@ -697,8 +598,10 @@ pub fn subtract_pressure_gradient_vjp<T: Real>(
 /// outputs `[u_x', u_y']`.
 #[derive(Debug, Clone)]
 pub struct SubtractPressureGradient {
-    /// The scene.
-    pub scene: Scene,
+    /// The grid.
+    pub grid: FlowGrid,
+    /// Its faces: the gradient acts on the free ones.
+    pub faces: Arc<Faces>,
     /// The factor `c` (`dt/2` in the incremental splitting).
     pub c: f64,
 }
@@ -711,7 +614,8 @@ impl<T: Real> Op<T> for SubtractPressureGradient {
     fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
         TapeError::check_arity("pressure gradient", 3, inputs.len())?;
         let (a, b) = subtract_pressure_gradient(
-            &self.scene,
+            &self.grid,
+            &self.faces,
             self.c,
             view2(&inputs[0])?,
             view2(&inputs[1])?,
@@ -727,7 +631,8 @@ impl<T: Real> Op<T> for SubtractPressureGradient {
         let gx = args.grad_output_or_zeros(0);
         let gy = args.grad_output_or_zeros(1);
         let (a, b, p) = subtract_pressure_gradient_vjp(
-            &self.scene,
+            &self.grid,
+            &self.faces,
             self.c,
             view2(&gx.view())?,
             view2(&gy.view())?,

@@ -33,6 +33,8 @@ use rustfft::{Fft, FftPlanner};
 use crate::buffers::{for_row_blocks, give_back, scratch};
 use diffphys_tape::pool;
 
+use crate::boundaries::Faces;
+use crate::grid::FlowGrid;
 use crate::{FlowError, Result};
 
 /// `A⁺` of the periodic five-point Laplacian on an `nx × ny` box.
@@ -57,6 +59,14 @@ impl fmt::Debug for PeriodicPoisson {
 }
 
 impl PeriodicPoisson {
+    /// The solver of `grid` if it is a box periodic in both axes whose
+    /// `faces` are all free (no solid cell): the only one whose operators the
+    /// transform diagonalises.
+    pub(crate) fn for_grid(grid: &FlowGrid, faces: &Faces) -> Option<Self> {
+        (grid.periodic_x() && grid.periodic_y() && faces.all_free())
+            .then(|| PeriodicPoisson::new(grid.nx, grid.ny, grid.dx, grid.dy))
+    }
+
     /// The solver for `nx × ny` cells of size `dx × dy`.
     pub(crate) fn new(nx: usize, ny: usize, dx: f64, dy: f64) -> Self {
         let mut planner = FftPlanner::new();

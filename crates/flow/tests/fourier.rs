@@ -32,8 +32,8 @@ fn fourier_projection_matches_the_cholesky_projection() {
     let chol = periodic_box(PressureSolver::Cholesky);
     let (ux, uy) = velocity(&fft, 1.0, 5);
     let tau = 0.5 * fft.dt();
-    let a = project(&fft, tau, ux.view(), uy.view(), None).unwrap();
-    let b = project(&chol, tau, ux.view(), uy.view(), None).unwrap();
+    let a = project(fft.pressure_system(), tau, ux.view(), uy.view(), None).unwrap();
+    let b = project(chol.pressure_system(), tau, ux.view(), uy.view(), None).unwrap();
     let scale = b.pressure.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     assert!(
         scale > 1.0,
@@ -44,7 +44,7 @@ fn fourier_projection_matches_the_cholesky_projection() {
     let dp = max_diff(&a.pressure, &b.pressure) / scale;
     assert!(dp < 1e-12, "pressure differs by {dp:e} (relative)");
     assert_eq!(a.iterations, 0, "a direct solve");
-    let div = max_divergence(&fft, a.ux.view(), a.uy.view()).unwrap();
+    let div = max_divergence(fft.grid(), fft.solid(), a.ux.view(), a.uy.view()).unwrap();
     assert!(div < 1e-11, "max |div u'| = {div:e}");
 }
 
@@ -60,8 +60,22 @@ fn fourier_adjoint_matches_the_cholesky_adjoint_with_a_pressure_gradient_of_nonz
         .into_dimensionality()
         .unwrap();
     let tau = fft.dt();
-    let a = project_vjp(&fft, tau, gx.view(), gy.view(), Some(gp.view())).unwrap();
-    let b = project_vjp(&chol, tau, gx.view(), gy.view(), Some(gp.view())).unwrap();
+    let a = project_vjp(
+        fft.pressure_system(),
+        tau,
+        gx.view(),
+        gy.view(),
+        Some(gp.view()),
+    )
+    .unwrap();
+    let b = project_vjp(
+        chol.pressure_system(),
+        tau,
+        gx.view(),
+        gy.view(),
+        Some(gp.view()),
+    )
+    .unwrap();
     let scale = b.0.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     assert!(
         max_diff(&a.0, &b.0) < 1e-11 * scale,
@@ -107,7 +121,7 @@ fn implicit_viscosity_on_the_periodic_box_solves_its_helmholtz_system() {
     let walls = scene.params::<f64>().wall_speed;
     let (nu, dt) = (0.3, 0.05); // ν dt / h² ≈ 5: far beyond explicit stability
     let (x, y) = diffuse(
-        &scene,
+        scene.diffusion(),
         ViscosityMode::Implicit,
         dt,
         ux.view(),
@@ -119,7 +133,7 @@ fn implicit_viscosity_on_the_periodic_box_solves_its_helmholtz_system() {
     let change = max_diff(&x, &ux);
     assert!(change > 1e-2, "the step must smooth the field: {change}");
     let (bx, by) = diffuse(
-        &scene,
+        scene.diffusion(),
         ViscosityMode::Explicit,
         -dt,
         x.view(),
@@ -139,13 +153,19 @@ fn fourier_solves_refuse_non_finite_input() {
     let scene = periodic_box(PressureSolver::Fourier);
     let (mut ux, uy) = velocity(&scene, 1.0, 31);
     ux[[3, 2]] = f64::NAN;
-    match project(&scene, scene.dt(), ux.view(), uy.view(), None) {
+    match project(
+        scene.pressure_system(),
+        scene.dt(),
+        ux.view(),
+        uy.view(),
+        None,
+    ) {
         Err(FlowError::NonFinite { step, .. }) => assert_eq!(step, "pressure solve"),
         other => panic!("expected NonFinite, got {other:?}"),
     }
     let walls = scene.params::<f64>().wall_speed;
     let r = diffuse(
-        &scene,
+        scene.diffusion(),
         ViscosityMode::Implicit,
         0.01,
         ux.view(),

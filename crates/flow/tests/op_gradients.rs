@@ -58,7 +58,8 @@ fn enforce_boundaries_gradient() {
     let (ux, uy) = u_inputs(&scene, 1.0, 1);
     let inflow = test_array::<f64>(&[scene.inflow_len()], 3);
     let op = EnforceBoundaries {
-        scene: scene.clone(),
+        grid: scene.grid().clone(),
+        faces: scene.faces().clone(),
     };
     assert_gradient(
         "enforce_boundaries",
@@ -78,7 +79,8 @@ fn velocity_advection_gradients() {
             let scene = b.build().unwrap();
             let (ux, uy) = u_inputs(&scene, 1.0, 5);
             let op = AdvectVelocity {
-                scene: scene.clone(),
+                grid: scene.grid().clone(),
+                faces: scene.faces().clone(),
                 scheme,
                 dt: 0.7 * scene.dt(),
             };
@@ -115,7 +117,8 @@ fn velocity_advection_is_linear_in_the_field_for_frozen_tracing() {
     let w = Array1::<f64>::zeros(4);
     let (gx, gy) = velocity(&scene, 1.0, 9);
     let r = advect_velocity_vjp(
-        &scene,
+        scene.grid(),
+        scene.faces(),
         Advection::SemiLagrangian,
         0.05,
         (zx.view(), zy.view()),
@@ -127,7 +130,8 @@ fn velocity_advection_is_linear_in_the_field_for_frozen_tracing() {
     assert_eq!(r.field_x, gx);
     assert_eq!(r.field_y, gy);
     let (a, b) = advect_velocity(
-        &scene,
+        scene.grid(),
+        scene.faces(),
         Advection::SemiLagrangian,
         0.05,
         (zx.view(), zy.view()),
@@ -150,7 +154,8 @@ fn scalar_advection_gradients() {
             let (ux, uy) = u_inputs(&scene, 1.0, 7);
             let s = test_array::<f64>(&scene.grid().cell_shape(), 8);
             let op = AdvectScalar {
-                scene: scene.clone(),
+                grid: scene.grid().clone(),
+                faces: scene.faces().clone(),
                 scheme,
                 dt: 0.7 * scene.dt(),
             };
@@ -170,7 +175,7 @@ fn diffusion_gradients_and_adjoints() {
             let scene = b.build().unwrap();
             let (ux, uy) = u_inputs(&scene, 1.0, 11);
             let op = Diffuse {
-                scene: scene.clone(),
+                diffusion: scene.diffusion().clone(),
                 mode,
                 dt: scene.dt(),
             };
@@ -186,7 +191,7 @@ fn diffusion_gradients_and_adjoints() {
             let apply = |x: ArrayViewD<'_, f64>| {
                 let p = unpack(&x.to_owned(), &shapes);
                 let (a, b) = diffuse(
-                    &scene,
+                    scene.diffusion(),
                     mode,
                     scene.dt(),
                     p[0].view(),
@@ -203,7 +208,7 @@ fn diffusion_gradients_and_adjoints() {
                 let zy = Array2::<f64>::zeros((shapes[1][0], shapes[1][1]));
                 // the implicit adjoint reads the output: that of the same x is not needed for u (linear)
                 let (ox, oy) = diffuse(
-                    &scene,
+                    scene.diffusion(),
                     mode,
                     scene.dt(),
                     zx.view(),
@@ -213,7 +218,7 @@ fn diffusion_gradients_and_adjoints() {
                 )
                 .unwrap();
                 let r = diffuse_vjp(
-                    &scene,
+                    scene.diffusion(),
                     mode,
                     scene.dt(),
                     zx.view(),
@@ -257,7 +262,7 @@ fn projection_gradients_and_adjoints() {
         let (ux, uy) = u_inputs(&scene, 1.0, 31);
         let guess = test_array::<f64>(&scene.grid().cell_shape(), 32);
         let op = Project {
-            scene: scene.clone(),
+            system: scene.pressure_system().clone(),
             tau: 0.5 * scene.dt(),
             counter: SolveCounter::new(),
         };
@@ -274,13 +279,19 @@ fn projection_gradients_and_adjoints() {
         let tau = scene.dt();
         let apply = |x: ArrayViewD<'_, f64>| {
             let p = unpack(&x.to_owned(), &shapes);
-            let r = project(&scene, tau, p[0].view(), p[1].view(), None).unwrap();
+            let r = project(scene.pressure_system(), tau, p[0].view(), p[1].view(), None).unwrap();
             pack(&[&r.ux, &r.uy, &r.pressure])
         };
         let apply_t = |y: ArrayViewD<'_, f64>| {
             let p = unpack(&y.to_owned(), &[shapes[0], shapes[1], g.cell_shape()]);
-            let (a, b) =
-                project_vjp(&scene, tau, p[0].view(), p[1].view(), Some(p[2].view())).unwrap();
+            let (a, b) = project_vjp(
+                scene.pressure_system(),
+                tau,
+                p[0].view(),
+                p[1].view(),
+                Some(p[2].view()),
+            )
+            .unwrap();
             pack(&[&a, &b])
         };
         let (x0, x1) = velocity(&scene, 1.0, 41);
@@ -306,7 +317,8 @@ fn pressure_gradient_gradients_and_adjoints() {
         let (ux, uy) = u_inputs(&scene, 1.0, 51);
         let p = test_array::<f64>(&scene.grid().cell_shape(), 52);
         let op = SubtractPressureGradient {
-            scene: scene.clone(),
+            grid: scene.grid().clone(),
+            faces: scene.faces().clone(),
             c: 0.3,
         };
         assert_gradient(
@@ -318,15 +330,27 @@ fn pressure_gradient_gradients_and_adjoints() {
         let shapes = [g.shape_x(), g.shape_y(), g.cell_shape()];
         let apply = |x: ArrayViewD<'_, f64>| {
             let a = unpack(&x.to_owned(), &shapes);
-            let (p, q) =
-                subtract_pressure_gradient(&scene, 0.3, a[0].view(), a[1].view(), a[2].view())
-                    .unwrap();
+            let (p, q) = subtract_pressure_gradient(
+                scene.grid(),
+                scene.faces(),
+                0.3,
+                a[0].view(),
+                a[1].view(),
+                a[2].view(),
+            )
+            .unwrap();
             pack(&[&p, &q])
         };
         let apply_t = |y: ArrayViewD<'_, f64>| {
             let a = unpack(&y.to_owned(), &shapes[..2]);
-            let (p, q, r) =
-                subtract_pressure_gradient_vjp(&scene, 0.3, a[0].view(), a[1].view()).unwrap();
+            let (p, q, r) = subtract_pressure_gradient_vjp(
+                scene.grid(),
+                scene.faces(),
+                0.3,
+                a[0].view(),
+                a[1].view(),
+            )
+            .unwrap();
             pack(&[&p, &q, &r])
         };
         let x: ArrayD<f64> = test_array(&[shapes.iter().map(|s| s[0] * s[1]).sum()], 53);
@@ -343,7 +367,8 @@ fn buoyancy_gradients_and_adjoints() {
     let uy = test_array::<f64>(&g.shape_y(), 61);
     let s = test_array::<f64>(&g.cell_shape(), 62);
     let op = Buoyant {
-        scene: scene.clone(),
+        grid: scene.grid().clone(),
+        faces: scene.faces().clone(),
         beta: 0.8,
         dt: 0.1,
     };
@@ -355,11 +380,19 @@ fn buoyancy_gradients_and_adjoints() {
     let shapes = [g.shape_y(), g.cell_shape()];
     let apply = |x: ArrayViewD<'_, f64>| {
         let a = unpack(&x.to_owned(), &shapes);
-        pack(&[&buoyancy(&scene, 0.8, 0.1, a[0].view(), a[1].view()).unwrap()])
+        pack(&[&buoyancy(
+            scene.grid(),
+            scene.faces(),
+            0.8,
+            0.1,
+            a[0].view(),
+            a[1].view(),
+        )
+        .unwrap()])
     };
     let apply_t = |y: ArrayViewD<'_, f64>| {
         let a = unpack(&y.to_owned(), &shapes[..1]);
-        let (p, q) = buoyancy_vjp(&scene, 0.8, 0.1, a[0].view()).unwrap();
+        let (p, q) = buoyancy_vjp(scene.grid(), scene.faces(), 0.8, 0.1, a[0].view()).unwrap();
         pack(&[&p, &q])
     };
     let x: ArrayD<f64> = test_array(&[shapes.iter().map(|s| s[0] * s[1]).sum()], 63);
@@ -375,7 +408,7 @@ fn diagnostics_gradients_and_adjoints() {
         let (ux, uy) = u_inputs(&scene, 1.0, 71);
         let p = test_array::<f64>(&scene.grid().cell_shape(), 72);
         let d = Divergence {
-            scene: scene.clone(),
+            grid: scene.grid().clone(),
         };
         assert_gradient(
             &format!("divergence {name}"),
@@ -383,7 +416,7 @@ fn diagnostics_gradients_and_adjoints() {
             &[ux.clone(), uy.clone()],
         );
         let w = Vorticity {
-            scene: scene.clone(),
+            grid: scene.grid().clone(),
         };
         assert_gradient(
             &format!("vorticity {name}"),
@@ -391,7 +424,7 @@ fn diagnostics_gradients_and_adjoints() {
             &[ux.clone(), uy.clone()],
         );
         let f = ObstacleForce {
-            scene: scene.clone(),
+            weights: scene.force_weights().clone(),
         };
         assert_gradient(
             &format!("force {name}"),
@@ -444,7 +477,7 @@ fn force_is_zero_without_obstacle_and_pressure_pushes_downstream() {
     let scene = common::cavity().build().unwrap();
     let (ux, uy) = velocity(&scene, 1.0, 81);
     let p = Array2::<f64>::ones((6, 6));
-    let f = obstacle_force(&scene, ux.view(), uy.view(), p.view(), 0.1).unwrap();
+    let f = obstacle_force(scene.force_weights(), ux.view(), uy.view(), p.view(), 0.1).unwrap();
     assert_eq!(f.to_vec(), vec![0.0, 0.0]);
     // a pressure high on the left of the cylinder only pushes it along +x
     let scene = common::channel().build().unwrap();
@@ -452,6 +485,6 @@ fn force_is_zero_without_obstacle_and_pressure_pushes_downstream() {
     let p = Array2::from_shape_fn((g.nx, g.ny), |(i, _)| if i < 4 { 1.0 } else { 0.0 });
     let zx = Array2::<f64>::zeros((g.shape_x()[0], g.shape_x()[1]));
     let zy = Array2::<f64>::zeros((g.shape_y()[0], g.shape_y()[1]));
-    let f = obstacle_force(&scene, zx.view(), zy.view(), p.view(), 0.1).unwrap();
+    let f = obstacle_force(scene.force_weights(), zx.view(), zy.view(), p.view(), 0.1).unwrap();
     assert!(f[0] > 0.0 && f[1].abs() < 1e-14, "{f:?}");
 }

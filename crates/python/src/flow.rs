@@ -422,7 +422,7 @@ impl FlowStep {
                     s = scene.forward(&s, &params)?.0;
                 }
                 let f = obstacle_force(
-                    scene,
+                    scene.force_weights(),
                     s.ux.view(),
                     s.uy.view(),
                     s.pressure.view(),
@@ -532,7 +532,7 @@ fn vjp_on_tape<T: Real>(
     let end = scene.rollout(tape, schedule, steps, &vars, &pv)?;
     let force = tape.apply(
         ObstacleForce {
-            scene: scene.clone(),
+            weights: scene.force_weights().clone(),
         },
         &[end.ux, end.uy, end.pressure, pv.viscosity],
     )?;

@@ -1,4 +1,5 @@
-//! Body forces: Boussinesq buoyancy of a passive scalar.
+//! Body forces: Boussinesq buoyancy of a passive scalar, and the forces a
+//! user brings ([`Forcing`]).
 //!
 //! A scalar `s` (temperature or smoke density, relative to the ambient value)
 //! pushes the fluid along +y: on every free y-face,
@@ -139,6 +140,144 @@ impl<T: Real> Op<T> for Buoyant {
         Ok(vec![
             args.needs(0).then(|| gu.into_dyn()),
             args.needs(1).then(|| gs.into_dyn()),
+        ])
+    }
+}
+
+/// A body force a user brings to the step without editing the crate: a plain
+/// forward and its vector–Jacobian product on `f64` face arrays. The step
+/// ([`crate::SceneBuilder::forcing`]) applies it after advection, on the free
+/// faces only:
+///
+/// ```text
+/// u' = u + M ⊙ Δ(u),        ∂L/∂u = g + (∂Δ/∂u)ᵀ (M ⊙ g)
+/// ```
+///
+/// with `Δ = (Δu_x, Δu_y)` = [`Forcing::increment`] over the step's `dt` and
+/// `M` the mask of free faces (walls, inflow and the obstacle keep their
+/// values). The adjoint is [`Forcing::increment_vjp`]; the step records one
+/// op ([`Forced`]) that keeps nothing beyond its inputs.
+pub trait Forcing: Send + Sync + std::fmt::Debug {
+    /// Its name (the tape op's, and in errors).
+    fn name(&self) -> &str;
+
+    /// The velocity increments `(Δu_x, Δu_y)` over a step of `dt` at the
+    /// velocity `(u_x, u_y)` (shapes [`FlowGrid::shape_x`], [`FlowGrid::shape_y`]).
+    fn increment(
+        &self,
+        grid: &FlowGrid,
+        dt: f64,
+        ux: ArrayView2<'_, f64>,
+        uy: ArrayView2<'_, f64>,
+    ) -> (Array2<f64>, Array2<f64>);
+
+    /// `(∂Δ/∂u)ᵀ (g_x, g_y)` at `(u_x, u_y)`: the gradients with respect to
+    /// the velocity, given `(g_x, g_y)` with respect to the increments.
+    fn increment_vjp(
+        &self,
+        grid: &FlowGrid,
+        dt: f64,
+        ux: ArrayView2<'_, f64>,
+        uy: ArrayView2<'_, f64>,
+        gx: ArrayView2<'_, f64>,
+        gy: ArrayView2<'_, f64>,
+    ) -> (Array2<f64>, Array2<f64>);
+}
+
+/// `(M_x, M_y)`: 1 on the free faces, 0 on the fixed ones.
+fn free_mask(grid: &FlowGrid, faces: &Faces) -> (Array2<f64>, Array2<f64>) {
+    let mask = |shape: [usize; 2], kinds: &[FaceKind]| {
+        let values = kinds
+            .iter()
+            .map(|k| if *k == FaceKind::Free { 1.0 } else { 0.0 })
+            .collect();
+        Array2::from_shape_vec(shape, values).expect("one kind per face")
+    };
+    (
+        mask(grid.shape_x(), &faces.x),
+        mask(grid.shape_y(), &faces.y),
+    )
+}
+
+/// A user's [`Forcing`] as a tape op: inputs `[u_x, u_y]`, outputs
+/// `[u_x', u_y']` (see [`Forcing`] for the formula and its adjoint).
+#[derive(Debug, Clone)]
+pub struct Forced {
+    /// The grid.
+    pub grid: FlowGrid,
+    /// Its faces: the force acts on the free ones.
+    pub faces: Arc<Faces>,
+    /// The force.
+    pub forcing: Arc<dyn Forcing>,
+    /// The time step.
+    pub dt: f64,
+}
+
+impl Forced {
+    fn velocity<T: Real>(
+        &self,
+        inputs: &[ArrayViewD<'_, T>],
+    ) -> diffphys_tape::Result<(Array2<f64>, Array2<f64>)> {
+        TapeError::check_arity(self.forcing.name(), 2, inputs.len())?;
+        let (ux, uy) = (view2(&inputs[0])?, view2(&inputs[1])?);
+        let name = self.forcing.name();
+        self.grid
+            .check_component(name, "x-velocity", self.grid.shape_x(), ux)?;
+        self.grid
+            .check_component(name, "y-velocity", self.grid.shape_y(), uy)?;
+        Ok((as_f64(ux), as_f64(uy)))
+    }
+}
+
+/// `a` in `f64`, as an array of its shape.
+fn as_f64<T: Real>(a: ArrayView2<'_, T>) -> Array2<f64> {
+    Array2::from_shape_vec(a.raw_dim(), wide(a).into_owned()).expect("one value per entry")
+}
+
+/// `a` as a `T` array of `shape`.
+fn as_t<T: Real>(shape: [usize; 2], a: Array2<f64>) -> ArrayD<T> {
+    narrow::<T>(shape, a.iter().copied().collect()).into_dyn()
+}
+
+impl<T: Real> Op<T> for Forced {
+    fn name(&self) -> &str {
+        self.forcing.name()
+    }
+
+    fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
+        let (ux, uy) = self.velocity(inputs)?;
+        let (dx, dy) = self
+            .forcing
+            .increment(&self.grid, self.dt, ux.view(), uy.view());
+        let (mx, my) = free_mask(&self.grid, &self.faces);
+        Ok(vec![
+            as_t(self.grid.shape_x(), ux + dx * mx),
+            as_t(self.grid.shape_y(), uy + dy * my),
+        ])
+    }
+
+    fn backward(
+        &self,
+        args: &BackwardArgs<'_, T>,
+    ) -> diffphys_tape::Result<Vec<Option<ArrayD<T>>>> {
+        let inputs = [args.input(0).clone(), args.input(1).clone()];
+        let (ux, uy) = self.velocity(&inputs)?;
+        let (mx, my) = free_mask(&self.grid, &self.faces);
+        let g = |i: usize| -> diffphys_tape::Result<Array2<f64>> {
+            Ok(as_f64(view2(&args.grad_output_or_zeros(i).view())?))
+        };
+        let (gx, gy) = (g(0)?, g(1)?);
+        let (jx, jy) = self.forcing.increment_vjp(
+            &self.grid,
+            self.dt,
+            ux.view(),
+            uy.view(),
+            (&gx * &mx).view(),
+            (&gy * &my).view(),
+        );
+        Ok(vec![
+            args.needs(0).then(|| as_t(self.grid.shape_x(), gx + jx)),
+            args.needs(1).then(|| as_t(self.grid.shape_y(), gy + jy)),
         ])
     }
 }

@@ -3,7 +3,7 @@
 //! A differentiable 2D incompressible Navier–Stokes step on a staggered (MAC)
 //! grid, on the diffphys tape. Each physical operator lives in its own module,
 //! as a pair of plain functions (forward, vector–Jacobian product) and an
-//! [`Op`](diffphys_tape::Op) adapter:
+//! [`Op`] adapter:
 //!
 //! | module | operator |
 //! | --- | --- |
@@ -81,7 +81,7 @@ pub use advection::Advection;
 pub use boundaries::{Faces, Obstacle};
 pub use diffusion::ViscosityMode;
 pub use error::{FlowError, Result};
-pub use forcing::Buoyancy;
+pub use forcing::{Buoyancy, Forced, Forcing};
 pub use grid::{FlowGrid, Lattice};
 pub use packed::{batch_of_packed, restrict_velocity};
 pub use pressure::PressureSolver;

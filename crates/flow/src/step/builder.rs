@@ -11,7 +11,7 @@ use crate::advection::Advection;
 use crate::boundaries::{inflow_side, Faces, Obstacle};
 use crate::diagnostics::ForceWeights;
 use crate::diffusion::{default_viscosity_solver, Diffusion, ViscosityMode};
-use crate::forcing::Buoyancy;
+use crate::forcing::{Buoyancy, Forcing};
 use crate::grid::FlowGrid;
 use crate::pressure::{PressureSolver, PressureSystem};
 use crate::sides::{Boundary, Side, Sides};
@@ -74,6 +74,7 @@ impl Scene {
             dt: 0.01,
             inflow: None,
             buoyancy: None,
+            forcing: None,
             scalars: 0,
             settings: Settings::default(),
         }
@@ -93,6 +94,7 @@ pub struct SceneBuilder {
     dt: f64,
     inflow: Option<Vec<f64>>,
     buoyancy: Option<Buoyancy>,
+    forcing: Option<Arc<dyn Forcing>>,
     scalars: usize,
     settings: Settings,
 }
@@ -160,6 +162,13 @@ impl SceneBuilder {
     /// Passive scalars carried by the flow (default 0).
     pub fn scalars(mut self, n: usize) -> Self {
         self.scalars = n;
+        self
+    }
+
+    /// A body force of the user's ([`Forcing`]), applied after advection on
+    /// the free faces: the step records it as one op with its adjoint.
+    pub fn forcing(mut self, forcing: Arc<dyn Forcing>) -> Self {
+        self.forcing = Some(forcing);
         self
     }
 
@@ -232,6 +241,7 @@ impl SceneBuilder {
             dt,
             inflow,
             buoyancy,
+            forcing,
             scalars,
             settings,
         } = self;
@@ -401,6 +411,7 @@ impl SceneBuilder {
             inflow,
             inflow_side,
             buoyancy,
+            forcing,
             scalars,
             settings,
         })))

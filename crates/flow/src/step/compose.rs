@@ -9,7 +9,7 @@ use super::{Scene, Splitting};
 use crate::advection::{AdvectScalar, AdvectVelocity};
 use crate::boundaries::EnforceBoundaries;
 use crate::diffusion::Diffuse;
-use crate::forcing::Buoyant;
+use crate::forcing::{Buoyant, Forced};
 use crate::pressure::{Project, SolveCounter, SubtractPressureGradient};
 use crate::{FlowError, Result};
 
@@ -136,6 +136,18 @@ pub(super) fn substep<T: Real, E: Exec<T>>(
             )?
             .remove(0);
     }
+    let (ux, uy) = match &scene.0.forcing {
+        Some(forcing) => two(e.run(
+            Forced {
+                grid: grid.clone(),
+                faces: Arc::clone(faces),
+                forcing: Arc::clone(forcing),
+                dt,
+            },
+            &[&ux, &uy],
+        )?),
+        None => (ux, uy),
+    };
     let (ux, uy) = two(e.run(
         Diffuse {
             diffusion: Arc::clone(scene.diffusion()),

@@ -47,7 +47,7 @@ use ndarray::{Array1, Array2, ArrayView2, Ix2, IxDyn};
 use crate::boundaries::Faces;
 use crate::diagnostics::ForceWeights;
 use crate::diffusion::{explicit_diffusion_number, Diffusion, ViscosityMode};
-use crate::forcing::Buoyancy;
+use crate::forcing::{Buoyancy, Forcing};
 use crate::grid::FlowGrid;
 use crate::pressure::{PressureSystem, SolveCounter};
 use crate::sides::{Boundary, Side};
@@ -77,6 +77,8 @@ pub(super) struct SceneInner {
     pub(super) inflow: Array1<f64>,
     pub(super) inflow_side: Option<Side>,
     pub(super) buoyancy: Option<Buoyancy>,
+    /// The user's body force, if any.
+    pub(super) forcing: Option<Arc<dyn Forcing>>,
     pub(super) scalars: usize,
     pub(super) settings: Settings,
 }

@@ -4,7 +4,10 @@
 //! whose lift is zero by symmetry.
 //!
 //! - **Surface**: [`obstacle_force`] over the staircase, split into its pressure
-//!   part (the same call with ν = 0) and its wall-shear part (the rest).
+//!   part (the same call with ν = 0) and its wall-shear part (the rest); and
+//!   two variants: the pressure extrapolated to the faces from two fluid
+//!   cells, and the shear as `ν ū_t / h` (the flux the Laplacian takes, which
+//!   reads the solid's zero tangential faces a cell away).
 //! - **Control volume**: the momentum balance over a rectangle around the body
 //!   whose edges lie on cell faces,
 //!
@@ -256,6 +259,48 @@ fn geometry(scene: &Scene) -> Value {
     })
 }
 
+/// The pressure part of the surface force with the pressure extrapolated
+/// linearly to each solid face from the two fluid cells along its normal
+/// (the nearer one alone where the next is solid or outside): a variant of
+/// the surface evaluation's pressure of the neighbouring cell.
+fn pressure_extrapolated(scene: &Scene, s: &FlowState<f64>) -> [f64; 2] {
+    let g = scene.grid();
+    let solid = scene.solid();
+    let (nx, ny) = (g.nx as isize, g.ny as isize);
+    let fluid = |i: isize, j: isize| {
+        i >= 0 && j >= 0 && i < nx && j < ny && !solid[[i as usize, j as usize]]
+    };
+    let p = |i: isize, j: isize| s.pressure[[i as usize, j as usize]];
+    let mut f = [0.0; 2];
+    for i in 0..nx {
+        for j in 0..ny {
+            if !fluid(i, j) {
+                continue;
+            }
+            // n: the direction from the fluid cell into the solid one
+            for (d, di, dj, area) in [
+                (0, 1, 0, g.dy),
+                (0, -1, 0, g.dy),
+                (1, 0, 1, g.dx),
+                (1, 0, -1, g.dx),
+            ] {
+                let (si, sj) = (i + di, j + dj);
+                if !(si >= 0 && sj >= 0 && si < nx && sj < ny && solid[[si as usize, sj as usize]])
+                {
+                    continue;
+                }
+                let wall = if fluid(i - di, j - dj) {
+                    1.5 * p(i, j) - 0.5 * p(i - di, j - dj)
+                } else {
+                    p(i, j)
+                };
+                f[d] += wall * (di + dj) as f64 * area;
+            }
+        }
+    }
+    f
+}
+
 /// One steady run and its forces by both methods.
 fn run(cpd: usize, height: f64, opt: &Options) -> Result<Value> {
     let (max_time, tol) = (opt.max_time, opt.tol);
@@ -293,6 +338,11 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<Value> {
         viscous: [total[0] - pressure[0], total[1] - pressure[1]],
         ..Parts::default()
     };
+    let extrapolated = pressure_extrapolated(&scene, &s);
+    let variants = [
+        [0, 1].map(|d| extrapolated[d] + surface.viscous[d]),
+        [0, 1].map(|d| surface.pressure[d] + 0.5 * surface.viscous[d]),
+    ];
     let g = scene.grid();
     println!(
         "cpd {cpd:3}, height {height}: {}x{} cells, {steps} steps to t = {:.2} ({}, rate {rate:.1e}; {seconds:.1} s)",
@@ -310,6 +360,13 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<Value> {
         c(surface.pressure)[1],
         c(surface.viscous)[0],
         c(surface.viscous)[1]
+    );
+    println!(
+        "  surface variants: pressure extrapolated to the face cD {:.4} cL {:+.5}; shear nu u_t/h cD {:.4} cL {:+.5}",
+        c(variants[0])[0],
+        c(variants[0])[1],
+        c(variants[1])[0],
+        c(variants[1])[1]
     );
     let mut boxes = Vec::new();
     for a in BOXES {
@@ -352,7 +409,9 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<Value> {
         "courant": opt.courant, "steps": steps, "time": steps as f64 * dt, "steady": rate < tol, "tol": tol,
         "rate_at_end": rate, "wall_s": seconds,
         "surface": {"cd": st[0], "cl": st[1],
-                    "pressure": c(surface.pressure), "shear": c(surface.viscous)},
+                    "pressure": c(surface.pressure), "shear": c(surface.viscous),
+                    "pressure_extrapolated_to_face": c(variants[0]),
+                    "shear_over_h": c(variants[1])},
         "control_volume": boxes,
         "geometry": geo,
         "surface_cl_history": lift_history,

@@ -1,0 +1,504 @@
+//! Why the DFG 2D-1 lift on the staircase cylinder moves away from the
+//! reference as the grid is refined (issue 42, item 1): the force on the body
+//! by two independent methods, the body's rasterised geometry, and a control
+//! whose lift is zero by symmetry.
+//!
+//! - **Surface**: [`obstacle_force`] over the staircase, split into its pressure
+//!   part (the same call with ν = 0) and its wall-shear part (the rest); and
+//!   two variants: the pressure extrapolated to the faces from two fluid
+//!   cells, and the shear as `ν ū_t / h` (the flux the Laplacian takes, which
+//!   reads the solid's zero tangential faces a cell away).
+//! - **Control volume**: the momentum balance over a rectangle around the body
+//!   whose edges lie on cell faces,
+//!
+//!   ```text
+//!   F = ∮ (−p n + ν ∇u·n − u (u·n)) dS − d/dt ∫ u dV
+//!   ```
+//!
+//!   by the midpoint rule on each cell edge (pressure and tangential velocity
+//!   averaged to the edge, normal derivatives by central differences), for
+//!   several boxes; the time term from one more step. It never looks at the
+//!   staircase, so an error of the surface evaluation shows as a gap between
+//!   the two, and an error of the flow field as both moving together.
+//! - **Geometry**: the solid cells' area, centroid and first moments about the
+//!   true centre, and whether the mask is mirror-symmetric about y = 0.2.
+//! - **Control** (`--cases symmetric`): the same body at the centre of a
+//!   channel of height 0.40 (symmetric about y = 0.2), where the exact lift is 0.
+//!
+//! The DFG setup is that of `examples/cylinder.rs`: channel 2.2 × 0.41, cylinder
+//! of diameter 0.1 at (0.2, 0.2), ν = 1e-3, parabolic inflow of peak 0.3
+//! (Ubar = 0.2, Re = 20), MacCormack with the limiter at Courant 0.4 of Um (`--courant`), run from
+//! the inflow profile until no face changes by more than `--tol` per unit time.
+//! The last stdout line is the JSON of every figure.
+//!
+//! `cargo run --release --example cylinder_forces -- [--cpd 10,20,40]
+//! [--cases 2d1,symmetric] [--tol 1e-4] [--max-time 40] [--courant 0.4]
+//! [--small] [--out DIR]` (`--small`: 10 cells across only)
+
+mod common;
+
+use std::time::Instant;
+
+use diffphys::flow::diagnostics::obstacle_force;
+use diffphys::flow::{Advection, FlowState, Obstacle, Scene, Sides, ViscosityMode};
+use ndarray::Array2;
+use serde_json::{json, Value};
+
+type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
+
+const LENGTH: f64 = 2.2;
+const CENTRE: [f64; 2] = [0.2, 0.2];
+const D: f64 = 0.1;
+const NU: f64 = 1e-3;
+const UM: f64 = 0.3;
+const UBAR: f64 = 0.2;
+/// The later high-accuracy values of 2D-1 (cD, cL).
+const REFERENCE: [f64; 2] = [5.57953, 0.010618];
+/// Half-widths of the control volumes, squares centred on the cylinder.
+const BOXES: [f64; 4] = [0.06, 0.08, 0.1, 0.15];
+
+/// The channel of `height` at `cpd` cells per diameter.
+fn scene(cpd: usize, height: f64, courant: f64) -> Result<Scene> {
+    let h = D / cpd as f64;
+    let (nx, ny) = ((LENGTH / h).round() as usize, (height / h).round() as usize);
+    let dt = courant * h / UM;
+    let explicit =
+        NU * dt * (1.0 / (LENGTH / nx as f64).powi(2) + 1.0 / (height / ny as f64).powi(2)) <= 0.45;
+    Ok(Scene::builder(nx, ny, [LENGTH, height])
+        .sides(Sides::channel())
+        .obstacle(Obstacle::cylinder(CENTRE, D / 2.0))
+        .parabolic_inflow(UM)
+        .viscosity(NU)
+        .dt(dt)
+        .advection(Advection::MacCormack { limiter: true })
+        .viscosity_mode(if explicit {
+            ViscosityMode::Explicit
+        } else {
+            ViscosityMode::Implicit
+        })
+        .substepping(true)
+        .build()?)
+}
+
+fn start(scene: &Scene) -> FlowState<f64> {
+    let profile = scene.params::<f64>().inflow;
+    let g = scene.grid();
+    let ux = Array2::from_shape_fn(g.shape_x(), |(_, b)| profile[b]);
+    FlowState::from_velocity(scene, ux, Array2::zeros(g.shape_y()))
+}
+
+fn largest_change(a: &FlowState<f64>, b: &FlowState<f64>) -> f64 {
+    let d = |p: &Array2<f64>, q: &Array2<f64>| {
+        p.iter()
+            .zip(q)
+            .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()))
+    };
+    d(&a.ux, &b.ux).max(d(&a.uy, &b.uy))
+}
+
+/// A force split into its parts, each `[F_x, F_y]`.
+#[derive(Debug, Clone, Copy, Default)]
+struct Parts {
+    pressure: [f64; 2],
+    viscous: [f64; 2],
+    convective: [f64; 2],
+    unsteady: [f64; 2],
+}
+
+impl Parts {
+    fn total(&self) -> [f64; 2] {
+        [0, 1].map(|d| self.pressure[d] + self.viscous[d] + self.convective[d] + self.unsteady[d])
+    }
+}
+
+/// A rectangle of cell faces: x from face `i0` to `i1`, y from `j0` to `j1`.
+#[derive(Debug, Clone, Copy)]
+struct Box2 {
+    i0: usize,
+    i1: usize,
+    j0: usize,
+    j1: usize,
+}
+
+impl Box2 {
+    /// The square of half-width `a` about the cylinder's centre, snapped to faces.
+    fn around(scene: &Scene, a: f64) -> Self {
+        let g = scene.grid();
+        let face = |x: f64, h: f64, n: usize| ((x / h).round() as usize).clamp(1, n - 1);
+        Box2 {
+            i0: face(CENTRE[0] - a, g.dx, g.nx),
+            i1: face(CENTRE[0] + a, g.dx, g.nx),
+            j0: face(CENTRE[1] - a, g.dy, g.ny),
+            j1: face(CENTRE[1] + a, g.dy, g.ny),
+        }
+    }
+
+    /// Cells between the box's edges and the nearest solid cell (at least 1
+    /// for a box that encloses the body).
+    fn clearance(&self, solid: &Array2<bool>) -> usize {
+        let (nx, ny) = solid.dim();
+        let mut gap = usize::MAX;
+        for i in 0..nx {
+            for j in 0..ny {
+                if !solid[[i, j]] {
+                    continue;
+                }
+                if i < self.i0 || i >= self.i1 || j < self.j0 || j >= self.j1 {
+                    return 0;
+                }
+                gap = gap
+                    .min(i - self.i0)
+                    .min(self.i1 - 1 - i)
+                    .min(j - self.j0)
+                    .min(self.j1 - 1 - j);
+            }
+        }
+        gap
+    }
+}
+
+/// The momentum inside `b`: `∫ u dV` from the cell-centred velocity.
+fn momentum(scene: &Scene, s: &FlowState<f64>, b: Box2) -> [f64; 2] {
+    let g = scene.grid();
+    let mut m = [0.0; 2];
+    for i in b.i0..b.i1 {
+        for j in b.j0..b.j1 {
+            m[0] += 0.5 * (s.ux[[i, j]] + s.ux[[i + 1, j]]) * g.dx * g.dy;
+            m[1] += 0.5 * (s.uy[[i, j]] + s.uy[[i, j + 1]]) * g.dx * g.dy;
+        }
+    }
+    m
+}
+
+/// The control-volume force on whatever lies inside `b` (see the module docs):
+/// the fluxes of the state `s`, the time term from `s` to `next` over `dt`.
+fn control_volume(
+    scene: &Scene,
+    s: &FlowState<f64>,
+    next: &FlowState<f64>,
+    dt: f64,
+    b: Box2,
+) -> Parts {
+    let g = scene.grid();
+    let (dx, dy) = (g.dx, g.dy);
+    let (ux, uy, p) = (&s.ux, &s.uy, &s.pressure);
+    let uxc = |i: usize, j: usize| 0.5 * (ux[[i, j]] + ux[[i + 1, j]]);
+    let uyc = |i: usize, j: usize| 0.5 * (uy[[i, j]] + uy[[i, j + 1]]);
+    let mut f = Parts::default();
+    // the left (n = −x) and right (n = +x) edges, one segment per row
+    for (i, s) in [(b.i0, -1.0), (b.i1, 1.0)] {
+        for j in b.j0..b.j1 {
+            let pf = 0.5 * (p[[i - 1, j]] + p[[i, j]]);
+            let un = ux[[i, j]];
+            let vf = 0.5 * (uyc(i - 1, j) + uyc(i, j));
+            let dudx = (ux[[i + 1, j]] - ux[[i - 1, j]]) / (2.0 * dx);
+            let dvdx = (uyc(i, j) - uyc(i - 1, j)) / dx;
+            f.pressure[0] -= pf * s * dy;
+            f.viscous[0] += NU * dudx * s * dy;
+            f.viscous[1] += NU * dvdx * s * dy;
+            f.convective[0] -= un * un * s * dy;
+            f.convective[1] -= vf * un * s * dy;
+        }
+    }
+    // the bottom (n = −y) and top (n = +y) edges, one segment per column
+    for (j, s) in [(b.j0, -1.0), (b.j1, 1.0)] {
+        for i in b.i0..b.i1 {
+            let pf = 0.5 * (p[[i, j - 1]] + p[[i, j]]);
+            let vn = uy[[i, j]];
+            let uf = 0.5 * (uxc(i, j - 1) + uxc(i, j));
+            let dvdy = (uy[[i, j + 1]] - uy[[i, j - 1]]) / (2.0 * dy);
+            let dudy = (uxc(i, j) - uxc(i, j - 1)) / dy;
+            f.pressure[1] -= pf * s * dx;
+            f.viscous[0] += NU * dudy * s * dx;
+            f.viscous[1] += NU * dvdy * s * dx;
+            f.convective[0] -= uf * vn * s * dx;
+            f.convective[1] -= vn * vn * s * dx;
+        }
+    }
+    let (m0, m1) = (momentum(scene, s, b), momentum(scene, next, b));
+    f.unsteady = [0, 1].map(|d| -(m1[d] - m0[d]) / dt);
+    f
+}
+
+/// The rasterised body against the true disc: area, centroid offset, first
+/// moments about the true centre, mirror symmetry about y = 0.2 and x = 0.2.
+fn geometry(scene: &Scene) -> Value {
+    let g = scene.grid();
+    let solid = scene.solid();
+    let (mut n, mut mx, mut my) = (0usize, 0.0, 0.0);
+    let (mut asym_y, mut asym_x) = (0usize, 0usize);
+    let mirror = |c: f64, h: f64, k: usize, len: usize| {
+        // the cell whose centre is the mirror image of cell k's about c
+        let m = 2.0 * c / h - 1.0 - k as f64;
+        (m >= 0.0 && (m - m.round()).abs() < 1e-9 && (m.round() as usize) < len)
+            .then(|| m.round() as usize)
+    };
+    for ((i, j), &s) in solid.indexed_iter() {
+        if !s {
+            continue;
+        }
+        n += 1;
+        mx += (i as f64 + 0.5) * g.dx - CENTRE[0];
+        my += (j as f64 + 0.5) * g.dy - CENTRE[1];
+        if mirror(CENTRE[1], g.dy, j, g.ny).is_none_or(|m| !solid[[i, m]]) {
+            asym_y += 1;
+        }
+        if mirror(CENTRE[0], g.dx, i, g.nx).is_none_or(|m| !solid[[m, j]]) {
+            asym_x += 1;
+        }
+    }
+    let cell = g.dx * g.dy;
+    let area = n as f64 * cell;
+    json!({
+        "solid_cells": n, "area": area,
+        "area_over_disc": area / (std::f64::consts::PI * D * D / 4.0),
+        "centroid_offset": [mx * cell / area, my * cell / area],
+        "first_moment": [mx * cell, my * cell],
+        "cells_without_mirror_image_about_y0.2": asym_y,
+        "cells_without_mirror_image_about_x0.2": asym_x,
+    })
+}
+
+/// The pressure part of the surface force with the pressure extrapolated
+/// linearly to each solid face from the two fluid cells along its normal
+/// (the nearer one alone where the next is solid or outside): a variant of
+/// the surface evaluation's pressure of the neighbouring cell.
+fn pressure_extrapolated(scene: &Scene, s: &FlowState<f64>) -> [f64; 2] {
+    let g = scene.grid();
+    let solid = scene.solid();
+    let (nx, ny) = (g.nx as isize, g.ny as isize);
+    let fluid = |i: isize, j: isize| {
+        i >= 0 && j >= 0 && i < nx && j < ny && !solid[[i as usize, j as usize]]
+    };
+    let p = |i: isize, j: isize| s.pressure[[i as usize, j as usize]];
+    let mut f = [0.0; 2];
+    for i in 0..nx {
+        for j in 0..ny {
+            if !fluid(i, j) {
+                continue;
+            }
+            // n: the direction from the fluid cell into the solid one
+            for (d, di, dj, area) in [
+                (0, 1, 0, g.dy),
+                (0, -1, 0, g.dy),
+                (1, 0, 1, g.dx),
+                (1, 0, -1, g.dx),
+            ] {
+                let (si, sj) = (i + di, j + dj);
+                if !(si >= 0 && sj >= 0 && si < nx && sj < ny && solid[[si as usize, sj as usize]])
+                {
+                    continue;
+                }
+                let wall = if fluid(i - di, j - dj) {
+                    1.5 * p(i, j) - 0.5 * p(i - di, j - dj)
+                } else {
+                    p(i, j)
+                };
+                f[d] += wall * (di + dj) as f64 * area;
+            }
+        }
+    }
+    f
+}
+
+/// One steady run and its forces by both methods.
+fn run(cpd: usize, height: f64, opt: &Options) -> Result<Value> {
+    let (max_time, tol) = (opt.max_time, opt.tol);
+    let scene = scene(cpd, height, opt.courant)?;
+    let params = scene.params();
+    let dt = scene.dt();
+    let mut s = start(&scene);
+    let mut mark = s.clone();
+    const WINDOW: usize = 100;
+    let t0 = Instant::now();
+    let (mut steps, mut rate) = (0usize, f64::INFINITY);
+    let coefficient = 2.0 / (UBAR * UBAR * D);
+    let mut lift_history = Vec::new();
+    while (steps as f64) * dt < max_time {
+        s = scene.forward(&s, &params)?.0;
+        steps += 1;
+        if steps % WINDOW == 0 {
+            rate = largest_change(&s, &mark) / (WINDOW as f64 * dt);
+            mark = s.clone();
+            let f = obstacle_force(&scene, s.ux.view(), s.uy.view(), s.pressure.view(), NU)?;
+            lift_history.push([steps as f64 * dt, coefficient * f[1]]);
+            if rate < tol {
+                break;
+            }
+        }
+    }
+    let seconds = t0.elapsed().as_secs_f64();
+    let next = scene.forward(&s, &params)?.0;
+
+    let total = obstacle_force(&scene, s.ux.view(), s.uy.view(), s.pressure.view(), NU)?;
+    let pressure = obstacle_force(&scene, s.ux.view(), s.uy.view(), s.pressure.view(), 0.0)?;
+    let c = |f: [f64; 2]| f.map(|v| coefficient * v);
+    let surface = Parts {
+        pressure: [pressure[0], pressure[1]],
+        viscous: [total[0] - pressure[0], total[1] - pressure[1]],
+        ..Parts::default()
+    };
+    let extrapolated = pressure_extrapolated(&scene, &s);
+    let variants = [
+        [0, 1].map(|d| extrapolated[d] + surface.viscous[d]),
+        [0, 1].map(|d| surface.pressure[d] + 0.5 * surface.viscous[d]),
+    ];
+    let g = scene.grid();
+    println!(
+        "cpd {cpd:3}, height {height}: {}x{} cells, {steps} steps to t = {:.2} ({}, rate {rate:.1e}; {seconds:.1} s)",
+        g.nx,
+        g.ny,
+        steps as f64 * dt,
+        if rate < tol { "steady" } else { "NOT steady" }
+    );
+    let st = c(surface.total());
+    println!(
+        "  surface        cD {:.4} cL {:+.5}   (pressure cD {:.4} cL {:+.5}; shear cD {:.4} cL {:+.5})",
+        st[0],
+        st[1],
+        c(surface.pressure)[0],
+        c(surface.pressure)[1],
+        c(surface.viscous)[0],
+        c(surface.viscous)[1]
+    );
+    println!(
+        "  surface variants: pressure extrapolated to the face cD {:.4} cL {:+.5}; shear nu u_t/h cD {:.4} cL {:+.5}",
+        c(variants[0])[0],
+        c(variants[0])[1],
+        c(variants[1])[0],
+        c(variants[1])[1]
+    );
+    let mut boxes = Vec::new();
+    for a in BOXES {
+        let b = Box2::around(&scene, a);
+        let clearance = b.clearance(scene.solid());
+        if clearance < 2 {
+            continue;
+        }
+        let f = control_volume(&scene, &s, &next, dt, b);
+        let t = c(f.total());
+        println!(
+            "  CV |x-0.2|,|y-0.2| <= {a:.2} ({clearance:2} cells clear): cD {:.4} cL {:+.5}   (pressure cL {:+.5}, viscous {:+.5}, convective {:+.5}, unsteady {:+.1e})",
+            t[0],
+            t[1],
+            c(f.pressure)[1],
+            c(f.viscous)[1],
+            c(f.convective)[1],
+            c(f.unsteady)[1]
+        );
+        boxes.push(json!({
+            "half_width": a, "faces": [b.i0, b.i1, b.j0, b.j1], "clearance_cells": clearance,
+            "cd": t[0], "cl": t[1],
+            "parts_cd": {"pressure": c(f.pressure)[0], "viscous": c(f.viscous)[0],
+                         "convective": c(f.convective)[0], "unsteady": c(f.unsteady)[0]},
+            "parts_cl": {"pressure": c(f.pressure)[1], "viscous": c(f.viscous)[1],
+                         "convective": c(f.convective)[1], "unsteady": c(f.unsteady)[1]},
+        }));
+    }
+    let geo = geometry(&scene);
+    println!(
+        "  body: {} solid cells, area/disc {:.4}, centroid offset ({:+.1e}, {:+.1e}), cells without a mirror image about y = 0.2: {}",
+        geo["solid_cells"],
+        geo["area_over_disc"].as_f64().unwrap_or(f64::NAN),
+        geo["centroid_offset"][0].as_f64().unwrap_or(f64::NAN),
+        geo["centroid_offset"][1].as_f64().unwrap_or(f64::NAN),
+        geo["cells_without_mirror_image_about_y0.2"]
+    );
+    Ok(json!({
+        "cpd": cpd, "height": height, "nx": g.nx, "ny": g.ny, "h": g.dx, "dt": dt,
+        "courant": opt.courant, "steps": steps, "time": steps as f64 * dt, "steady": rate < tol, "tol": tol,
+        "rate_at_end": rate, "wall_s": seconds,
+        "surface": {"cd": st[0], "cl": st[1],
+                    "pressure": c(surface.pressure), "shear": c(surface.viscous),
+                    "pressure_extrapolated_to_face": c(variants[0]),
+                    "shear_over_h": c(variants[1])},
+        "control_volume": boxes,
+        "geometry": geo,
+        "surface_cl_history": lift_history,
+    }))
+}
+
+struct Options {
+    cpd: Vec<usize>,
+    cases: Vec<String>,
+    max_time: f64,
+    tol: f64,
+    courant: f64,
+}
+
+fn parse() -> Result<(common::ExampleArgs, Options)> {
+    let mut rest = Vec::new();
+    let (mut cpd, mut cases, mut max_time, mut tol, mut courant) = (None, None, None, 1e-4, 0.4);
+    let mut it = std::env::args().skip(1);
+    while let Some(a) = it.next() {
+        let mut value = |name: &str| it.next().ok_or_else(|| format!("{name} needs a value"));
+        match a.as_str() {
+            "--cpd" => {
+                cpd = Some(
+                    value("--cpd")?
+                        .split(',')
+                        .map(str::parse::<usize>)
+                        .collect::<std::result::Result<Vec<_>, _>>()?,
+                )
+            }
+            "--cases" => {
+                cases = Some(
+                    value("--cases")?
+                        .split(',')
+                        .map(str::to_lowercase)
+                        .collect::<Vec<_>>(),
+                )
+            }
+            "--max-time" => max_time = Some(value("--max-time")?.parse()?),
+            "--tol" => tol = value("--tol")?.parse()?,
+            "--courant" => courant = value("--courant")?.parse()?,
+            _ => rest.push(a),
+        }
+    }
+    let args = common::ExampleArgs::parse_from("cylinder_forces", rest.into_iter())?;
+    let cpd = cpd.unwrap_or_else(|| args.pick(vec![10, 20], vec![10]));
+    if cpd.iter().any(|&c| c < 4) {
+        return Err("--cpd: at least 4 cells across the diameter".into());
+    }
+    let cases = cases.unwrap_or_else(|| vec!["2d1".into(), "symmetric".into()]);
+    if let Some(c) = cases
+        .iter()
+        .find(|c| !matches!(c.as_str(), "2d1" | "symmetric"))
+    {
+        return Err(format!("--cases: 2d1 and/or symmetric, not {c:?}").into());
+    }
+    let max_time = max_time.unwrap_or(40.0);
+    Ok((
+        args,
+        Options {
+            cpd,
+            cases,
+            max_time,
+            tol,
+            courant,
+        },
+    ))
+}
+
+fn main() -> Result<()> {
+    let (args, opt) = parse()?;
+    let mut out = serde_json::Map::new();
+    out.insert("reference_cd_cl".into(), json!(REFERENCE));
+    for case in &opt.cases {
+        let height = if case == "2d1" { 0.41 } else { 0.40 };
+        println!("{case}: channel 2.2 x {height}, cylinder at (0.2, 0.2)");
+        let mut rows = Vec::new();
+        for &c in &opt.cpd {
+            rows.push(run(c, height, &opt)?);
+        }
+        out.insert(case.clone(), Value::Array(rows));
+    }
+    let path = args.out.join("cylinder_forces.json");
+    std::fs::write(
+        &path,
+        serde_json::to_string_pretty(&Value::Object(out.clone()))?,
+    )?;
+    println!("wrote {}", path.display());
+    common::print_json_line(&Value::Object(out));
+    Ok(())
+}

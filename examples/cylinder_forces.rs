@@ -320,7 +320,13 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<Value> {
         if steps % WINDOW == 0 {
             rate = largest_change(&s, &mark) / (WINDOW as f64 * dt);
             mark = s.clone();
-            let f = obstacle_force(&scene, s.ux.view(), s.uy.view(), s.pressure.view(), NU)?;
+            let f = obstacle_force(
+                scene.force_weights(),
+                s.ux.view(),
+                s.uy.view(),
+                s.pressure.view(),
+                NU,
+            )?;
             lift_history.push([steps as f64 * dt, coefficient * f[1]]);
             if rate < tol {
                 break;
@@ -330,8 +336,20 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<Value> {
     let seconds = t0.elapsed().as_secs_f64();
     let next = scene.forward(&s, &params)?.0;
 
-    let total = obstacle_force(&scene, s.ux.view(), s.uy.view(), s.pressure.view(), NU)?;
-    let pressure = obstacle_force(&scene, s.ux.view(), s.uy.view(), s.pressure.view(), 0.0)?;
+    let total = obstacle_force(
+        scene.force_weights(),
+        s.ux.view(),
+        s.uy.view(),
+        s.pressure.view(),
+        NU,
+    )?;
+    let pressure = obstacle_force(
+        scene.force_weights(),
+        s.ux.view(),
+        s.uy.view(),
+        s.pressure.view(),
+        0.0,
+    )?;
     let c = |f: [f64; 2]| f.map(|v| coefficient * v);
     let surface = Parts {
         pressure: [pressure[0], pressure[1]],

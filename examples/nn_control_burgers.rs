@@ -5,11 +5,13 @@
 //! The same network, from the same initial parameters, on the same batches, is
 //! trained two ways: through the solver (differentiable physics), with the loss
 //! `mean((P(net(obs)) − obs)²)` where `P` is the 16 recorded solver steps, and
-//! supervised, with `mean((net(obs) − u₀)²)` on the known initial states. On
-//! held-out cases from another seed both are compared with a zero initial state,
+//! supervised, with `mean((net(obs) − u₀)²)` on the known initial states. Each
+//! keeps the parameters that score best on the validation split by its own
+//! objective (early stopping); the held-out split is read once per trained
+//! network, after training, where both are compared with a zero initial state,
 //! with per-instance optimisation (the 50 gradient-descent steps of
 //! `burgers_inverse` on each case) and with the network's prediction refined by
-//! 5 of those steps.
+//! 5 of those steps. Every figure is over data seeds × training seeds.
 //!
 //! Tutorial: docs/06-training-through-the-solver.md. Run:
 //! `cargo run --release --example nn_control_burgers` (`-- --small` for CI).
@@ -21,23 +23,23 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use burgers_scene::{
-    batch_of, curve, learning_rate, mse, network, random_initial_state, sample_of, BoxError,
-    Burgers, DESCENT_RATE, N,
+    batch_of, curve, mse, network, random_initial_state, sample_of, BoxError, Burgers,
+    DESCENT_RATE, N,
 };
-use diffphys::nn::{check_loss, Layer, Params, UNet};
+use diffphys::learn::fit::{Fit, Validation};
+use diffphys::learn::study::run_jobs;
+use diffphys::learn::{
+    select_best, Candidate, DataSeed, LearnError, LrSchedule, Report, Splits, TrainSeed, Trained,
+};
+use diffphys::nn::{Layer, Params, UNet};
 use diffphys::prelude::*;
 use diffphys_compare::chart::{line_chart_svg, LineChart, Series};
 use diffphys_compare::harness::progress_bar;
 use ndarray::Array1;
 use rand::rngs::StdRng;
-use rand::{Rng, SeedableRng};
+use rand::Rng;
+use serde_json::{json, Value};
 
-/// Seeds: training set, held-out set, initial parameters, batch order.
-const TRAIN_SEED: u64 = 1;
-const HELDOUT_SEED: u64 = 2;
-const MODEL_SEED: u64 = 3;
-const BATCH_SEED: u64 = 4;
-/// Widths of the U-Net, finest first (three poolings: it sees the whole field).
 /// Adam's initial step size, the same for both trainings (cosine decay to 1/20).
 const ADAM_RATE: f64 = 2e-3;
 /// Per-instance optimisation: the gradient-descent steps of `burgers_inverse`,
@@ -52,10 +54,9 @@ struct Cases {
 }
 
 impl Cases {
-    fn draw(scene: &Burgers, count: usize, seed: u64) -> Result<Self, BoxError> {
-        let mut rng = StdRng::seed_from_u64(seed);
+    fn draw(scene: &Burgers, count: usize, rng: &mut StdRng) -> Result<Self, BoxError> {
         let u0: Vec<_> = (0..count)
-            .map(|_| random_initial_state(&scene.grid, &mut rng))
+            .map(|_| random_initial_state(&scene.grid, rng))
             .collect();
         let obs = u0
             .iter()
@@ -85,6 +86,20 @@ impl Training {
             Training::Supervised => "supervised",
         }
     }
+
+    /// The key of its figures: `dp`, `supervised`.
+    fn key(self) -> &'static str {
+        match self {
+            Training::Physics => "dp",
+            Training::Supervised => "supervised",
+        }
+    }
+}
+
+impl std::fmt::Display for Training {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.label())
+    }
 }
 
 /// The training budget, the same for both trainings.
@@ -97,11 +112,19 @@ struct Budget {
 
 /// A trained network and its record.
 struct Run {
+    training: Training,
+    data_seed: u64,
+    train_seed: u64,
     net: UNet,
+    /// The parameters of the best validation score by the training's own
+    /// objective.
     params: Params<f64>,
-    /// Held-out physics loss and initial-state error against the training step.
-    heldout_physics: Vec<(usize, f64)>,
-    heldout_u0_error: Vec<(usize, f64)>,
+    /// That score, and the step it was reached at.
+    validation: f64,
+    kept_step: usize,
+    /// Validation physics loss and initial-state error against the step.
+    validation_physics: Vec<(usize, f64)>,
+    validation_u0_error: Vec<(usize, f64)>,
     final_training_loss: f64,
     seconds: f64,
 }
@@ -114,7 +137,7 @@ fn predict(net: &UNet, params: &Params<f64>, obs: &ArrayD<f64>) -> Result<ArrayD
     Ok(y.to_array())
 }
 
-/// Held-out physics loss and initial-state error of predicted initial states.
+/// Physics loss and initial-state error of predicted initial states.
 fn score(scene: &Burgers, cases: &Cases, u0: &[Array1<f64>]) -> Result<(f64, f64), BoxError> {
     let mut physics = 0.0;
     let mut u0_error = 0.0;
@@ -136,68 +159,97 @@ fn network_predictions(
     Ok((0..cases.len()).map(|b| sample_of(&pred, b)).collect())
 }
 
+/// A scene error where the fit loop expects its own.
+fn learn_error(what: &'static str) -> impl Fn(BoxError) -> LearnError {
+    move |e| LearnError::Invalid {
+        what,
+        message: e.to_string(),
+    }
+}
+
+/// Trains `training` from training seed `seed` (initial parameters and batch
+/// order) on the training cases, validating on the validation cases every
+/// `eval_every` steps.
 fn train(
     scene: &Burgers,
     training: Training,
-    data: &Cases,
-    heldout: &Cases,
+    (data, validation): (&Cases, &Cases),
+    data_seed: u64,
     budget: Budget,
+    seed: TrainSeed,
 ) -> Result<Run, BoxError> {
-    let (mut params, net) = network(MODEL_SEED)?;
-    let mut batches = StdRng::seed_from_u64(BATCH_SEED);
-    let mut adam = Adam::new(ADAM_RATE);
-    let mut heldout_physics = Vec::new();
-    let mut heldout_u0_error = Vec::new();
-    let mut final_training_loss = f64::NAN;
-    let bar = progress_bar(budget.steps, training.label());
-    let mut seconds = 0.0;
-    for step in 0..=budget.steps {
-        if step % budget.eval_every == 0 || step == budget.steps {
-            let (physics, u0_error) = score(
-                scene,
-                heldout,
-                &network_predictions(&net, &params, heldout)?,
-            )?;
-            heldout_physics.push((step, physics));
-            heldout_u0_error.push((step, u0_error));
-            bar.set_message(format!("held-out physics loss {physics:.3e}"));
-        }
-        if step == budget.steps {
-            break;
-        }
-        let start = Instant::now();
-        let picks: Vec<usize> = (0..budget.batch)
-            .map(|_| batches.random_range(0..data.len()))
-            .collect();
-        adam.lr = learning_rate(ADAM_RATE, step, budget.steps);
-        let tape = Tape::new();
-        let p = params.bind(&tape);
-        let obs = tape.constant(batch_of(
-            &picks.iter().map(|&i| &data.obs[i]).collect::<Vec<_>>(),
-        ));
-        let pred = net.forward(&p, obs)?;
-        let residual = match training {
-            Training::Physics => scene.observe_batch(pred)?.sub(obs)?,
-            Training::Supervised => {
-                let u0 = batch_of(&picks.iter().map(|&i| &data.u0[i]).collect::<Vec<_>>());
-                pred.sub(tape.constant(u0))?
-            }
-        };
-        let loss = residual.powi(2)?.mean()?;
-        final_training_loss = check_loss(step, loss.item()?)?;
-        let grads = tape.backward(loss, p.vars())?;
-        params.step(&mut adam, &grads, &p)?;
-        seconds += start.elapsed().as_secs_f64();
-        bar.inc(1);
-    }
-    bar.finish_and_clear();
-    Ok(Run {
-        net,
+    let (params, net) = network(seed.0)?;
+    let mut batches = seed.sampling_rng();
+    let fit = Fit {
+        steps: budget.steps,
+        learning_rate: ADAM_RATE,
+        schedule: LrSchedule::Cosine {
+            final_fraction: 0.05,
+        },
+        validate_every: budget.eval_every,
+        validation: Validation::FromUntrained,
+    };
+    let (mut physics, mut u0_error) = (Vec::new(), Vec::new());
+    let bar = progress_bar(
+        budget.steps,
+        &format!("data {} {} seed {}", data_seed, training.key(), seed.0),
+    );
+    let fitted = fit.run(
+        "nn_control_burgers",
         params,
-        heldout_physics,
-        heldout_u0_error,
-        final_training_loss,
-        seconds,
+        |_, tape, p| {
+            let picks: Vec<usize> = (0..budget.batch)
+                .map(|_| batches.random_range(0..data.len()))
+                .collect();
+            let obs = tape.constant(batch_of(
+                &picks.iter().map(|&i| &data.obs[i]).collect::<Vec<_>>(),
+            ));
+            let pred = net.forward(p, obs)?;
+            let residual = match training {
+                Training::Physics => scene
+                    .observe_batch(pred)
+                    .map_err(learn_error("the solver"))?
+                    .sub(obs)?,
+                Training::Supervised => {
+                    let u0 = batch_of(&picks.iter().map(|&i| &data.u0[i]).collect::<Vec<_>>());
+                    pred.sub(tape.constant(u0))?
+                }
+            };
+            Ok(residual.powi(2)?.mean()?)
+        },
+        |params| {
+            let run = || -> Result<(f64, f64), BoxError> {
+                score(
+                    scene,
+                    validation,
+                    &network_predictions(&net, params, validation)?,
+                )
+            };
+            let (p, u) = run().map_err(learn_error("validation"))?;
+            physics.push(p);
+            u0_error.push(u);
+            Ok(match training {
+                Training::Physics => p,
+                Training::Supervised => u,
+            })
+        },
+        &|| bar.inc(1),
+    )?;
+    bar.finish_and_clear();
+    let steps: Vec<usize> = fitted.curve.iter().map(|c| c.0).collect();
+    let along = |v: Vec<f64>| steps.iter().copied().zip(v).collect();
+    Ok(Run {
+        training,
+        data_seed,
+        train_seed: seed.0,
+        net,
+        validation: fitted.validation,
+        kept_step: fitted.best_step,
+        validation_physics: along(physics),
+        validation_u0_error: along(u0_error),
+        final_training_loss: fitted.losses.last().copied().unwrap_or(f64::NAN),
+        seconds: fitted.seconds,
+        params: fitted.params,
     })
 }
 
@@ -266,57 +318,117 @@ fn trace_descent(
     })
 }
 
-/// A horizontal line across `steps` for a baseline in a chart.
+/// What the held-out split says of one trained network (read once).
+struct HeldOutNetwork {
+    predictions: Vec<Array1<f64>>,
+    physics: f64,
+    u0_error: f64,
+    /// After [`REFINE_STEPS`] gradient steps from the predictions.
+    refined: Vec<Array1<f64>>,
+    refined_physics: f64,
+    refined_u0_error: f64,
+    seconds_network: f64,
+    seconds_refined: f64,
+    descent: Descent,
+}
+
+fn held_out_network(scene: &Burgers, run: &Run, cases: &Cases) -> Result<HeldOutNetwork, BoxError> {
+    let start = Instant::now();
+    let predictions = network_predictions(&run.net, &run.params, cases)?;
+    let seconds_network = start.elapsed().as_secs_f64() / cases.len() as f64;
+    let (refined, seconds_refine) = descend_all(scene, cases, &predictions, REFINE_STEPS)?;
+    let (physics, u0_error) = score(scene, cases, &predictions)?;
+    let (refined_physics, refined_u0_error) = score(scene, cases, &refined)?;
+    let descent = trace_descent(scene, cases, &predictions, REFINE_STEPS)?;
+    Ok(HeldOutNetwork {
+        predictions,
+        physics,
+        u0_error,
+        refined,
+        refined_physics,
+        refined_u0_error,
+        seconds_network,
+        seconds_refined: seconds_network + seconds_refine,
+        descent,
+    })
+}
+
+/// The baselines on the held-out split: the zero initial state and
+/// per-instance optimisation from it.
+struct Baselines {
+    /// The split's true initial states and observations (for the charts and
+    /// `--npy`).
+    truth: Vec<Array1<f64>>,
+    observed: Vec<Array1<f64>>,
+    zero: (f64, f64),
+    per_instance: (f64, f64),
+    per_instance_u0: Vec<Array1<f64>>,
+    seconds_per_instance: f64,
+    descent: Descent,
+}
+
+fn baselines(scene: &Burgers, cases: &Cases) -> Result<Baselines, BoxError> {
+    let zeros = vec![Array1::zeros(N); cases.len()];
+    let (per_instance_u0, seconds_per_instance) =
+        descend_all(scene, cases, &zeros, PER_INSTANCE_STEPS)?;
+    Ok(Baselines {
+        truth: cases.u0.clone(),
+        observed: cases.obs.clone(),
+        zero: score(scene, cases, &zeros)?,
+        per_instance: score(scene, cases, &per_instance_u0)?,
+        per_instance_u0,
+        seconds_per_instance,
+        descent: trace_descent(scene, cases, &zeros, REFINE_STEPS)?,
+    })
+}
+
+/// A horizontal line across `steps` for a level in a chart.
 fn level(label: &str, steps: usize, value: f64) -> Series {
     Series::new(label, vec![(0.0, value), (steps as f64, value)])
 }
 
-#[allow(clippy::too_many_arguments)]
+/// The validation curves of `runs` (one data seed), and held-out case 0 of
+/// its first training seed.
 fn write_charts(
     out: &Path,
     scene: &Burgers,
-    runs: &[(Training, &Run)],
+    runs: &[&Run],
     steps: usize,
-    baselines: &[(&str, f64)],
+    untrained_levels: &[(&str, f64)],
     shown: [(&str, &Array1<f64>); 4],
 ) -> Result<Vec<PathBuf>, BoxError> {
     let mut files = Vec::new();
-    let mut save = |name: &str| {
-        let p = out.join(name);
-        files.push(p.clone());
-        p
-    };
-    let mut physics: Vec<Series> = runs
-        .iter()
-        .map(|(t, r)| curve(t.label(), &r.heldout_physics))
-        .collect();
-    physics.extend(baselines.iter().map(|(l, v)| level(l, steps, *v)));
-    line_chart_svg(
-        &save("heldout_physics_loss.svg"),
-        &LineChart {
-            title: "Held-out physics loss mean((P(net(obs)) - obs)^2) during training",
-            x_label: "training step",
-            y_label: "held-out physics loss",
-            log_x: false,
-            log_y: true,
-            series: &physics,
-        },
-    )?;
-    let u0_error: Vec<Series> = runs
-        .iter()
-        .map(|(t, r)| curve(t.label(), &r.heldout_u0_error))
-        .collect();
-    line_chart_svg(
-        &save("heldout_u0_error.svg"),
-        &LineChart {
-            title: "Held-out initial-state error mean((net(obs) - u0)^2) during training",
-            x_label: "training step",
-            y_label: "held-out initial-state error",
-            log_x: false,
-            log_y: true,
-            series: &u0_error,
-        },
-    )?;
+    let label = |r: &Run| format!("{}, seed {}", r.training.label(), r.train_seed);
+    for (name, what, pick) in [
+        (
+            "validation_physics_loss.svg",
+            "physics loss mean((P(net(obs)) - obs)^2)",
+            (|r: &Run| &r.validation_physics) as fn(&Run) -> &Vec<(usize, f64)>,
+        ),
+        (
+            "validation_u0_error.svg",
+            "initial-state error mean((net(obs) - u0)^2)",
+            |r: &Run| &r.validation_u0_error,
+        ),
+    ] {
+        let mut series: Vec<Series> = runs.iter().map(|r| curve(&label(r), pick(r))).collect();
+        if name.contains("physics") {
+            series.extend(untrained_levels.iter().map(|(l, v)| level(l, steps, *v)));
+        }
+        let path = out.join(name);
+        line_chart_svg(
+            &path,
+            &LineChart {
+                title: &format!("Validation {what} during training"),
+                x_label: "training step",
+                y_label: what,
+                log_x: false,
+                log_y: true,
+                series: &series,
+            },
+        )?;
+        files.push(path);
+    }
     let x = scene.grid.centers();
     let along_x = |label: String, v: &Array1<f64>| {
         Series::new(label, x.iter().copied().zip(v.iter().copied()).collect())
@@ -325,17 +437,6 @@ fn write_charts(
         .iter()
         .map(|(label, u)| along_x(label.to_string(), u))
         .collect();
-    line_chart_svg(
-        &save("heldout_case_initial.svg"),
-        &LineChart {
-            title: "Held-out case 0: initial state u(t=0)",
-            x_label: "x",
-            y_label: "u",
-            log_x: false,
-            log_y: false,
-            series: &initial,
-        },
-    )?;
     let observed = shown
         .iter()
         .map(|(label, u)| {
@@ -347,125 +448,260 @@ fn write_charts(
             Ok(along_x(label, &scene.observe_plain(u)?))
         })
         .collect::<Result<Vec<_>, BoxError>>()?;
-    line_chart_svg(
-        &save("heldout_case_observed.svg"),
-        &LineChart {
-            title: "Held-out case 0: state at t = 0.5 from each initial state",
-            x_label: "x",
-            y_label: "u",
-            log_x: false,
-            log_y: false,
-            series: &observed,
-        },
-    )?;
+    for (name, title, series) in [
+        (
+            "heldout_case_initial.svg",
+            "Held-out case 0: initial state u(t=0)",
+            initial,
+        ),
+        (
+            "heldout_case_observed.svg",
+            "Held-out case 0: state at t = 0.5 from each initial state",
+            observed,
+        ),
+    ] {
+        let path = out.join(name);
+        line_chart_svg(
+            &path,
+            &LineChart {
+                title,
+                x_label: "x",
+                y_label: "u",
+                log_x: false,
+                log_y: false,
+                series: &series,
+            },
+        )?;
+        files.push(path);
+    }
     Ok(files)
 }
 
+fn descent_json(d: &Descent) -> Value {
+    json!({
+        "losses": d.losses,
+        "best_iterate": d.best,
+        "gradient_norm": d.gradient_norm,
+        "cases_worse": d.cases_worse,
+    })
+}
+
+/// The held-out figures of every run, and the details of the first.
+#[derive(Default)]
+struct HeldOutFigures {
+    physics: Report,
+    u0_error: Report,
+    seconds: Report,
+    /// Data seed → `(trained networks, baseline readings)` of its split.
+    readings: serde_json::Map<String, Value>,
+}
+
+/// What the held-out split gave, with the runs it came from.
+struct Outcome {
+    figures: HeldOutFigures,
+    validation: Report,
+    runs: Vec<Run>,
+    /// The first data seed's baselines, and its first training seed's
+    /// networks.
+    baselines: Baselines,
+    networks: Vec<(Training, HeldOutNetwork)>,
+}
+
 fn main() -> Result<(), BoxError> {
-    let args = common::ExampleArgs::parse("nn_control_burgers")?;
+    let run_start = Instant::now();
+    let (args, seeds) = common::parse_with_seeds("nn_control_burgers")?;
     let budget = Budget {
         steps: args.iterations.unwrap_or(args.pick(3000, 20)),
         batch: args.pick(16, 4),
         eval_every: args.pick(50, 10),
     };
-    let (train_count, heldout_count) = args.pick((1024, 64), (32, 8));
+    let sizes = args.pick([1024, 64, 64], [32, 8, 8]);
     let scene = Burgers::new()?;
-    let data = Cases::draw(&scene, train_count, TRAIN_SEED)?;
-    let heldout = Cases::draw(&scene, heldout_count, HELDOUT_SEED)?;
+    let splits: Vec<Splits<Cases>> = seeds
+        .data
+        .iter()
+        .map(|&ds| {
+            Splits::generate(DataSeed(ds), sizes, |_, n, rng| {
+                Cases::draw(&scene, n, rng).map_err(learn_error("cases"))
+            })
+        })
+        .collect::<Result<_, _>>()?;
     println!(
-        "Burgers, {N} cells, observed after 16 steps; {train_count} training cases (seed \
-         {TRAIN_SEED}), {heldout_count} held-out cases (seed {HELDOUT_SEED})"
+        "Burgers, {N} cells, observed after 16 steps; {} training, {} validation, {} held-out \
+         cases per data seed {:?}; training seeds {:?}",
+        sizes[0], sizes[1], sizes[2], seeds.data, seeds.train
     );
+    let runs = train_all(&scene, &splits, &seeds.train, budget)?;
+    let outcome = held_out(&scene, &splits, &seeds, runs)?;
+    report(&args, &scene, budget, &seeds, sizes, &outcome, run_start)
+}
 
-    let mut runs = Vec::new();
-    for training in [Training::Physics, Training::Supervised] {
-        let run = train(&scene, training, &data, &heldout, budget)?;
+/// Every (data seed, training seed, training), on the machine's cores; each
+/// is deterministic for its seeds, so the order of the results is the jobs'.
+fn train_all(
+    scene: &Burgers,
+    splits: &[Splits<Cases>],
+    train_seeds: &[u64],
+    budget: Budget,
+) -> Result<Vec<Run>, BoxError> {
+    let parts: Vec<(&Cases, &Cases, u64)> = splits
+        .iter()
+        .map(|s| (&s.train, &s.validation, s.seed.0))
+        .collect();
+    let mut jobs = Vec::new();
+    for d in 0..parts.len() {
+        for &ts in train_seeds {
+            for training in [Training::Physics, Training::Supervised] {
+                jobs.push((d, ts, training));
+            }
+        }
+    }
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let runs = run_jobs(&jobs, threads, |&(d, ts, training)| {
+        let (data, validation, ds) = parts[d];
+        train(
+            scene,
+            training,
+            (data, validation),
+            ds,
+            budget,
+            TrainSeed(ts),
+        )
+        .map_err(|e| e.to_string())
+    })?;
+    for r in &runs {
         println!(
-            "{:>22}: {} steps of batch {} in {:.1} s ({:.1} ms per step), final training \
-             loss {:.3e}, held-out physics loss {:.3e}",
-            training.label(),
+            "{:>22}, data {} seed {}: {} steps of batch {} in {:.1} s ({:.1} ms per step), final \
+             training loss {:.3e}, validation {:.3e} (kept step {})",
+            r.training.label(),
+            r.data_seed,
+            r.train_seed,
             budget.steps,
             budget.batch,
-            run.seconds,
-            1e3 * run.seconds / budget.steps.max(1) as f64,
-            run.final_training_loss,
-            run.heldout_physics.last().map_or(f64::NAN, |p| p.1),
+            r.seconds,
+            1e3 * r.seconds / budget.steps.max(1) as f64,
+            r.final_training_loss,
+            r.validation,
+            r.kept_step,
         );
-        runs.push((training, run));
     }
-    let (dp, supervised) = (&runs[0].1, &runs[1].1);
+    Ok(runs)
+}
 
-    let start = Instant::now();
-    let dp_u0 = network_predictions(&dp.net, &dp.params, &heldout)?;
-    let seconds_per_case_network = start.elapsed().as_secs_f64() / heldout.len() as f64;
-    let supervised_u0 = network_predictions(&supervised.net, &supervised.params, &heldout)?;
-    let zeros = vec![Array1::zeros(N); heldout.len()];
-    let (per_instance_u0, seconds_per_case_per_instance) =
-        descend_all(&scene, &heldout, &zeros, PER_INSTANCE_STEPS)?;
-    let (warm_u0, seconds_refine) = descend_all(&scene, &heldout, &dp_u0, REFINE_STEPS)?;
-    let (warm_supervised_u0, _) = descend_all(&scene, &heldout, &supervised_u0, REFINE_STEPS)?;
-    let seconds_per_case_warm_started = seconds_per_case_network + seconds_refine;
+/// The held-out split of each data seed: its baselines, then each trained
+/// network once.
+fn held_out(
+    scene: &Burgers,
+    splits: &[Splits<Cases>],
+    seeds: &common::Seeds,
+    runs: Vec<Run>,
+) -> Result<Outcome, BoxError> {
+    let mut figures = HeldOutFigures::default();
+    let mut validation = Report::new();
+    let mut first: Option<Baselines> = None;
+    let mut networks: Vec<(Training, HeldOutNetwork)> = Vec::new();
+    let mut kept = Vec::new();
+    let mut runs = runs.into_iter();
+    for s in splits {
+        let ds = s.seed.0;
+        let b = s
+            .held_out()
+            .evaluate_baseline(|cases| baselines(scene, cases).map_err(learn_error("held-out")))?;
+        for (method, (physics, u0_error)) in [("zero", b.zero), ("per_instance", b.per_instance)] {
+            figures.physics.add(method, ds, None, physics);
+            figures.u0_error.add(method, ds, None, u0_error);
+        }
+        figures
+            .seconds
+            .add("per_instance", ds, None, b.seconds_per_instance);
+        first.get_or_insert(b);
+        for run in runs.by_ref().take(2 * seeds.train.len()) {
+            // Nothing to choose between: each trained network is its own
+            // candidate, scored on validation by its own objective.
+            let (training, ts, score) = (run.training, run.train_seed, run.validation);
+            validation.add(training.key(), ds, Some(ts), score);
+            let selection = select_best(vec![Candidate::new(training, Trained::new(run), score)])?;
+            for model in selection.models {
+                let e = s.held_out().evaluate(model, |run, cases| {
+                    held_out_network(scene, run, cases).map_err(learn_error("held-out"))
+                })?;
+                let (key, h) = (training.key(), &e.result);
+                let refined = format!("{key}_refined");
+                for (method, physics, u0_error, seconds) in [
+                    (key, h.physics, h.u0_error, h.seconds_network),
+                    (
+                        &refined,
+                        h.refined_physics,
+                        h.refined_u0_error,
+                        h.seconds_refined,
+                    ),
+                ] {
+                    figures.physics.add(method, ds, Some(ts), physics);
+                    figures.u0_error.add(method, ds, Some(ts), u0_error);
+                    figures.seconds.add(method, ds, Some(ts), seconds);
+                }
+                if ds == seeds.data[0] && ts == seeds.train[0] {
+                    networks.push((training, e.result));
+                }
+                kept.push(e.model);
+            }
+        }
+        let (models, baseline_reads) = s.held_out().readings();
+        figures.readings.insert(
+            ds.to_string(),
+            json!({"trained_models": models, "baseline_readings": baseline_reads}),
+        );
+    }
+    Ok(Outcome {
+        figures,
+        validation,
+        runs: kept,
+        baselines: first.ok_or("no data seed")?,
+        networks,
+    })
+}
 
-    let (loss_dp, u0_err_dp) = score(&scene, &heldout, &dp_u0)?;
-    let (loss_supervised, u0_err_supervised) = score(&scene, &heldout, &supervised_u0)?;
-    let (loss_zero, u0_err_zero) = score(&scene, &heldout, &zeros)?;
-    let (loss_per_instance, u0_err_per_instance) = score(&scene, &heldout, &per_instance_u0)?;
-    let (loss_warm, u0_err_warm) = score(&scene, &heldout, &warm_u0)?;
-    let (loss_warm_supervised, u0_err_warm_supervised) =
-        score(&scene, &heldout, &warm_supervised_u0)?;
-
-    println!(
-        "held-out ({} cases)                 physics loss   u0 error   s per case",
-        heldout.len()
+/// Tables, descent traces, charts, `--npy` arrays and the JSON line.
+fn report(
+    args: &common::ExampleArgs,
+    scene: &Burgers,
+    budget: Budget,
+    seeds: &common::Seeds,
+    sizes: [usize; 3],
+    o: &Outcome,
+    run_start: Instant,
+) -> Result<(), BoxError> {
+    let f = &o.figures;
+    let runs = format!(
+        "data seeds {:?} x training seeds {:?}",
+        seeds.data, seeds.train
     );
-    let rows = [
-        ("zero initial state", loss_zero, u0_err_zero, 0.0),
-        (
-            "network, differentiable physics",
-            loss_dp,
-            u0_err_dp,
-            seconds_per_case_network,
-        ),
-        (
-            "network, supervised",
-            loss_supervised,
-            u0_err_supervised,
-            seconds_per_case_network,
-        ),
-        (
-            "per-instance, 50 GD steps",
-            loss_per_instance,
-            u0_err_per_instance,
-            seconds_per_case_per_instance,
-        ),
-        (
-            "DP network + 5 GD steps",
-            loss_warm,
-            u0_err_warm,
-            seconds_per_case_warm_started,
-        ),
-        (
-            "supervised network + 5 GD steps",
-            loss_warm_supervised,
-            u0_err_warm_supervised,
-            seconds_per_case_warm_started,
-        ),
-    ];
-    for (label, loss, err, seconds) in rows {
-        println!("{label:>32}   {loss:.4e}    {err:.4e}   {seconds:.2e}");
-    }
-
+    println!("held-out physics loss ({runs}):");
+    print!("{}", f.physics.table(Some("zero")));
+    println!("held-out initial-state error:");
+    print!("{}", f.u0_error.table(Some("zero")));
+    println!("seconds per held-out case:");
+    print!("{}", f.seconds.table(None));
+    let network = |t: Training| {
+        o.networks
+            .iter()
+            .find(|n| n.0 == t)
+            .map(|n| &n.1)
+            .ok_or_else(|| format!("no held-out figures of the {t} network"))
+    };
+    let (dp, supervised) = (network(Training::Physics)?, network(Training::Supervised)?);
+    let b = &o.baselines;
     println!(
-        "gradient descent (rate {DESCENT_RATE}) from each start: mean held-out physics loss \
-         before steps 1..{REFINE_STEPS} and after, mean |gradient| at the start"
+        "gradient descent (rate {DESCENT_RATE}) from each start, data seed {} training seed {}: \
+         mean held-out physics loss before steps 1..{REFINE_STEPS} and after",
+        seeds.data[0], seeds.train[0]
     );
     let mut descents = serde_json::Map::new();
-    for (label, starts) in [
-        ("zero", &zeros),
-        ("dp", &dp_u0),
-        ("supervised", &supervised_u0),
+    for (label, d) in [
+        ("zero", &b.descent),
+        ("dp", &dp.descent),
+        ("supervised", &supervised.descent),
     ] {
-        let d = trace_descent(&scene, &heldout, starts, REFINE_STEPS)?;
         let losses: Vec<String> = d.losses.iter().map(|l| format!("{l:.3e}")).collect();
         println!(
             "{label:>11}: {}; best iterate {:.3e}; |gradient| {:.3e}; loss higher after \
@@ -474,39 +710,27 @@ fn main() -> Result<(), BoxError> {
             d.best,
             d.gradient_norm,
             d.cases_worse,
-            heldout.len()
+            b.truth.len()
         );
-        descents.insert(
-            label.to_string(),
-            serde_json::json!({
-                "losses": d.losses,
-                "best_iterate": d.best,
-                "gradient_norm": d.gradient_norm,
-                "cases_worse": d.cases_worse,
-            }),
-        );
+        descents.insert(label.to_string(), descent_json(d));
     }
-
     let shown = [
-        ("true u0", &heldout.u0[0]),
-        ("DP network", &dp_u0[0]),
-        ("supervised network", &supervised_u0[0]),
-        ("per-instance (50 GD)", &per_instance_u0[0]),
+        ("true u0", &b.truth[0]),
+        ("DP network", &dp.predictions[0]),
+        ("supervised network", &supervised.predictions[0]),
+        ("per-instance (50 GD)", &b.per_instance_u0[0]),
     ];
-    let baselines = [
-        ("zero initial state", loss_zero),
-        ("per-instance, 50 GD steps", loss_per_instance),
+    let first: Vec<&Run> = o
+        .runs
+        .iter()
+        .filter(|r| r.data_seed == seeds.data[0])
+        .collect();
+    let levels = [
+        ("zero initial state (held-out)", b.zero.0),
+        ("per-instance, 50 GD steps (held-out)", b.per_instance.0),
     ];
-    let runs_ref: Vec<(Training, &Run)> = runs.iter().map(|(t, r)| (*t, r)).collect();
-    for f in write_charts(
-        &args.out,
-        &scene,
-        &runs_ref,
-        budget.steps,
-        &baselines,
-        shown,
-    )? {
-        println!("wrote {}", f.display());
+    for file in write_charts(&args.out, scene, &first, budget.steps, &levels, shown)? {
+        println!("wrote {}", file.display());
     }
     let stacked = |rows: &[Array1<f64>]| -> Result<ArrayD<f64>, BoxError> {
         let views: Vec<_> = rows.iter().map(|r| r.view()).collect();
@@ -515,32 +739,32 @@ fn main() -> Result<(), BoxError> {
     let npy = [
         (
             "heldout_u0",
-            stacked(&heldout.u0)?,
+            stacked(&b.truth)?,
             "held-out true initial states [cases, 128]",
         ),
         (
             "heldout_observed",
-            stacked(&heldout.obs)?,
+            stacked(&b.observed)?,
             "held-out observed states at step 16 [cases, 128]",
         ),
         (
             "u0_network_dp",
-            stacked(&dp_u0)?,
+            stacked(&dp.predictions)?,
             "initial states from the network trained through the solver",
         ),
         (
             "u0_network_supervised",
-            stacked(&supervised_u0)?,
+            stacked(&supervised.predictions)?,
             "initial states from the supervised network",
         ),
         (
             "u0_per_instance",
-            stacked(&per_instance_u0)?,
+            stacked(&b.per_instance_u0)?,
             "initial states after 50 gradient steps from zero",
         ),
         (
             "u0_warm_started",
-            stacked(&warm_u0)?,
+            stacked(&dp.refined)?,
             "the solver-trained network's states refined by 5 gradient steps",
         ),
     ];
@@ -549,33 +773,49 @@ fn main() -> Result<(), BoxError> {
             .map(|(n, a, m)| (*n, a.view(), *m))
             .collect::<Vec<_>>(),
     )?;
-
-    common::print_json_line(&serde_json::json!({
+    let mean = |r: &Report, m: &str| r.summary(m).map(|s| s.mean);
+    let seconds_of = |t: Training| {
+        o.runs
+            .iter()
+            .filter(|r| r.training == t)
+            .map(|r| r.seconds)
+            .sum::<f64>()
+    };
+    let mut line = json!({
         "example": "nn_control_burgers",
-        "training_cases": train_count,
-        "heldout_cases": heldout.len(),
+        "small": args.small,
+        "data_seeds": seeds.data,
+        "train_seeds": seeds.train,
+        "training_cases": sizes[0],
+        "validation_cases": sizes[1],
+        "heldout_cases": sizes[2],
         "training_steps": budget.steps,
         "batch": budget.batch,
-        "parameters": dp.params.count(),
-        "heldout_physics_loss_dp": loss_dp,
-        "heldout_physics_loss_supervised": loss_supervised,
-        "heldout_physics_loss_zero": loss_zero,
-        "heldout_physics_loss_per_instance": loss_per_instance,
-        "heldout_physics_loss_warm_started": loss_warm,
-        "heldout_physics_loss_warm_started_supervised": loss_warm_supervised,
-        "heldout_u0_error_dp": u0_err_dp,
-        "heldout_u0_error_supervised": u0_err_supervised,
-        "heldout_u0_error_zero": u0_err_zero,
-        "heldout_u0_error_per_instance": u0_err_per_instance,
-        "heldout_u0_error_warm_started": u0_err_warm,
-        "final_training_loss_dp": dp.final_training_loss,
-        "final_training_loss_supervised": supervised.final_training_loss,
-        "training_seconds_dp": dp.seconds,
-        "training_seconds_supervised": supervised.seconds,
-        "seconds_per_case_network": seconds_per_case_network,
-        "seconds_per_case_per_instance": seconds_per_case_per_instance,
-        "seconds_per_case_warm_started": seconds_per_case_warm_started,
-        "refinement": descents,
-    }));
+        "parameters": o.runs.first().map(|r| r.params.count()),
+        "selected_by": "validation (each training's own objective; early stopping)",
+        "heldout_physics_loss_dp": mean(&f.physics, "dp"),
+        "heldout_physics_loss_supervised": mean(&f.physics, "supervised"),
+        "heldout_physics_loss_zero": mean(&f.physics, "zero"),
+        "heldout_physics_loss_per_instance": mean(&f.physics, "per_instance"),
+        "heldout_physics_loss_warm_started": mean(&f.physics, "dp_refined"),
+        "heldout_physics_loss_warm_started_supervised": mean(&f.physics, "supervised_refined"),
+        "heldout_u0_error_dp": mean(&f.u0_error, "dp"),
+        "heldout_u0_error_supervised": mean(&f.u0_error, "supervised"),
+        "heldout_u0_error_zero": mean(&f.u0_error, "zero"),
+        "heldout_u0_error_per_instance": mean(&f.u0_error, "per_instance"),
+        "heldout_u0_error_warm_started": mean(&f.u0_error, "dp_refined"),
+        "training_seconds_dp": seconds_of(Training::Physics),
+        "training_seconds_supervised": seconds_of(Training::Supervised),
+        "seconds_per_case_network": mean(&f.seconds, "dp"),
+        "seconds_per_case_per_instance": mean(&f.seconds, "per_instance"),
+        "seconds_per_case_warm_started": mean(&f.seconds, "dp_refined"),
+    });
+    line["heldout_physics_loss"] = f.physics.to_json();
+    line["heldout_u0_error"] = f.u0_error.to_json();
+    line["validation"] = o.validation.to_json();
+    line["held_out_readings"] = Value::Object(f.readings.clone());
+    line["refinement"] = Value::Object(descents);
+    line["wall_s"] = json!(run_start.elapsed().as_secs_f64());
+    common::print_json_line(&line);
     Ok(())
 }

@@ -200,11 +200,3 @@ pub fn curve(label: &str, points: &[(usize, f64)]) -> diffphys_compare::chart::S
         points.iter().map(|&(s, v)| (s as f64, v)).collect(),
     )
 }
-
-/// Adam's step size at `step` of `steps`: `base` decayed by a half cosine to
-/// `base / 20` at the end, so the last held-out figures are not one noisy step's.
-pub fn learning_rate(base: f64, step: usize, steps: usize) -> f64 {
-    let progress = step as f64 / steps.max(1) as f64;
-    let cosine = 0.5 * (1.0 + (std::f64::consts::PI * progress).cos());
-    base * (0.05 + 0.95 * cosine)
-}

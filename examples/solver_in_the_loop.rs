@@ -25,9 +25,10 @@ use solver_in_the_loop_scene::study;
 use std::collections::BTreeMap;
 use std::time::Instant;
 
+use diffphys::learn::study::select_groups;
 use diffphys::learn::{
-    rollout, select_best, states_at, Budget, Candidate, Corrector, DataSeed, Hybrid, LrSchedule,
-    Report, Schedule, Split, Splits, Strategy, TrainSeed, Trained, TrainedCorrector, Trainer,
+    rollout, states_at, Budget, Corrector, DataSeed, Hybrid, LrSchedule, Report, Schedule, Split,
+    Splits, Strategy, TrainSeed, Trained, TrainedCorrector, Trainer,
 };
 use diffphys::nn::{Activation, Bound, Layer, Padding, Params, UNet, UNetConfig};
 use diffphys::prelude::{check_gradient, GradCheckOptions, Var};
@@ -178,15 +179,11 @@ fn main() -> Result<(), BoxError> {
         }
         // Selection reads validation only: `k` by the mean validation score
         // over the training seeds; non and noise have nothing to choose.
-        let candidate = |(s, g): (Strategy, Vec<Trained<TrainedCorrector>>)| {
-            let v = g.iter().map(|t| t.model.validation).sum::<f64>() / g.len() as f64;
-            Candidate::new(s, Trained::new(g), v)
-        };
-        let sols = groups.split_off(2);
-        let mut selections = vec![select_best(sols.into_iter().map(candidate).collect())?];
-        for g in groups {
-            selections.push(select_best(vec![candidate(g)])?);
-        }
+        let selections = select_groups(
+            groups,
+            |s| matches!(s, Strategy::SolverInTheLoop { .. }),
+            |t| t.model.validation,
+        )?;
         let chosen = *selections[0].chosen_label();
         println!("  selected by validation: {chosen}");
         selected_k.insert(ds.to_string(), json!(chosen.unroll()));

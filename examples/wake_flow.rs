@@ -32,11 +32,10 @@ use std::collections::BTreeMap;
 use std::time::Instant;
 
 use diffphys::flow::PressureSolver;
-use diffphys::learn::study::{run_jobs, Group, Plan};
+use diffphys::learn::study::{pilot_learning_rates, run_jobs, select_groups, Group, Plan};
 use diffphys::learn::{
-    rollout, select_best, Budget, Candidate, DataSeed, Hybrid, LrSchedule, Report, SavedModel,
-    Schedule, Simulator, Split, Splits, Strategy, TrainSeed, Trained, TrainedCorrector, Trainer,
-    Trajectory,
+    rollout, Budget, DataSeed, Hybrid, LrSchedule, Report, SavedModel, Schedule, Simulator, Split,
+    Splits, Strategy, TrainSeed, Trained, TrainedCorrector, Trainer, Trajectory,
 };
 use diffphys::nn::{Arithmetic, Params};
 use diffphys_compare::harness::progress_bar;
@@ -482,7 +481,6 @@ fn main() -> Result<(), BoxError> {
         mem("src");
         // Phase 2: the learning rate, on validation (pilot runs at a quarter
         // of the budget, first training seed).
-        let mut lr_of: BTreeMap<&str, f64> = BTreeMap::new();
         let families: Vec<(&str, Variant)> = [
             ("non", Variant::Non),
             (
@@ -520,47 +518,37 @@ fn main() -> Result<(), BoxError> {
                 train_one(&setup, job).map_err(|e| e.to_string())
             })
         };
-        if options.learning_rates.len() > 1 {
+        let pilots = pilot_learning_rates(&families, &options.learning_rates, |pilots| {
             let first_seed = seeds.train[0];
-            let pilots: Vec<Job> = families
+            let jobs: Vec<Job> = pilots
                 .iter()
-                .flat_map(|&(_, variant)| {
-                    options.learning_rates.iter().map(move |&lr| Job {
-                        variant,
-                        size: MAIN_SIZE,
-                        seed: first_seed,
-                        lr,
-                        evaluations: evaluations.div_ceil(PILOT_DIVISOR),
-                    })
+                .map(|&((_, variant), lr)| Job {
+                    variant,
+                    size: MAIN_SIZE,
+                    seed: first_seed,
+                    lr,
+                    evaluations: evaluations.div_ceil(PILOT_DIVISOR),
                 })
                 .collect();
-            let models = run(&pilots)?;
-            for (family, variant) in &families {
-                let scores: Vec<(f64, f64)> = pilots
+            Ok::<_, BoxError>(
+                run(&jobs)?
                     .iter()
-                    .zip(&models)
-                    .filter(|(j, _)| j.variant == *variant)
-                    .map(|(j, m)| (j.lr, m.trained.model.validation))
-                    .collect();
-                let best = scores
+                    .map(|m| m.trained.model.validation)
+                    .collect(),
+            )
+        })?;
+        let lr_of: BTreeMap<&str, f64> =
+            pilots.chosen.iter().map(|&((f, _), lr)| (f, lr)).collect();
+        for ((family, _), scores) in &pilots.scores {
+            let best = lr_of[family];
+            println!("  learning rate for {family}: {best:.0e} (pilot validation {scores:?})");
+            chosen_lr.insert(
+                format!("{family}_pilots_data_{ds}"),
+                json!(scores
                     .iter()
-                    .copied()
-                    .min_by(|a, b| a.1.total_cmp(&b.1))
-                    .map_or(options.learning_rates[0], |b| b.0);
-                println!("  learning rate for {family}: {best:.0e} (pilot validation {scores:?})");
-                lr_of.insert(family, best);
-                chosen_lr.insert(
-                    format!("{family}_pilots_data_{ds}"),
-                    json!(scores
-                        .iter()
-                        .map(|(lr, v)| json!({"lr": lr, "validation": v}))
-                        .collect::<Vec<_>>()),
-                );
-            }
-        } else {
-            for (family, _) in &families {
-                lr_of.insert(family, options.learning_rates[0]);
-            }
+                    .map(|(lr, v)| json!({"lr": lr, "validation": v}))
+                    .collect::<Vec<_>>()),
+            );
         }
         for (f, lr) in &lr_of {
             chosen_lr.insert(format!("{f}_data_{ds}"), json!(lr));
@@ -654,40 +642,31 @@ fn main() -> Result<(), BoxError> {
         }
 
         mem("training");
-        // Phase 4: selection on validation only.
-        let candidate = |(v, g): (Variant, Vec<Model>)| {
-            let score = g.iter().map(|m| m.trained.model.validation).sum::<f64>() / g.len() as f64;
-            let entry = Entry {
-                variant: v,
-                size: g[0].size,
-            };
-            Candidate::new(entry, Trained::new(g), score)
-        };
-        // Every SOL variant trained, at every size, is a candidate: the
-        // unroll and the corrector's size are both chosen here.
-        let is_sol = |g: &(Variant, Vec<Model>)| matches!(g.0, Variant::Sol(_));
-        let (mut sols, others): (Vec<_>, Vec<_>) = groups.into_iter().partition(is_sol);
-        let (capacity_sols, capacity_others): (Vec<_>, Vec<_>) =
-            capacity_groups.into_iter().partition(is_sol);
-        sols.extend(capacity_sols);
-        let mut selections = Vec::new();
-        if !sols.is_empty() {
-            let s = select_best(sols.into_iter().map(candidate).collect())?;
-            let Entry {
-                variant: Variant::Sol(k),
-                size,
-            } = *s.chosen_label()
-            else {
-                return Err("only SOL variants are candidates here".into());
-            };
+        // Phase 4: selection on validation only. Every SOL variant trained,
+        // at every size, is a candidate: the unroll and the corrector's size
+        // are both chosen here; the others are candidates on their own.
+        let labelled = groups
+            .into_iter()
+            .chain(capacity_groups)
+            .map(|(variant, g): (Variant, Vec<Model>)| {
+                let size = g.first().map_or(MAIN_SIZE, |m| m.size);
+                (Entry { variant, size }, g)
+            })
+            .collect();
+        let selections = select_groups(
+            labelled,
+            |e| matches!(e.variant, Variant::Sol(_)),
+            |m| m.trained.model.validation,
+        )?;
+        if let Some(Entry {
+            variant: Variant::Sol(k),
+            size,
+        }) = selections.first().map(|s| *s.chosen_label())
+        {
             let size = size.label();
             println!("  selected by validation: sol_{k} at {size}");
             selected_k.insert(ds.to_string(), json!(k));
             selected_size.insert(ds.to_string(), json!(size));
-            selections.push(s);
-        }
-        for g in others.into_iter().chain(capacity_others) {
-            selections.push(select_best(vec![candidate(g)])?);
         }
 
         // Phase 5: held-out, each trained model once.

@@ -10,12 +10,17 @@ use diffphys::flow::diagnostics::vorticity;
 use diffphys::flow::{restrict_velocity, FlowParams, FlowState, PressureSolver, Scene};
 use diffphys::learn::{relative_l2, rollout, Corrector, Hybrid, Simulator, Trajectory};
 use diffphys::nn::Params;
-use diffphys_compare::chart::{line_chart_svg, LineChart, Series};
+use diffphys_compare::chart::{
+    heatmap_panels_svg, line_chart_svg, HeatmapPanels, LineChart, Outline, Series,
+};
 use ndarray::{Array2, Array3, Axis};
 use serde_json::{json, Value};
 
 use super::data::Reference;
-use super::{uncorrected, viscosity, NetSize, Options, Result, Sizes, Variant, WakeError, FACTOR};
+use super::{
+    uncorrected, viscosity, NetSize, Options, Result, Sizes, Variant, WakeError, CENTRE, DIAMETER,
+    FACTOR,
+};
 
 /// One model's held-out rollouts at one Reynolds number.
 #[derive(Debug, Clone)]
@@ -574,22 +579,54 @@ pub fn charts(
             .map_err(e)?;
         }
     }
-    for (name, state) in last {
-        let (s, _) = coarse.unpack(state.view())?;
-        let w = vorticity(coarse, s.ux.view(), s.uy.view())?;
-        let path = out.join(format!("vorticity_{name}.svg"));
-        write_vorticity(&path, &format!("vorticity, {name}"), &w).map_err(e)?;
-    }
+    write_vorticity(out, last, coarse).map_err(e)?;
     Ok(())
 }
 
+/// The vorticity after the long rollout at the first held-out Re: the
+/// reference and every solver side by side on one colour scale, streamwise to
+/// the right, the cylinder outlined (`vorticity.svg`).
 fn write_vorticity(
-    path: &Path,
-    title: &str,
-    w: &Array2<f64>,
+    out: &Path,
+    last: &BTreeMap<String, Array3<f64>>,
+    coarse: &Scene,
 ) -> std::result::Result<(), diffphys_compare::CompareError> {
-    // The chart's rows run down the page: put y (axis 1) down, x across.
-    let field = w.t().to_owned();
-    let flipped = field.slice(ndarray::s![..;-1, ..]).to_owned();
-    diffphys_compare::chart::heatmap_svg(path, title, flipped.view())
+    let chart = |e: WakeError| diffphys_compare::CompareError::Chart(e.to_string());
+    // The reference first, then the solvers in the order of the report.
+    let order = ["reference", "src", "non", "noise", "sol_selected"];
+    let mut names: Vec<&String> = last
+        .keys()
+        .filter(|n| order.contains(&n.as_str()))
+        .collect();
+    names.sort_by_key(|n| order.iter().position(|o| o == n));
+    let mut fields = Vec::new();
+    for name in names {
+        let (s, _) = coarse
+            .unpack(last[name].view())
+            .map_err(|e| chart(e.into()))?;
+        let w = vorticity(coarse, s.ux.view(), s.uy.view()).map_err(|e| chart(e.into()))?;
+        fields.push((name.as_str(), w));
+    }
+    if fields.is_empty() {
+        return Ok(());
+    }
+    let g = coarse.grid();
+    // Vorticity lives on the inner nodes: index k is the node at (k + 1) h,
+    // drawn as the square [k, k + 1].
+    let outline = Outline {
+        centre: (CENTRE[0] / g.dx - 0.5, CENTRE[1] / g.dy - 0.5),
+        radius: 0.5 * DIAMETER / g.dx,
+    };
+    let panels: Vec<(&str, ndarray::ArrayView2<'_, f64>)> =
+        fields.iter().map(|(n, w)| (*n, w.view())).collect();
+    heatmap_panels_svg(
+        &out.join("vorticity.svg"),
+        &HeatmapPanels {
+            title: "Vorticity after the long rollout, first held-out Re",
+            panels: &panels,
+            axes: ["x (streamwise, node)", "y (node)"],
+            outline: Some(outline),
+            columns: 2,
+        },
+    )
 }

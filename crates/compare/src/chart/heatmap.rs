@@ -89,7 +89,7 @@ impl ColorScale {
 
 /// The field averaged over blocks of `bx × by` cells (a block with a non-finite
 /// cell is non-finite), with the block sizes.
-fn block_average(
+pub(super) fn block_average(
     field: ArrayView2<'_, f64>,
     max_cells: usize,
 ) -> (ndarray::Array2<f64>, usize, usize) {
@@ -208,7 +208,10 @@ pub fn heatmap_svg_string_with_axes(
     Ok(buf)
 }
 
-fn draw_color_bar(area: &DrawingArea<SVGBackend<'_>, Shift>, scale: ColorScale) -> Result<()> {
+pub(super) fn draw_color_bar(
+    area: &DrawingArea<SVGBackend<'_>, Shift>,
+    scale: ColorScale,
+) -> Result<()> {
     let (lo, hi) = scale.bar_range();
     let mut ctx = ChartBuilder::on(area)
         .margin_top(10)

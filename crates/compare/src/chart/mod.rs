@@ -33,12 +33,14 @@ use crate::{CompareError, Result};
 mod axes;
 mod heatmap;
 mod line;
+mod panels;
 mod quiver;
 
 pub use heatmap::{
     heatmap_svg, heatmap_svg_string, heatmap_svg_string_with_axes, heatmap_svg_with_axes,
 };
 pub use line::{line_chart_svg, line_chart_svg_string};
+pub use panels::{heatmap_panels_svg, heatmap_panels_svg_string, HeatmapPanels, Outline};
 pub use quiver::{quiver_svg, quiver_svg_string};
 
 /// One named curve of a [`LineChart`].

@@ -119,7 +119,16 @@ fn params(dt: f64, allow_cfl_violation: bool) -> AdvectionParams {
 
 /// `semi_lagrangian2(d, u, *, dt, spacing=(1.0, 1.0), boundary="periodic")`:
 /// one semi-Lagrangian step, `d'(x) = d(x − u(x)·dt)` with bilinear
-/// interpolation.
+/// interpolation at the departure point.
+///
+/// Shapes and dtypes: `d` is `(nx, ny)` (cell-centred), `u` is `(2, nx, ny)`
+/// (`u[0]` along x, `u[1]` along y, cell-centred), both float32 or float64 of
+/// one dtype; the result has `d`'s shape and dtype. `spacing` is `(dx, dy)`,
+/// `boundary` `"periodic"`, `"dirichlet"`, `"closed"` or a pair per axis.
+///
+/// Raises `ShapeError` (`u` not `(2, nx, ny)`), `TypeError` (not float
+/// arrays, or of two dtypes), `InvalidArgumentError` (`dt` or the spacing
+/// not positive, an unknown boundary), `NonFiniteError`.
 #[pyfunction]
 #[pyo3(signature = (d, u, *, dt, spacing = (1.0, 1.0), boundary = BoundaryArg::both("periodic")))]
 pub(crate) fn semi_lagrangian2<'py>(
@@ -137,7 +146,13 @@ pub(crate) fn semi_lagrangian2<'py>(
 }
 
 /// `semi_lagrangian2_vjp(d, u, grad_out, *, dt, spacing, boundary)`:
-/// `(∂L/∂d, ∂L/∂u)` of `semi_lagrangian2`.
+/// `(∂L/∂d, ∂L/∂u)` of `semi_lagrangian2`: `∂L/∂d` scatters `grad_out`
+/// back through the bilinear weights, `∂L/∂u` is `grad_out` times the
+/// bilinear slope of `d` at the departure point times `−dt`.
+///
+/// Shapes and dtypes: as `semi_lagrangian2` (float32 or float64), `grad_out`
+/// of `d`'s shape; returns arrays of `d`'s and `u`'s shapes. Raises as
+/// `semi_lagrangian2` (`ShapeError` also for `grad_out`).
 #[pyfunction]
 #[pyo3(signature = (d, u, grad_out, *, dt, spacing = (1.0, 1.0), boundary = BoundaryArg::both("periodic")))]
 pub(crate) fn semi_lagrangian2_vjp<'py>(
@@ -156,7 +171,19 @@ pub(crate) fn semi_lagrangian2_vjp<'py>(
 }
 
 /// `upwind2(d, u, *, dt, spacing=(1.0, 1.0), boundary="periodic",
-/// allow_cfl_violation=False)`: one first-order upwind step.
+/// allow_cfl_violation=False)`: one first-order upwind step, per axis
+/// `d' = d − dt [u⁺ (d_{i+1} − d_i)/h + u⁻ (d_i − d_{i−1})/h]` with
+/// `u⁺ = min(u, 0)`, `u⁻ = max(u, 0)`.
+///
+/// Shapes and dtypes: `d` is `(nx, ny)` (cell-centred), `u` is `(2, nx, ny)`
+/// (`u[0]` along x, `u[1]` along y, cell-centred), both float32 or float64 of
+/// one dtype; the result has `d`'s shape and dtype. `spacing` is `(dx, dy)`,
+/// `boundary` `"periodic"`, `"dirichlet"`, `"closed"` or a pair per axis.
+///
+/// Raises `ShapeError` (`u` not `(2, nx, ny)`), `TypeError` (not float
+/// arrays, or of two dtypes), `InvalidArgumentError` (`dt` or the spacing
+/// not positive, an unknown boundary), `NonFiniteError`, `UnstableError` (a CFL number
+/// `|u| dt / h` above 1, unless `allow_cfl_violation`).
 #[pyfunction]
 #[pyo3(signature = (
     d, u, *, dt, spacing = (1.0, 1.0), boundary = BoundaryArg::both("periodic"),
@@ -180,7 +207,12 @@ pub(crate) fn upwind2<'py>(
 }
 
 /// `upwind2_vjp(d, u, grad_out, *, dt, spacing, boundary,
-/// allow_cfl_violation)`: `(∂L/∂d, ∂L/∂u)` of `upwind2`.
+/// allow_cfl_violation)`: `(∂L/∂d, ∂L/∂u)` of `upwind2` (the transposed
+/// stencil for `d`, the upwind differences of `d` for `u`).
+///
+/// Shapes and dtypes: as `upwind2` (float32 or float64), `grad_out` of `d`'s
+/// shape; returns arrays of `d`'s and `u`'s shapes. Raises as `upwind2`
+/// (`ShapeError` also for `grad_out`).
 #[pyfunction]
 #[pyo3(signature = (
     d, u, grad_out, *, dt, spacing = (1.0, 1.0), boundary = BoundaryArg::both("periodic"),

@@ -28,6 +28,40 @@ use crate::errors::{check, InvalidArgumentError, ShapeError};
 /// tape (checkpointed every `⌈√steps⌉` steps) and runs the reverse sweep:
 /// every piece has a hand-written adjoint, the projection's is one more
 /// pressure solve.
+///
+/// Constructor: `FlowStep(shape, size, *, sides="periodic", obstacle=None,
+/// viscosity=0.01, dt=0.01, inflow=None, advection="semi_lagrangian",
+/// viscosity_mode="explicit", pressure_solver="cholesky",
+/// pressure_rel_tol=1e-10, splitting="incremental", substepping=False,
+/// max_courant=1.0, buffer_limit_bytes=2**31)`. `shape` is the cells
+/// `(nx, ny)`, `size` the domain `(lx, ly)`; `obstacle` a bool array of the cell shape (true: solid);
+/// `sides` a preset (`"periodic"`, `"channel"`, `"cavity"`, or one side
+/// condition for all four) or a dict `{"left": …, "right": …, "bottom": …,
+/// "top": …}` of `"no_slip"`, `"free_slip"`, `"periodic"`, `"inflow"`,
+/// `"outflow"` or `("moving", speed)` (missing sides no-slip);
+/// `inflow` a speed (uniform) or a profile along the inflow side;
+/// `pressure_solver` `"cholesky"`, `"fourier"` (a box periodic in both
+/// axes without obstacle), `"cg"` or `"multigrid"`. `vjp` keeps the
+/// buffers of its tape for the next call, up to `buffer_limit_bytes`
+/// (0: none): fresh memory is faulted in page by page, about a third of
+/// a 100-step VJP's time at 256² (`held_bytes`, `release_buffers`).
+///
+/// Shapes and dtypes: `ux` is `shape_x` (the x-faces), `uy` is `shape_y`
+/// (the y-faces), the pressure is `shape` (the cells `(nx, ny)`), the force
+/// is `(2,)`; all float32 or float64 of one dtype, results in that dtype.
+///
+/// Raises: `InvalidArgumentError` (an unknown side, advection, solver or
+/// splitting name, a non-positive `dt` or viscosity, `steps=0`, an inflow
+/// profile of the wrong length), `ShapeError` (arrays not of the grid's
+/// shapes, an obstacle not of the cell shape), `TypeError` (not float arrays,
+/// an obstacle not a bool array), `NonFiniteError` (NaN or infinity in the
+/// state), `UnstableError` (a Courant number above `max_courant` without
+/// `substepping`), `NotConvergedError` (an iterative pressure solve).
+///
+/// >>> import numpy as np, diffphys as dp
+/// >>> scene = dp.FlowStep((32, 32), (1.0, 1.0), viscosity=0.01, dt=0.01)
+/// >>> ux, uy = np.zeros(scene.shape_x), np.zeros(scene.shape_y)
+/// >>> ux2, uy2, p, force = scene.forward(ux, uy, steps=10)
 #[pyclass(module = "diffphys._native", frozen)]
 pub struct FlowStep {
     scene: Scene,
@@ -101,18 +135,7 @@ fn sides(obj: &Bound<'_, PyAny>) -> PyResult<Sides> {
 
 #[pymethods]
 impl FlowStep {
-    /// `FlowStep(shape, size, *, sides="periodic", obstacle=None,
-    /// viscosity=0.01, dt=0.01, inflow=None, advection="semi_lagrangian",
-    /// viscosity_mode="explicit", pressure_solver="cholesky",
-    /// pressure_rel_tol=1e-10, splitting="incremental", substepping=False,
-    /// max_courant=1.0, buffer_limit_bytes=2**31)`. `shape` is the cells
-    /// `(nx, ny)`, `size` the domain `(lx, ly)`; `obstacle` a bool array of the cell shape (true: solid);
-    /// `inflow` a speed (uniform) or a profile along the inflow side;
-    /// `pressure_solver` `"cholesky"`, `"fourier"` (a box periodic in both
-    /// axes without obstacle), `"cg"` or `"multigrid"`. `vjp` keeps the
-    /// buffers of its tape for the next call, up to `buffer_limit_bytes`
-    /// (0: none): fresh memory is faulted in page by page, about a third of
-    /// a 100-step VJP's time at 256² (`held_bytes`, `release_buffers`).
+    /// The constructor (its arguments are described on the class).
     #[new]
     #[pyo3(signature = (
         shape, size, *, sides = None, obstacle = None, viscosity = 0.01, dt = 0.01,
@@ -267,6 +290,13 @@ impl FlowStep {
     /// pressure `pressure` (zero if None); `viscosity`, `wall_speed` (4, in
     /// the order left, right, bottom, top) and `inflow` default to the
     /// scene's. `force` is `[drag, lift]` on the obstacle at the end.
+    ///
+    /// `ux`: `shape_x`, `uy`: `shape_y`, `pressure`: `shape`, float32 or
+    /// float64; `wall_speed`: `(4,)`, `inflow`: `(inflow_len,)`, the same
+    /// dtype. Returns `(ux', uy', P', force)` of those shapes and `(2,)`.
+    ///
+    /// Raises `InvalidArgumentError` (`steps=0`), `ShapeError`, `TypeError`,
+    /// `NonFiniteError`, `UnstableError`, `NotConvergedError`.
     #[pyo3(signature = (ux, uy, *, steps = 1, pressure = None, viscosity = None,
                         wall_speed = None, inflow = None))]
     #[allow(clippy::too_many_arguments)]
@@ -300,6 +330,15 @@ impl FlowStep {
     /// `checkpoint_every=k` keeps the state of every k-th step and recomputes
     /// the others in the reverse sweep (1: keep every step, the fastest and
     /// the most memory); the default is about √steps.
+    ///
+    /// The seeds have the shapes of the outputs (`shape_x`, `shape_y`,
+    /// `shape`, `(2,)`) and the dtype of `ux`; the gradients are arrays of
+    /// the inputs' shapes, `∂L/∂viscosity` a float, `∂L/∂wall_speed` `(4,)`,
+    /// `∂L/∂inflow` `(inflow_len,)`.
+    ///
+    /// Raises `InvalidArgumentError` (`steps=0`, `checkpoint_every=0`),
+    /// `ShapeError` (a seed not of its output's shape), `TypeError`,
+    /// `NonFiniteError`, `UnstableError`, `NotConvergedError`.
     #[pyo3(signature = (ux, uy, grad_ux = None, grad_uy = None, grad_pressure = None,
                         grad_force = None, *, steps = 1, pressure = None, viscosity = None,
                         wall_speed = None, inflow = None, checkpoint_every = None))]

@@ -24,6 +24,23 @@ use crate::solver::{info_dict, Kind, Options, Params};
 /// Adjoint (implicit, by the implicit function theorem): `grad_b = A⁻ᵀ grad_p
 /// = A⁻¹ grad_p`, one solve with the same operator, nothing of the forward
 /// iterations kept.
+///
+/// Constructor: `Poisson(shape, *, spacing=(1.0, 1.0), boundary="dirichlet",
+/// preconditioner="multigrid", rel_tol=None, abs_tol=0.0, max_iters=None,
+/// sweeps=2, adjoint_rel_tol=None, iterations=None)`; `rel_tol` None is 1e-10 for float64
+/// arrays and 1e-5 for float32 ones.
+///
+/// Shapes and dtypes: `b`, `p`, `grad_p` and `grad_b` are `(nx, ny)` numpy
+/// arrays of float32 or float64 (the result has the input's dtype).
+///
+/// Raises: `InvalidArgumentError` (unknown boundary or preconditioner, a
+/// negative or non-finite tolerance, `iterations` with a tolerance),
+/// `ShapeError` (an array not of `shape`), `TypeError` (not a float32 or
+/// float64 array), `NonFiniteError` (NaN or infinity in the input or the
+/// result), `NotConvergedError` (no convergence within `max_iters`).
+///
+/// >>> import numpy as np, diffphys as dp
+/// >>> p = dp.Poisson((32, 32), spacing=(1 / 32, 1 / 32)).solve(np.ones((32, 32)))
 #[pyclass(module = "diffphys._native", frozen)]
 pub struct Poisson {
     op: Laplacian2,
@@ -33,10 +50,7 @@ pub struct Poisson {
 
 #[pymethods]
 impl Poisson {
-    /// `Poisson(shape, *, spacing=(1.0, 1.0), boundary="dirichlet",
-    /// preconditioner="multigrid", rel_tol=None, abs_tol=0.0, max_iters=None,
-    /// sweeps=2, adjoint_rel_tol=None, iterations=None)`; `rel_tol` None is 1e-10 for float64
-    /// arrays and 1e-5 for float32 ones.
+    /// The constructor (its arguments are described on the class).
     #[new]
     #[pyo3(signature = (
         shape, *, spacing = (1.0, 1.0), boundary = BoundaryArg::both("dirichlet"),
@@ -85,8 +99,12 @@ impl Poisson {
         (self.shape[0], self.shape[1])
     }
 
-    /// `p = A⁻¹ b`; with `return_info`, `(p, info)` where `info` has the
-    /// iterations and the relative residual of the solve.
+    /// `p = A⁻¹ b` (`b`: `(nx, ny)`, float32 or float64; `p` of the same
+    /// shape and dtype); with `return_info`, `(p, info)` where `info` is a
+    /// dict of `iterations`, `relative_residual` and `converged`.
+    ///
+    /// Raises `ShapeError`, `TypeError`, `NonFiniteError`,
+    /// `NotConvergedError`.
     #[pyo3(signature = (b, *, return_info = false))]
     fn solve<'py>(&self, b: &Bound<'py, PyAny>, return_info: bool) -> PyResult<Bound<'py, PyAny>> {
         match dtype_of(b, "b")? {
@@ -95,8 +113,12 @@ impl Poisson {
         }
     }
 
-    /// `grad_b = A⁻¹ grad_p` (the vector–Jacobian product of `solve`);
-    /// `return_info` as for `solve`.
+    /// `grad_b = A⁻¹ grad_p` (the vector–Jacobian product of `solve`;
+    /// `grad_p`: `(nx, ny)`, float32 or float64); `return_info` as for
+    /// `solve`.
+    ///
+    /// Raises `ShapeError`, `TypeError`, `NonFiniteError`,
+    /// `NotConvergedError`.
     #[pyo3(signature = (grad_p, *, return_info = false))]
     fn vjp<'py>(
         &self,

@@ -28,6 +28,23 @@ use crate::solver::{info_dict, Kind, Options};
 ///
 /// Adjoint, with `g_u = ∂L/∂u'` and `g_p = ∂L/∂p`: `∂L/∂u = W g_u − G s`,
 /// `s = S(−D g_u − g_p)`: one solve with the same operator.
+///
+/// Constructor: `Projection(shape, *, spacing=(1.0, 1.0), boundary="closed",
+/// obstacle=None, preconditioner="multigrid", rel_tol=None, abs_tol=0.0,
+/// max_iters=None, sweeps=2, adjoint_rel_tol=None, iterations=None)`; `obstacle` is a
+/// boolean array of the cell shape, true inside the obstacle; `rel_tol`
+/// None is 1e-10 for float64 arrays and 1e-5 for float32 ones.
+///
+/// Shapes and dtypes: for `shape = (nx, ny)` cells, `ux` is `shape_x`
+/// (`(nx − 1, ny)` between closed walls: the interior faces; `(nx + 1, ny)`
+/// with dirichlet, `(nx, ny)` periodic), `uy` likewise `shape_y` along y, `p`
+/// is `(nx, ny)`; all float32 or float64 (the results have the inputs'
+/// dtype).
+///
+/// Raises: `InvalidArgumentError` (unknown boundary or preconditioner, a bad
+/// tolerance, an obstacle that closes every cell), `ShapeError` (faces not of
+/// `shape_x`/`shape_y`), `TypeError` (not float arrays; an obstacle not a
+/// bool array), `NonFiniteError`, `NotConvergedError`.
 #[pyclass(module = "diffphys._native", frozen)]
 pub struct Projection {
     /// The projection with the solver parameters of float32 arrays.
@@ -38,11 +55,7 @@ pub struct Projection {
 
 #[pymethods]
 impl Projection {
-    /// `Projection(shape, *, spacing=(1.0, 1.0), boundary="closed",
-    /// obstacle=None, preconditioner="multigrid", rel_tol=None, abs_tol=0.0,
-    /// max_iters=None, sweeps=2, adjoint_rel_tol=None, iterations=None)`; `obstacle` is a
-    /// boolean array of the cell shape, true inside the obstacle; `rel_tol`
-    /// None is 1e-10 for float64 arrays and 1e-5 for float32 ones.
+    /// The constructor (its arguments are described on the class).
     #[new]
     #[pyo3(signature = (
         shape, *, spacing = (1.0, 1.0), boundary = BoundaryArg::both("closed"), obstacle = None,
@@ -118,7 +131,12 @@ impl Projection {
         (a, b)
     }
 
-    /// `(u'_x, u'_y, p)`; with `return_info`, `(u'_x, u'_y, p, info)`.
+    /// `(u'_x, u'_y, p)`: the divergence-free part of `(ux, uy)` (shapes
+    /// `shape_x`, `shape_y`; float32 or float64) and the pressure (`shape`);
+    /// with `return_info`, `(u'_x, u'_y, p, info)`.
+    ///
+    /// Raises `ShapeError`, `TypeError`, `NonFiniteError`,
+    /// `NotConvergedError`.
     #[pyo3(signature = (ux, uy, *, return_info = false))]
     fn project<'py>(
         &self,
@@ -133,7 +151,11 @@ impl Projection {
     }
 
     /// `(∂L/∂u_x, ∂L/∂u_y)` from `grad_ux = ∂L/∂u'_x`, `grad_uy = ∂L/∂u'_y`
-    /// and `grad_p = ∂L/∂p` (each may be None: zero; not all).
+    /// and `grad_p = ∂L/∂p` (each may be None: zero; not all; shapes
+    /// `shape_x`, `shape_y`, `shape`): `∂L/∂u = W g_u − G S(−D g_u − g_p)`.
+    ///
+    /// Raises `TypeError` (all None, or not float arrays), `ShapeError`,
+    /// `NonFiniteError`, `NotConvergedError`.
     #[pyo3(signature = (grad_ux = None, grad_uy = None, grad_p = None))]
     fn vjp<'py>(
         &self,

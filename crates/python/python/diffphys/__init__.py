@@ -23,8 +23,11 @@ Functions: ``poisson_solve``, ``poisson_solve_vjp``, ``project``,
 from __future__ import annotations
 
 import functools
+from collections.abc import Sequence
+from typing import Any, cast
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ._native import (
     DiffphysError,
@@ -65,7 +68,18 @@ __all__ = [
 ]
 
 
-def _hashable(value):
+def _missing_engine(name: str, error: ImportError) -> ImportError:
+    """The ImportError of ``diffphys.jax`` or ``diffphys.torch`` when its
+    engine ``name`` cannot be imported: which one, and how to install it."""
+    return ImportError(
+        f"diffphys.{name} needs {name}, which is not installed (import {name} failed: {error}). "
+        f'Install it with diffphys: pip install "diffphys[{name}]", or from a clone of '
+        f'the repository: pip install "./crates/python[{name}]".',
+        name=name,
+    )
+
+
+def _hashable(value: Any) -> Any:
     """A cache key for a keyword argument (arrays by shape and bytes)."""
     if isinstance(value, np.ndarray):
         return ("array", value.shape, str(value.dtype), value.tobytes())
@@ -75,18 +89,18 @@ def _hashable(value):
 
 
 @functools.lru_cache(maxsize=32)
-def _cached(cls, shape, items):
+def _cached(cls: Any, shape: tuple[int, ...], items: tuple[tuple[str, Any], ...]) -> Any:
     return cls(shape, **dict(items))
 
 
-def _solver(cls, shape, kwargs):
+def _solver(cls: Any, shape: Sequence[int], kwargs: dict[str, Any]) -> Any:
     """The solver ``cls(shape, **kwargs)``, built once per distinct arguments."""
     arrays = {k: v for k, v in kwargs.items() if isinstance(v, np.ndarray)}
     if arrays:
         # Arrays (the obstacle) are not hashable: key by their bytes, keep the
         # array itself in a side table.
         key = tuple(sorted((k, _hashable(v)) for k, v in kwargs.items()))
-        cache = _solver.__dict__.setdefault("arrays", {})
+        cache: dict[Any, Any] = _solver.__dict__.setdefault("arrays", {})
         if key not in cache:
             if len(cache) >= 32:
                 cache.pop(next(iter(cache)))
@@ -95,19 +109,25 @@ def _solver(cls, shape, kwargs):
     return _cached(cls, tuple(shape), tuple(sorted(kwargs.items())))
 
 
-def poisson(shape, **kwargs) -> Poisson:
-    """The (cached) ``Poisson`` solver of ``shape`` with the keyword arguments
-    of ``Poisson``."""
-    return _solver(Poisson, shape, kwargs)
+def poisson(shape: Sequence[int], **kwargs: Any) -> Poisson:
+    """The (cached) ``Poisson`` solver of ``shape`` (cells ``(nx, ny)``) with
+    the keyword arguments of ``Poisson``; one solver per distinct arguments
+    (the last 32 kept).
+
+    Raises ``InvalidArgumentError`` as ``Poisson`` does."""
+    return cast(Poisson, _solver(Poisson, shape, kwargs))
 
 
-def projection(shape, **kwargs) -> Projection:
-    """The (cached) ``Projection`` of ``shape`` (cells) with the keyword
-    arguments of ``Projection``."""
-    return _solver(Projection, shape, kwargs)
+def projection(shape: Sequence[int], **kwargs: Any) -> Projection:
+    """The (cached) ``Projection`` of ``shape`` (cells ``(nx, ny)``) with the
+    keyword arguments of ``Projection`` (an ``obstacle`` array is keyed by
+    its bytes).
+
+    Raises ``InvalidArgumentError`` as ``Projection`` does."""
+    return cast(Projection, _solver(Projection, shape, kwargs))
 
 
-def poisson_solve(b, **kwargs):
+def poisson_solve(b: NDArray[Any], **kwargs: Any) -> NDArray[Any]:
     """``p = A^{-1} b`` with ``A = -∇²`` (5-point, the grid's boundaries) by
     multigrid-preconditioned CG (``preconditioner="multigrid"``, or
     ``"jacobi"``, ``"none"``).
@@ -122,17 +142,24 @@ def poisson_solve(b, **kwargs):
 
     Adjoint: ``grad_b = A^{-T} grad_p = A^{-1} grad_p`` (``poisson_solve_vjp``),
     one solve with the same operator.
+
+    ``b``: ``(nx, ny)``, float32 or float64; ``p`` of the same shape and
+    dtype. Raises ``InvalidArgumentError`` (bad options), ``TypeError`` (not
+    a float array), ``NonFiniteError``, ``NotConvergedError``.
     """
     return poisson(np.shape(b), **kwargs).solve(b)
 
 
-def poisson_solve_vjp(grad_p, **kwargs):
+def poisson_solve_vjp(grad_p: NDArray[Any], **kwargs: Any) -> NDArray[Any]:
     """The VJP of ``poisson_solve``: ``grad_b = A^{-1} grad_p`` (same keyword
-    arguments)."""
+    arguments; ``grad_p`` ``(nx, ny)``, float32 or float64, ``grad_b`` of the
+    same shape and dtype). Raises as ``poisson_solve``."""
     return poisson(np.shape(grad_p), **kwargs).vjp(grad_p)
 
 
-def project(ux, uy, *, shape, **kwargs):
+def project(
+    ux: NDArray[Any], uy: NDArray[Any], *, shape: Sequence[int], **kwargs: Any
+) -> tuple[NDArray[Any], NDArray[Any], NDArray[Any]]:
     """Pressure projection on a MAC grid of ``shape`` cells: ``(ux', uy', p)``
     with ``p = S(-D u)`` (``S`` the CG solve of ``-D G``), ``u' = W u - G p``.
 
@@ -140,10 +167,23 @@ def project(ux, uy, *, shape, **kwargs):
     ``shape_y``); ``obstacle`` (bool, cell shape) closes the faces of solid
     cells; ``boundary="closed"`` by default. Adjoint (``project_vjp``):
     ``∂L/∂u = W g_u - G s``, ``s = S(-D g_u - g_p)``.
+
+    float32 or float64 arrays; ``p`` is ``shape``. Raises ``ShapeError``
+    (faces not of ``shape_x``/``shape_y``), ``InvalidArgumentError``,
+    ``TypeError``, ``NonFiniteError``, ``NotConvergedError``.
     """
     return projection(shape, **kwargs).project(ux, uy)
 
 
-def project_vjp(grad_ux, grad_uy, grad_p, *, shape, **kwargs):
-    """The VJP of ``project``: ``(∂L/∂ux, ∂L/∂uy)``."""
+def project_vjp(
+    grad_ux: NDArray[Any] | None,
+    grad_uy: NDArray[Any] | None,
+    grad_p: NDArray[Any] | None,
+    *,
+    shape: Sequence[int],
+    **kwargs: Any,
+) -> tuple[NDArray[Any], NDArray[Any]]:
+    """The VJP of ``project``: ``(∂L/∂ux, ∂L/∂uy)`` (``None`` seeds are
+    zero, not all; float32 or float64, of the shapes of ``project``'s
+    outputs). Raises as ``project``."""
     return projection(shape, **kwargs).vjp(grad_ux, grad_uy, grad_p)

@@ -15,12 +15,17 @@ arrays without a copy; the GIL is released while Rust works). Under
 from __future__ import annotations
 
 import functools
+from typing import Any
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
 import diffphys as _dp
+
+try:
+    import jax
+    import jax.numpy as jnp
+except ImportError as e:  # the engine is an extra: say which and how
+    raise _dp._missing_engine("jax", e) from e
 
 __all__ = ["flow_step", "poisson_solve", "project", "semi_lagrangian2", "upwind2"]
 
@@ -52,13 +57,17 @@ def _poisson_bwd(solver, _, g):
 _poisson.defvjp(_poisson_fwd, _poisson_bwd)
 
 
-def poisson_solve(b, **kwargs):
+def poisson_solve(b: jax.Array, **kwargs: Any) -> jax.Array:
     """``p = A^{-1} b``, ``A = -∇²`` (5-point), by MG-PCG or CG in Rust.
 
     Keyword arguments as ``diffphys.poisson_solve`` (``spacing``,
     ``boundary``, ``preconditioner``, ``rel_tol``, ...). Gradient (implicit):
     ``grad_b = A^{-1} grad_p``, one more solve, nothing of the forward
     iterations kept.
+
+    ``b``: ``(nx, ny)``, float32 or float64 (``p`` alike). Raises (when the
+    callback runs) ``diffphys.InvalidArgumentError``,
+    ``diffphys.NonFiniteError``, ``diffphys.NotConvergedError``.
     """
     return _poisson(_dp.poisson(jnp.shape(b), **kwargs), b)
 
@@ -86,11 +95,18 @@ def _project_bwd(proj, _, grads):
 _project.defvjp(_project_fwd, _project_bwd)
 
 
-def project(ux, uy, *, shape, **kwargs):
+def project(
+    ux: jax.Array, uy: jax.Array, *, shape: tuple[int, int], **kwargs: Any
+) -> tuple[jax.Array, jax.Array, jax.Array]:
     """``(ux', uy', p)``: the divergence-free part of the face velocity on a
     MAC grid of ``shape`` cells and its pressure (keyword arguments as
     ``diffphys.Projection``: ``obstacle``, ``boundary``, ``spacing``,
     solver options). Gradient: ``∂L/∂u = W g_u - G S(-D g_u - g_p)``.
+
+    ``ux``, ``uy``: ``Projection.shape_x``, ``shape_y``; ``p``: ``shape``;
+    float32 or float64.
+    Raises ``diffphys.ShapeError``, ``diffphys.InvalidArgumentError``,
+    ``diffphys.NonFiniteError``, ``diffphys.NotConvergedError``.
     """
     return _project(_dp.projection(shape, **kwargs), ux, uy)
 
@@ -125,20 +141,24 @@ def _options(kwargs):
     return tuple(sorted((k, tuple(v) if isinstance(v, list) else v) for k, v in kwargs.items()))
 
 
-def semi_lagrangian2(d, u, *, dt, **kwargs):
+def semi_lagrangian2(d: jax.Array, u: jax.Array, *, dt: float, **kwargs: Any) -> jax.Array:
     """One semi-Lagrangian step ``d'(x) = d(x - u(x) dt)`` (bilinear) of ``d``
     (``[nx, ny]``) by ``u`` (``[2, nx, ny]``); ``spacing``, ``boundary``
     (default periodic). Gradient through the interpolation weights (``∂L/∂d``
     scatters back, ``∂L/∂u`` is the bilinear slope times ``-dt/h``).
+    float32 or float64. Raises ``diffphys.ShapeError``,
+    ``diffphys.InvalidArgumentError``, ``diffphys.NonFiniteError``.
     """
     return _semi_lagrangian2(_options(dict(kwargs, dt=dt)), d, u)
 
 
-def upwind2(d, u, *, dt, **kwargs):
+def upwind2(d: jax.Array, u: jax.Array, *, dt: float, **kwargs: Any) -> jax.Array:
     """One first-order upwind step of ``d`` by ``u`` (``[2, nx, ny]``):
     ``d' = d - dt [u⁺ δ⁺d + u⁻ δ⁻d]`` per axis; ``spacing``, ``boundary``,
     ``allow_cfl_violation``. Gradient: the transposed stencil for ``d``, the
-    upwind differences for ``u``.
+    upwind differences for ``u``. ``d``: ``[nx, ny]``, float32 or float64.
+    Raises ``diffphys.ShapeError``, ``diffphys.InvalidArgumentError``,
+    ``diffphys.NonFiniteError``, ``diffphys.UnstableError`` (CFL above 1).
     """
     return _upwind2(_options(dict(kwargs, dt=dt)), d, u)
 
@@ -178,7 +198,15 @@ def _flow_bwd(scene, steps, res, grads):
 _flow.defvjp(_flow_fwd, _flow_bwd)
 
 
-def flow_step(scene, ux, uy, *, steps=1, pressure=None, viscosity=None):
+def flow_step(
+    scene: _dp.FlowStep,
+    ux: jax.Array,
+    uy: jax.Array,
+    *,
+    steps: int = 1,
+    pressure: jax.Array | None = None,
+    viscosity: jax.Array | float | None = None,
+) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
     """``(ux', uy', P', force)`` after ``steps`` steps of the flow ``scene``
     (a ``diffphys.FlowStep``) from the face velocities ``ux``, ``uy`` and
     the pressure (zero if None), with the viscosity ``viscosity`` (the
@@ -186,6 +214,12 @@ def flow_step(scene, ux, uy, *, steps=1, pressure=None, viscosity=None):
     obstacle at the end. Gradient: the steps recorded on diffphys' tape, one
     reverse sweep (every piece's adjoint hand-written; the projection's is
     one more pressure solve).
+
+    ``ux``: ``scene.shape_x``, ``uy``: ``scene.shape_y``, ``pressure``:
+    ``scene.shape``, ``force``: ``(2,)``; float32 or float64. Raises
+    ``diffphys.ShapeError``, ``diffphys.InvalidArgumentError``,
+    ``diffphys.NonFiniteError``, ``diffphys.UnstableError``,
+    ``diffphys.NotConvergedError``.
     """
     dtype = jnp.result_type(ux)
     if pressure is None:

@@ -12,10 +12,16 @@ CPU tensors). float32 or float64.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
-import torch
 
 import diffphys as _dp
+
+try:
+    import torch
+except ImportError as e:  # the engine is an extra: say which and how
+    raise _dp._missing_engine("torch", e) from e
 
 __all__ = ["flow_step", "poisson_solve", "project", "semi_lagrangian2", "upwind2"]
 
@@ -39,10 +45,14 @@ class _Poisson(torch.autograd.Function):
         return _t(ctx.solver.vjp(_np(g)), g), None
 
 
-def poisson_solve(b, **kwargs):
+def poisson_solve(b: torch.Tensor, **kwargs: Any) -> torch.Tensor:
     """``p = A^{-1} b``, ``A = -∇²`` (5-point), by MG-PCG or CG in Rust
     (keyword arguments as ``diffphys.poisson_solve``). Backward (implicit):
-    ``grad_b = A^{-1} grad_p``, one more solve."""
+    ``grad_b = A^{-1} grad_p``, one more solve.
+
+    ``b``: ``(nx, ny)``, float32 or float64 (``p`` alike). Raises
+    ``diffphys.InvalidArgumentError``, ``TypeError`` (another dtype),
+    ``diffphys.NonFiniteError``, ``diffphys.NotConvergedError``."""
     return _Poisson.apply(b, _dp.poisson(tuple(b.shape), **kwargs))
 
 
@@ -59,10 +69,17 @@ class _Project(torch.autograd.Function):
         return _t(ax, gx), _t(ay, gx), None
 
 
-def project(ux, uy, *, shape, **kwargs):
+def project(
+    ux: torch.Tensor, uy: torch.Tensor, *, shape: tuple[int, int], **kwargs: Any
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """``(ux', uy', p)``: pressure projection on a MAC grid of ``shape`` cells
     (keyword arguments as ``diffphys.Projection``). Backward:
-    ``∂L/∂u = W g_u - G S(-D g_u - g_p)``, one adjoint solve."""
+    ``∂L/∂u = W g_u - G S(-D g_u - g_p)``, one adjoint solve.
+
+    ``ux``, ``uy``: the face shapes ``Projection.shape_x``, ``shape_y``;
+    float32 or float64. Raises ``diffphys.ShapeError``,
+    ``diffphys.InvalidArgumentError``, ``TypeError``,
+    ``diffphys.NonFiniteError``, ``diffphys.NotConvergedError``."""
     return _Project.apply(ux, uy, _dp.projection(tuple(shape), **kwargs))
 
 
@@ -87,16 +104,25 @@ _SemiLagrangian2 = _advection(_dp.semi_lagrangian2, _dp.semi_lagrangian2_vjp)
 _Upwind2 = _advection(_dp.upwind2, _dp.upwind2_vjp)
 
 
-def semi_lagrangian2(d, u, *, dt, **kwargs):
+def semi_lagrangian2(d: torch.Tensor, u: torch.Tensor, *, dt: float, **kwargs: Any) -> torch.Tensor:
     """One semi-Lagrangian step of ``d`` (``[nx, ny]``) by ``u``
     (``[2, nx, ny]``): ``d'(x) = d(x - u(x) dt)``, bilinear; backward
-    through the interpolation weights."""
+    through the interpolation weights. float32 or float64; ``spacing``,
+    ``boundary`` as ``diffphys.semi_lagrangian2``.
+
+    Raises ``diffphys.ShapeError``, ``diffphys.InvalidArgumentError``,
+    ``TypeError``, ``diffphys.NonFiniteError``."""
     return _SemiLagrangian2.apply(d, u, dict(kwargs, dt=dt))
 
 
-def upwind2(d, u, *, dt, **kwargs):
-    """One first-order upwind step of ``d`` by ``u`` (``[2, nx, ny]``);
-    backward: the transposed stencil and the upwind differences."""
+def upwind2(d: torch.Tensor, u: torch.Tensor, *, dt: float, **kwargs: Any) -> torch.Tensor:
+    """One first-order upwind step of ``d`` (``[nx, ny]``) by ``u``
+    (``[2, nx, ny]``): ``d' = d - dt [u⁺ δ⁺d + u⁻ δ⁻d]`` per axis; backward:
+    the transposed stencil and the upwind differences. float32 or float64.
+
+    Raises ``diffphys.ShapeError``, ``diffphys.InvalidArgumentError``,
+    ``TypeError``, ``diffphys.NonFiniteError``, ``diffphys.UnstableError``
+    (CFL above 1 unless ``allow_cfl_violation=True``)."""
     return _Upwind2.apply(d, u, dict(kwargs, dt=dt))
 
 
@@ -118,11 +144,26 @@ class _Flow(torch.autograd.Function):
         return _t(g[0], gx), _t(g[1], gx), _t(g[2], gx), gnu, None, None
 
 
-def flow_step(scene, ux, uy, *, steps=1, pressure=None, viscosity=None):
+def flow_step(
+    scene: _dp.FlowStep,
+    ux: torch.Tensor,
+    uy: torch.Tensor,
+    *,
+    steps: int = 1,
+    pressure: torch.Tensor | None = None,
+    viscosity: torch.Tensor | float | None = None,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """``(ux', uy', P', force)`` after ``steps`` steps of the flow ``scene``
     (a ``diffphys.FlowStep``); differentiable in ``ux``, ``uy``, the
     pressure and the viscosity (a tensor; the scene's if None). Backward:
-    the steps recorded on diffphys' tape, one reverse sweep."""
+    the steps recorded on diffphys' tape, one reverse sweep.
+
+    ``ux``: ``scene.shape_x``, ``uy``: ``scene.shape_y``, ``pressure``:
+    ``scene.shape`` (zero if None), ``force``: ``(2,)`` (drag, lift);
+    float32 or float64, one dtype. Unbatched: loop or stack over samples.
+    Raises ``diffphys.ShapeError``, ``diffphys.InvalidArgumentError``,
+    ``TypeError``, ``diffphys.NonFiniteError``, ``diffphys.UnstableError``
+    (a Courant number above the scene's limit), ``diffphys.NotConvergedError``."""
     if pressure is None:
         pressure = torch.zeros(scene.shape, dtype=ux.dtype, device=ux.device)
     if viscosity is None:

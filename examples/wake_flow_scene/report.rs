@@ -1,0 +1,267 @@
+//! The report of `wake_flow`: the held-out figures gathered over every run,
+//! the floors, the charts and the closing JSON line. Declared by the example
+//! itself (not by the scene module, which the tests include).
+
+use super::*;
+use wake_flow_scene::study::CapacityRun;
+
+/// The tables, charts, `--npy` arrays and the JSON line.
+pub(crate) fn report(
+    ctx: &Ctx,
+    rec: Record,
+    (speed, pressure): (Value, Value),
+    params_count: serde_json::Map<String, Value>,
+    run_start: Instant,
+) -> Result<(), BoxError> {
+    let Ctx {
+        options,
+        sizes,
+        seeds,
+        args,
+        coarse,
+        fine,
+        ..
+    } = ctx;
+    let (arithmetic, evaluations) = (ctx.arithmetic, ctx.evaluations);
+    let Record {
+        results,
+        validation_report,
+        selected_k,
+        selected_size,
+        chosen_lr,
+        capacity_runs,
+        train_seconds,
+        validation_curves,
+        validation_per_re,
+        sigma_used,
+        pinned_face_error,
+        held_out_readings,
+    } = rec;
+    // Report.
+    let summary = |r: &Report| -> serde_json::Map<String, Value> {
+        r.methods()
+            .filter_map(|m| {
+                r.summary(m).map(|s| {
+                    (
+                        m.to_string(),
+                        json!({"mean": s.mean, "min": s.min, "max": s.max, "runs": s.runs}),
+                    )
+                })
+            })
+            .collect()
+    };
+    println!(
+        "\nheld-out mean relative L2 error over {} steps (data seeds {:?} x train seeds {:?}):",
+        sizes.rollout, seeds.data, seeds.train
+    );
+    print!("{}", results.held_out.table(Some("src")));
+    println!("long rollout ({} steps):", sizes.long);
+    print!("{}", results.long.table(Some("src")));
+    let per_re_json: serde_json::Map<String, Value> = results.per_re.iter()
+        .map(|(re, m)| {
+            let v: serde_json::Map<String, Value> = m
+                .iter()
+                .map(|(name, runs)| {
+                    let n = runs.len() as f64;
+                    let mean = runs.iter().map(|r| r.0).sum::<f64>() / n;
+                    let long = runs.iter().map(|r| r.1).sum::<f64>() / n;
+                    let min = runs.iter().map(|r| r.0).fold(f64::INFINITY, f64::min);
+                    let max = runs.iter().map(|r| r.0).fold(f64::NEG_INFINITY, f64::max);
+                    (name.clone(), json!({"mean": mean, "min": min, "max": max, "long_mean": long, "runs": runs.len()}))
+                })
+                .collect();
+            (re.clone(), Value::Object(v))
+        })
+        .collect();
+    let (floors, capacity) = floors(options, &results, &capacity_runs);
+    study::validation_chart(&args.out, &validation_curves)?;
+    study::charts(
+        &args.out,
+        &results.curves,
+        &capacity_runs,
+        &speed,
+        &results.last,
+        &coarse.scene,
+        options.unrolls().first().copied(),
+    )?;
+    let npy: Vec<(String, ndarray::ArrayViewD<'_, f64>)> = results
+        .last
+        .iter()
+        .map(|(name, a)| (format!("last_{name}"), a.view().into_dyn()))
+        .collect();
+    args.write_npy(
+        &npy.iter()
+            .map(|(n, a)| {
+                (
+                    n.as_str(),
+                    a.view(),
+                    "packed [2, nx + 1, ny + 1] velocity (u_x, u_y; viscosity in the corner) after the long rollout at the first held-out Re",
+                )
+            })
+            .collect::<Vec<_>>(),
+    )?;
+    println!("floors: {floors}");
+    let training_iterations: serde_json::Map<String, Value> = options
+        .variants
+        .iter()
+        .filter(|v| **v != Variant::Src)
+        .map(|&v| (v.name(), json!(v.adam_steps(evaluations))))
+        .collect();
+    let held_split: (Vec<f64>, Vec<f64>) = options
+        .held_out_re
+        .iter()
+        .partition(|&&r| options.inside(r));
+    // How the body and the reference were made, and the error they leave on
+    // the pinned faces (a key of its own: the line's macro is deep already).
+    let setup_json = json!({
+        "body": sizes.body.label(),
+        "reference_scheme": sizes.reference.label(),
+        "coarse_advection": wake_flow_scene::advection_label(sizes.advection),
+        "network_arithmetic": wake_flow_scene::arithmetic_label(arithmetic),
+        "pinned_face_error": pinned_face_error,
+    });
+    let mut line = json!({
+        "example": "wake_flow",
+        "small": args.small,
+        "grid_coarse": [sizes.ny, sizes.nx],
+        "grid_reference": [fine.grid().ny, fine.grid().nx],
+        "dt_coarse": sizes.dt,
+        "dt_reference": fine.dt(),
+        "skipped_transient_steps": {"base": sizes.warm_base, "per_re": sizes.warm, "base_re": sizes.base_re},
+        "recorded_steps": sizes.record,
+        "rollout_steps": sizes.rollout,
+        "rollout_starts": sizes.starts,
+        "long_rollout_steps": sizes.long,
+        "re_definition": "U D / nu, U = 1 inflow speed, D = 0.2 cylinder diameter",
+        "re_range": wake_flow_scene::RE_RANGE,
+        "data_seeds": seeds.data,
+        "train_seeds": seeds.train,
+        "train_re": options.train_re,
+        "validation_re": options.validation_re,
+        "held_out_re": {"inside": held_split.0, "outside": held_split.1},
+        "training_iterations": training_iterations,
+        "corrector_evaluations_per_training": evaluations,
+        "noise_sigma": sigma_used,
+        "setup": setup_json,
+        "learning_rate": chosen_lr,
+        "params": params_count,
+        "main_size": MAIN_SIZE.label(),
+        "mean_rel_error": summary(&results.held_out),
+        "long_rel_error": summary(&results.long),
+        "validation_rel_error": summary(&validation_report),
+        "per_re": per_re_json,
+        "capacity": capacity,
+        "selected_k": selected_k,
+        "selected_size": selected_size,
+        "selected_by": "validation",
+        "train_seconds": train_seconds,
+        "validation_curves": validation_curves,
+        "validation_per_re": validation_per_re
+            .iter()
+            .map(|(v, per)| {
+                let stats: serde_json::Map<String, Value> = per
+                    .iter()
+                    .map(|(re, e)| (re.clone(), study::stats(e)))
+                    .collect();
+                (v.clone(), Value::Object(stats))
+            })
+            .collect::<serde_json::Map<String, Value>>(),
+        "speed": speed,
+        "pressure": pressure,
+        "floors_met": floors,
+        "peak_rss_bytes": common::peak_rss_bytes(),
+        "wall_s": run_start.elapsed().as_secs_f64(),
+    });
+    // Beside the macro: its recursion is deep already.
+    line["held_out_readings"] = held_out_readings.into();
+    line["saved_models"] = json!(args.out.join("models").display().to_string());
+    common::print_json_line(&line);
+    Ok(())
+}
+
+/// The floors of the scene (docs/11) from the held-out figures, and the
+/// capacity sweep's JSON.
+fn floors(options: &Options, results: &Results, capacity_runs: &[CapacityRun]) -> (Value, Value) {
+    let ratio_at = |re: &str, a: &str, b: &str| -> Option<f64> {
+        let m = results.per_re.get(re)?;
+        let mean = |k: &str| {
+            m.get(k)
+                .map(|r| r.iter().map(|x| x.0).sum::<f64>() / r.len() as f64)
+        };
+        Some(mean(a)? / mean(b)?)
+    };
+    let sol_src: BTreeMap<String, Option<f64>> = results
+        .per_re
+        .keys()
+        .map(|re| (re.clone(), ratio_at(re, "sol_selected", "src")))
+        .collect();
+    let floor_sol_src = if sol_src.values().any(Option::is_none) || sol_src.is_empty() {
+        json!("not measured")
+    } else {
+        json!(sol_src.values().all(|r| r.unwrap_or(f64::INFINITY) <= 0.3))
+    };
+    let capacity = study::capacity_json(capacity_runs, options);
+    let smallest = study::ratio_at_size(
+        capacity_runs,
+        SIZES[0],
+        options.unrolls().first().copied(),
+        false,
+    );
+    let smallest_long = study::ratio_at_size(
+        capacity_runs,
+        SIZES[0],
+        options.unrolls().first().copied(),
+        true,
+    );
+    let floor_small = match smallest {
+        Some(r) => json!(r <= 0.8),
+        None => json!("not measured"),
+    };
+    let floors = json!({
+        "sol_selected_at_most_0.3x_src_every_held_out_re": floor_sol_src,
+        "sol_selected_over_src_per_re": sol_src,
+        "goal_sol_selected_at_most_0.1x_src": if sol_src.is_empty() || sol_src.values().any(Option::is_none) { json!("not measured") } else { json!(sol_src.values().all(|r| r.unwrap_or(f64::INFINITY) <= 0.1)) },
+        "smallest_size_sol_at_most_0.8x_non_100_steps": floor_small,
+        "smallest_size_sol_over_non_100_steps": smallest,
+        "smallest_size_sol_over_non_long": smallest_long,
+        "peak_rss_under_2_gib": common::peak_rss_bytes().map(|b| b < 2 << 30),
+    });
+    (floors, capacity)
+}
+
+/// Per Reynolds number, per method: `(100-step error, long error)` of every run.
+type PerRe = BTreeMap<String, BTreeMap<String, Vec<(f64, f64)>>>;
+
+/// The held-out figures of every run.
+#[derive(Default)]
+pub(crate) struct Results {
+    pub(crate) held_out: Report,
+    pub(crate) long: Report,
+    pub(crate) per_re: PerRe,
+    pub(crate) curves: BTreeMap<String, Vec<Vec<f64>>>,
+    pub(crate) last: BTreeMap<String, Array3<f64>>,
+}
+
+impl Results {
+    pub(crate) fn record(&mut self, name: &str, ds: u64, ts: Option<u64>, run: &HeldOutRun) {
+        self.held_out.add(name, ds, ts, run.mean());
+        self.long.add(name, ds, ts, run.long_mean());
+        for r in &run.per_re {
+            self.per_re
+                .entry(format!("{}", r.re))
+                .or_default()
+                .entry(name.to_string())
+                .or_default()
+                .push((r.mean, r.long));
+        }
+        self.curves
+            .entry(name.to_string())
+            .or_default()
+            .push(run.curve());
+        if let Some(r) = run.per_re.first() {
+            self.last
+                .entry(name.to_string())
+                .or_insert_with(|| r.last.clone());
+        }
+    }
+}

@@ -180,27 +180,6 @@ pub(crate) fn train_variants(
         ..
     } = rec;
     let sizes = &ctx.sizes;
-    // Phase 2: the learning rate, on validation (pilot runs at a quarter
-    // of the budget, first training seed).
-    let families: Vec<(&str, Variant)> = [
-        ("non", Variant::Non),
-        (
-            "sol",
-            Variant::Sol(options.unrolls().first().copied().unwrap_or(4)),
-        ),
-    ]
-    .into_iter()
-    .filter(|(f, _)| {
-        if *f == "non" {
-            options
-                .variants
-                .iter()
-                .any(|v| matches!(v, Variant::Non | Variant::Noise))
-        } else {
-            !options.unrolls().is_empty()
-        }
-    })
-    .collect();
     let setup = Setup {
         schedule: LrSchedule::Cosine {
             final_fraction: 0.1,
@@ -219,40 +198,7 @@ pub(crate) fn train_variants(
             train_one(&setup, job).map_err(|e| e.to_string())
         })
     };
-    let pilots = pilot_learning_rates(&families, &options.learning_rates, |pilots| {
-        let first_seed = seeds.train[0];
-        let jobs: Vec<Job> = pilots
-            .iter()
-            .map(|&((_, variant), lr)| Job {
-                variant,
-                size: MAIN_SIZE,
-                seed: first_seed,
-                lr,
-                evaluations: evaluations.div_ceil(PILOT_DIVISOR),
-            })
-            .collect();
-        Ok::<_, BoxError>(
-            run(&jobs)?
-                .iter()
-                .map(|m| m.trained.model.validation)
-                .collect(),
-        )
-    })?;
-    let lr_of: BTreeMap<&str, f64> = pilots.chosen.iter().map(|&((f, _), lr)| (f, lr)).collect();
-    for ((family, _), scores) in &pilots.scores {
-        let best = lr_of[family];
-        println!("  learning rate for {family}: {best:.0e} (pilot validation {scores:?})");
-        chosen_lr.insert(
-            format!("{family}_pilots_data_{ds}"),
-            json!(scores
-                .iter()
-                .map(|(lr, v)| json!({"lr": lr, "validation": v}))
-                .collect::<Vec<_>>()),
-        );
-    }
-    for (f, lr) in &lr_of {
-        chosen_lr.insert(format!("{f}_data_{ds}"), json!(lr));
-    }
+    let lr_of = learning_rates(ctx, ds, &run, chosen_lr)?;
     let lr_for = |v: Variant| {
         match v {
             Variant::Sol(_) => lr_of.get("sol"),
@@ -343,6 +289,75 @@ pub(crate) fn train_variants(
 
     mem("training");
     Ok((groups, capacity_groups))
+}
+
+/// Trains a list of jobs on the workers (the first error, as text).
+type Trainings<'a> = dyn Fn(&[Job]) -> std::result::Result<Vec<Model>, String> + 'a;
+
+/// Phase 2: the learning rate of `non` (and `noise`) and of SOL, on
+/// validation: pilot runs at a quarter of the budget, first training seed
+/// (`run` trains a list of jobs); every pilot's score goes to `chosen_lr`.
+fn learning_rates(
+    ctx: &Ctx,
+    ds: u64,
+    run: &Trainings<'_>,
+    chosen_lr: &mut serde_json::Map<String, Value>,
+) -> Result<BTreeMap<&'static str, f64>, BoxError> {
+    let (options, seeds, evaluations) = (&ctx.options, &ctx.seeds, ctx.evaluations);
+    let families: Vec<(&'static str, Variant)> = [
+        ("non", Variant::Non),
+        (
+            "sol",
+            Variant::Sol(options.unrolls().first().copied().unwrap_or(4)),
+        ),
+    ]
+    .into_iter()
+    .filter(|(f, _)| {
+        if *f == "non" {
+            options
+                .variants
+                .iter()
+                .any(|v| matches!(v, Variant::Non | Variant::Noise))
+        } else {
+            !options.unrolls().is_empty()
+        }
+    })
+    .collect();
+    let pilots = pilot_learning_rates(&families, &options.learning_rates, |pilots| {
+        let first_seed = seeds.train[0];
+        let jobs: Vec<Job> = pilots
+            .iter()
+            .map(|&((_, variant), lr)| Job {
+                variant,
+                size: MAIN_SIZE,
+                seed: first_seed,
+                lr,
+                evaluations: evaluations.div_ceil(PILOT_DIVISOR),
+            })
+            .collect();
+        Ok::<_, BoxError>(
+            run(&jobs)?
+                .iter()
+                .map(|m| m.trained.model.validation)
+                .collect(),
+        )
+    })?;
+    let lr_of: BTreeMap<&str, f64> = pilots.chosen.iter().map(|&((f, _), lr)| (f, lr)).collect();
+    for ((family, _), scores) in &pilots.scores {
+        let best = lr_of[family];
+        println!("  learning rate for {family}: {best:.0e} (pilot validation {scores:?})");
+        chosen_lr.insert(
+            format!("{family}_pilots_data_{ds}"),
+            json!(scores
+                .iter()
+                .map(|(lr, v)| json!({"lr": lr, "validation": v}))
+                .collect::<Vec<_>>()),
+        );
+    }
+    for (f, lr) in &lr_of {
+        chosen_lr.insert(format!("{f}_data_{ds}"), json!(lr));
+    }
+    Ok(lr_of)
 }
 
 /// Phases 4 and 5 of data seed `ds`: selection on validation, then the

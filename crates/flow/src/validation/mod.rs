@@ -19,7 +19,7 @@
 //! // Re = 100 on 16 × 16 cells, stopped early: a smoke run of the comparison.
 //! let result = Cavity::new(100, 16)?.max_time(0.5).run()?;
 //! assert_eq!(result.ghia_u.len(), 17);
-//! assert!(!result.steady);
+//! assert!(!result.run.steady);
 //! # Ok::<(), diffphys_flow::FlowError>(())
 //! ```
 

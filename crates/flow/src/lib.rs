@@ -17,7 +17,7 @@
 //! | [`diagnostics`] | divergence, vorticity, drag and lift |
 //! | [`step`] | the [`Scene`] and the step composed of the above |
 //! | [`packed`] | batches of states as one array, restriction by face averages |
-//! | [`validation`] | the Taylor–Green vortex |
+//! | [`validation`] | the validation flows against their references: Taylor–Green, the cavity (Ghia 1982), the DFG cylinder (Schäfer–Turek 1996) |
 //!
 //! The operators take what they act on (the grid, its [`Faces`], an
 //! assembled operator, the fields, `ν`, `dt`), never a scene; the [`Scene`]

@@ -1,0 +1,535 @@
+//! Flow around a cylinder in a channel: the DFG benchmark of Schäfer and
+//! Turek (1996), test cases 2D-1 (Re = 20, steady) and 2D-2 (Re = 100,
+//! periodic).
+//!
+//! The channel is 2.2 × 0.41, the cylinder of diameter D = 0.1 is centred at
+//! (0.2, 0.2), ν = 1e-3, density 1; parabolic inflow of peak Um on the left,
+//! outflow on the right, no-slip walls and cylinder. [`DfgChannel`] puts
+//! `cpd` square cells across the diameter (h = D / cpd) and the cylinder is a
+//! staircase of solid cells; MacCormack advection with the limiter at
+//! Courant number 0.4 of Um, explicit viscosity where stable (implicit
+//! otherwise), substepping on.
+//!
+//! - 2D-1 ([`Dfg2d1`]): from the inflow profile carried through the channel,
+//!   run until no face changes by more than `tol` per unit time; drag and
+//!   lift coefficients `cD = 2 F_x / (Ubar² D)`, `cL = 2 F_y / (Ubar² D)`
+//!   (the surface force on the staircase, [`crate::diagnostics::obstacle_force`])
+//!   and `dp = p(0.15, 0.2) − p(0.25, 0.2)`.
+//! - 2D-2 ([`Dfg2d2`]): from the same start to `t_end`; over the last
+//!   `window` time units the largest cD and cL and the Strouhal number
+//!   `St = D f / Ubar` from the period of the lift (its up-crossings of the
+//!   mean).
+//!
+//! # References
+//! M. Schäfer and S. Turek, *Benchmark computations of laminar flow around a
+//! cylinder*, in Flow Simulation with High-Performance Computers II, Notes on
+//! Numerical Fluid Mechanics 52 (1996) 547–566: the problem (section 2) and
+//! the reference intervals of Table 4, the ranges the best participating
+//! codes' results lay in. V. John and G. Matthies, *Higher-order finite
+//! element discretizations in a benchmark problem for incompressible flows*,
+//! Int. J. Numer. Meth. Fluids 37 (2001) 885–903, and E. Nabh (1998): the
+//! later high-accuracy 2D-1 values.
+
+use ndarray::Array2;
+
+use crate::advection::Advection;
+use crate::boundaries::{Obstacle, Sides};
+use crate::diagnostics::obstacle_force;
+use crate::diffusion::ViscosityMode;
+use crate::{FlowError, FlowState, Result, Scene};
+
+use super::{positive, run_to_steady, FloorCheck, Interval, Observer, SteadyRun, SteadyStop};
+
+/// The channel's length.
+pub const DFG_LENGTH: f64 = 2.2;
+/// The channel's height (the cylinder sits 0.005 below its middle, which
+/// makes the lift non-zero).
+pub const DFG_HEIGHT: f64 = 0.41;
+/// The cylinder's centre.
+pub const DFG_CENTRE: [f64; 2] = [0.2, 0.2];
+/// The cylinder's diameter `D`.
+pub const DFG_DIAMETER: f64 = 0.1;
+/// The kinematic viscosity `ν` (density 1).
+pub const DFG_NU: f64 = 1e-3;
+
+/// The published figures of test case 2D-1.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Dfg2d1Reference {
+    /// The inflow's peak `Um`.
+    pub um: f64,
+    /// The mean inflow `Ubar = 2 Um / 3`; `Re = Ubar D / ν`.
+    pub ubar: f64,
+    /// The drag coefficient.
+    pub cd: Interval,
+    /// The lift coefficient.
+    pub cl: Interval,
+    /// The pressure difference front − back.
+    pub dp: Interval,
+}
+
+/// The published figures of test case 2D-2.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Dfg2d2Reference {
+    /// The inflow's peak `Um`.
+    pub um: f64,
+    /// The mean inflow `Ubar`.
+    pub ubar: f64,
+    /// The Strouhal number of the lift.
+    pub strouhal: Interval,
+    /// The largest drag coefficient over a period.
+    pub cd_max: Interval,
+    /// The largest lift coefficient over a period.
+    pub cl_max: Interval,
+    /// dp half a period after the lift's maximum.
+    pub dp_half_period: Interval,
+}
+
+/// 2D-1 (Re = 20, steady): Schäfer and Turek 1996, Table 4.
+pub const DFG_2D1: Dfg2d1Reference = Dfg2d1Reference {
+    um: 0.3,
+    ubar: 0.2,
+    cd: Interval { lo: 5.57, hi: 5.59 },
+    cl: Interval {
+        lo: 0.0104,
+        hi: 0.0110,
+    },
+    dp: Interval {
+        lo: 0.1172,
+        hi: 0.1176,
+    },
+};
+
+/// 2D-2 (Re = 100, periodic): Schäfer and Turek 1996, Table 4.
+pub const DFG_2D2: Dfg2d2Reference = Dfg2d2Reference {
+    um: 1.5,
+    ubar: 1.0,
+    strouhal: Interval {
+        lo: 0.295,
+        hi: 0.305,
+    },
+    cd_max: Interval { lo: 3.22, hi: 3.24 },
+    cl_max: Interval { lo: 0.99, hi: 1.01 },
+    dp_half_period: Interval { lo: 2.46, hi: 2.50 },
+};
+
+/// The later high-accuracy 2D-1 values `[cD, cL, dp]` (John and Matthies
+/// 2001; Nabh 1998), inside the intervals of [`DFG_2D1`].
+pub const DFG_2D1_HIGH_ACCURACY: [f64; 3] = [5.57953, 0.010618, 0.11752];
+
+/// The floors of the examples (the flow-step issue): 2D-1 drag and 2D-2
+/// Strouhal number within 5 % of the published interval.
+const FLOOR: f64 = 0.05;
+const FLOOR_SOURCE: &str = "Schaefer-Turek 1996 Table 4 interval; 5 % (the flow-step issue)";
+
+/// The DFG channel on a grid of `cpd` cells across the diameter.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DfgChannel {
+    /// Cells across the cylinder's diameter.
+    pub cpd: usize,
+    /// The channel's height ([`DFG_HEIGHT`]; 0.40 centres the cylinder).
+    pub height: f64,
+    /// The Courant number of a step at the inflow's peak.
+    pub courant: f64,
+}
+
+impl DfgChannel {
+    /// The DFG channel at `cpd` cells per diameter, Courant number 0.4.
+    ///
+    /// # Errors
+    /// [`FlowError::InvalidParameter`] for fewer than 4 cells per diameter.
+    pub fn new(cpd: usize) -> Result<Self> {
+        if cpd < 4 {
+            return Err(FlowError::parameter(
+                "DFG channel",
+                "cpd",
+                format!("at least 4 cells across the diameter, got {cpd}"),
+            ));
+        }
+        Ok(DfgChannel {
+            cpd,
+            height: DFG_HEIGHT,
+            courant: 0.4,
+        })
+    }
+
+    /// The scene with parabolic inflow of peak `um`.
+    ///
+    /// # Errors
+    /// [`FlowError::InvalidParameter`] for a height, Courant number or `um`
+    /// that is not positive; those of [`crate::SceneBuilder::build`].
+    pub fn scene(&self, um: f64) -> Result<Scene> {
+        positive("DFG channel", "height", self.height)?;
+        positive("DFG channel", "courant", self.courant)?;
+        positive("DFG channel", "um", um)?;
+        let h = DFG_DIAMETER / self.cpd as f64;
+        let nx = (DFG_LENGTH / h).round() as usize;
+        let ny = (self.height / h).round() as usize;
+        let dt = self.courant * h / um;
+        let (dx, dy) = (DFG_LENGTH / nx as f64, self.height / ny as f64);
+        let explicit = DFG_NU * dt * (1.0 / (dx * dx) + 1.0 / (dy * dy)) <= 0.45;
+        Scene::builder(nx, ny, [DFG_LENGTH, self.height])
+            .sides(Sides::channel())
+            .obstacle(Obstacle::cylinder(DFG_CENTRE, DFG_DIAMETER / 2.0))
+            .parabolic_inflow(um)
+            .viscosity(DFG_NU)
+            .dt(dt)
+            .advection(Advection::MacCormack { limiter: true })
+            .viscosity_mode(if explicit {
+                ViscosityMode::Explicit
+            } else {
+                ViscosityMode::Implicit
+            })
+            .substepping(true)
+            .build()
+    }
+
+    /// The start: the inflow profile carried through the whole channel (the
+    /// obstacle's faces are set to zero by the first step).
+    pub fn start(scene: &Scene) -> FlowState<f64> {
+        let profile = scene.params::<f64>().inflow;
+        let g = scene.grid();
+        let ux = Array2::from_shape_fn(g.shape_x(), |(_, b)| profile[b]);
+        FlowState::from_velocity(scene, ux, Array2::zeros(g.shape_y()))
+    }
+
+    /// `[cD, cL]` of a state at mean inflow `ubar`: the surface force on the
+    /// staircase over `Ubar² D / 2`.
+    ///
+    /// # Errors
+    /// [`FlowError::Shape`] for a state of another scene.
+    pub fn coefficients(scene: &Scene, s: &FlowState<f64>, ubar: f64) -> Result<[f64; 2]> {
+        let f = obstacle_force(
+            scene.force_weights(),
+            s.ux.view(),
+            s.uy.view(),
+            s.pressure.view(),
+            DFG_NU,
+        )?;
+        let c = 2.0 / (ubar * ubar * DFG_DIAMETER);
+        Ok([c * f[0], c * f[1]])
+    }
+
+    /// `p(0.15, 0.2) − p(0.25, 0.2)`: along the two rows of cells around
+    /// y = 0.2, the last fluid cells before the body (the first after it)
+    /// extrapolated linearly to the front (back) point, averaged over the rows.
+    pub fn pressure_difference(scene: &Scene, s: &FlowState<f64>) -> f64 {
+        let g = scene.grid();
+        let solid = scene.solid();
+        let yc = DFG_CENTRE[1] / g.dy - 0.5;
+        let rows = [yc.floor() as usize, yc.ceil() as usize];
+        let weight = [1.0 - (yc - yc.floor()), yc - yc.floor()];
+        let xc = |i: usize| (i as f64 + 0.5) * g.dx;
+        let (front, back) = (
+            DFG_CENTRE[0] - DFG_DIAMETER / 2.0,
+            DFG_CENTRE[0] + DFG_DIAMETER / 2.0,
+        );
+        let p = |i: usize, j: usize| s.pressure[[i.min(g.nx - 1), j]];
+        let mut dp = 0.0;
+        for (&j, &w) in rows.iter().zip(&weight) {
+            let w = if rows[0] == rows[1] { 0.5 } else { w };
+            let first_solid = (0..g.nx).find(|&i| solid[[i, j]]).unwrap_or(g.nx - 1);
+            let last_solid = (0..g.nx).rev().find(|&i| solid[[i, j]]).unwrap_or(0);
+            let (f1, f0) = (first_solid.saturating_sub(1), first_solid.saturating_sub(2));
+            let p_front = p(f1, j) + (front - xc(f1)) * (p(f1, j) - p(f0, j)) / g.dx;
+            let (b1, b0) = (last_solid + 1, last_solid + 2);
+            let p_back = p(b1, j) + (back - xc(b1)) * (p(b1, j) - p(b0, j)) / g.dx;
+            dp += w * (p_front - p_back);
+        }
+        dp
+    }
+}
+
+/// Test case 2D-1 on a [`DfgChannel`]: run to steady state.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Dfg2d1 {
+    /// The channel.
+    pub channel: DfgChannel,
+    /// Steady when no face changes by more than this per unit time.
+    pub tol: f64,
+    /// The time to stop at, steady or not.
+    pub max_time: f64,
+}
+
+/// A 2D-1 run against [`DFG_2D1`].
+#[derive(Debug, Clone)]
+pub struct SteadyCylinder {
+    /// `[cD, cL, dp]` at the last state.
+    pub values: [f64; 3],
+    /// How far each lies outside its interval, relative (0 inside).
+    pub errors: [f64; 3],
+    /// The 2D-1 floor: cD within 5 % of the interval.
+    pub floors: Vec<FloorCheck>,
+    /// The scene.
+    pub scene: Scene,
+    /// The run.
+    pub run: SteadyRun,
+}
+
+impl Dfg2d1 {
+    /// 2D-1 at `cpd` cells per diameter, to 1e-4 per unit time or t = 40.
+    ///
+    /// # Errors
+    /// As [`DfgChannel::new`].
+    pub fn new(cpd: usize) -> Result<Self> {
+        Ok(Dfg2d1 {
+            channel: DfgChannel::new(cpd)?,
+            tol: 1e-4,
+            max_time: 40.0,
+        })
+    }
+
+    /// Runs the case; `observe(steps, state, rate)` every 100 steps.
+    ///
+    /// # Errors
+    /// Those of [`DfgChannel::scene`], [`run_to_steady`] and `observe`.
+    pub fn run(&self, observe: &mut Observer<'_>) -> Result<SteadyCylinder> {
+        let scene = self.channel.scene(DFG_2D1.um)?;
+        let stop = SteadyStop {
+            tol: self.tol,
+            max_time: self.max_time,
+            window: 100,
+        };
+        let run = run_to_steady(&scene, DfgChannel::start(&scene), stop, observe)?;
+        let [cd, cl] = DfgChannel::coefficients(&scene, &run.state, DFG_2D1.ubar)?;
+        let dp = DfgChannel::pressure_difference(&scene, &run.state);
+        let errors = [
+            DFG_2D1.cd.outside(cd),
+            DFG_2D1.cl.outside(cl),
+            DFG_2D1.dp.outside(dp),
+        ];
+        Ok(SteadyCylinder {
+            values: [cd, cl, dp],
+            errors,
+            floors: vec![FloorCheck::at_most(
+                "2D-1 cD distance outside the interval",
+                errors[0],
+                FLOOR,
+                FLOOR_SOURCE,
+            )],
+            scene,
+            run,
+        })
+    }
+}
+
+impl SteadyCylinder {
+    /// Whether every floor is met.
+    pub fn floors_met(&self) -> bool {
+        super::all_met(&self.floors)
+    }
+}
+
+/// Test case 2D-2 on a [`DfgChannel`]: run to `t_end`, analyse the last
+/// `window` time units.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Dfg2d2 {
+    /// The channel.
+    pub channel: DfgChannel,
+    /// The end time.
+    pub t_end: f64,
+    /// The analysed time at the end.
+    pub window: f64,
+}
+
+/// A 2D-2 run against [`DFG_2D2`].
+#[derive(Debug, Clone)]
+pub struct PeriodicCylinder {
+    /// The Strouhal number `D / (period Ubar)`, NaN with fewer than three
+    /// up-crossings of the mean lift in the window.
+    pub strouhal: f64,
+    /// The largest cD in the window.
+    pub cd_max: f64,
+    /// The largest cL in the window.
+    pub cl_max: f64,
+    /// The smallest cL in the window.
+    pub cl_min: f64,
+    /// The mean cL in the window.
+    pub cl_mean: f64,
+    /// The lengths of the lift's periods in the window.
+    pub periods: Vec<f64>,
+    /// Whether the last two periods agree to 1 %.
+    pub periodic: bool,
+    /// `[t, cD, cL]` at every step of the window.
+    pub history: Vec<[f64; 3]>,
+    /// How far St, max cD and max cL lie outside their intervals, relative.
+    pub errors: [f64; 3],
+    /// The 2D-2 floor: St within 5 % of the interval.
+    pub floors: Vec<FloorCheck>,
+    /// Steps and substeps taken.
+    pub steps: [usize; 2],
+    /// The scene.
+    pub scene: Scene,
+    /// The last state.
+    pub state: FlowState<f64>,
+}
+
+impl Dfg2d2 {
+    /// 2D-2 at `cpd` cells per diameter to t = 12, window 4.
+    ///
+    /// # Errors
+    /// As [`DfgChannel::new`].
+    pub fn new(cpd: usize) -> Result<Self> {
+        Ok(Dfg2d2 {
+            channel: DfgChannel::new(cpd)?,
+            t_end: 12.0,
+            window: 4.0,
+        })
+    }
+
+    /// Runs the case.
+    ///
+    /// # Errors
+    /// [`FlowError::InvalidParameter`] unless `0 < window < t_end`; those of
+    /// [`DfgChannel::scene`] and [`Scene::forward`].
+    pub fn run(&self) -> Result<PeriodicCylinder> {
+        positive("DFG 2D-2", "window", self.window)?;
+        if self.t_end.is_nan() || self.window >= self.t_end {
+            return Err(FlowError::parameter(
+                "DFG 2D-2",
+                "window",
+                format!("must be shorter than t_end = {}", self.t_end),
+            ));
+        }
+        let scene = self.channel.scene(DFG_2D2.um)?;
+        let (params, dt) = (scene.params(), scene.dt());
+        let mut s = DfgChannel::start(&scene);
+        let steps = (self.t_end / dt).round() as usize;
+        let record_from = ((self.t_end - self.window) / dt).round() as usize;
+        let (mut history, mut substeps) = (Vec::new(), 0);
+        for k in 1..=steps {
+            let (next, info) = scene.forward(&s, &params)?;
+            substeps += info.substeps;
+            s = next;
+            if k >= record_from {
+                let [cd, cl] = DfgChannel::coefficients(&scene, &s, DFG_2D2.ubar)?;
+                history.push([k as f64 * dt, cd, cl]);
+            }
+        }
+        Ok(analyse(history, [steps, substeps], scene, s))
+    }
+}
+
+/// The Strouhal number and the extrema of a 2D-2 history.
+fn analyse(
+    history: Vec<[f64; 3]>,
+    steps: [usize; 2],
+    scene: Scene,
+    state: FlowState<f64>,
+) -> PeriodicCylinder {
+    let column = |c: usize| history.iter().map(move |h| h[c]);
+    let cd_max = column(1).fold(f64::NEG_INFINITY, f64::max);
+    let cl_max = column(2).fold(f64::NEG_INFINITY, f64::max);
+    let cl_min = column(2).fold(f64::INFINITY, f64::min);
+    let mean = column(2).sum::<f64>() / history.len().max(1) as f64;
+    // up-crossings of the mean lift, interpolated linearly
+    let crossings: Vec<f64> = history
+        .windows(2)
+        .filter(|w| w[0][2] < mean && w[1][2] >= mean)
+        .map(|w| w[0][0] + (mean - w[0][2]) / (w[1][2] - w[0][2]) * (w[1][0] - w[0][0]))
+        .collect();
+    let periods: Vec<f64> = crossings.windows(2).map(|w| w[1] - w[0]).collect();
+    let strouhal = if crossings.len() >= 3 {
+        let p = (crossings[crossings.len() - 1] - crossings[0]) / periods.len() as f64;
+        DFG_DIAMETER / (p * DFG_2D2.ubar)
+    } else {
+        f64::NAN
+    };
+    let periodic = periods.len() >= 2 && {
+        let (a, b) = (periods[periods.len() - 1], periods[periods.len() - 2]);
+        (a - b).abs() / a < 0.01
+    };
+    let errors = [
+        DFG_2D2.strouhal.outside(strouhal),
+        DFG_2D2.cd_max.outside(cd_max),
+        DFG_2D2.cl_max.outside(cl_max),
+    ];
+    PeriodicCylinder {
+        strouhal,
+        cd_max,
+        cl_max,
+        cl_min,
+        cl_mean: mean,
+        periods,
+        periodic,
+        history,
+        errors,
+        floors: vec![FloorCheck::at_most(
+            "2D-2 St distance outside the interval",
+            errors[0],
+            FLOOR,
+            FLOOR_SOURCE,
+        )],
+        steps,
+        scene,
+        state,
+    }
+}
+
+impl PeriodicCylinder {
+    /// Whether every floor is met.
+    pub fn floors_met(&self) -> bool {
+        super::all_met(&self.floors)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_reference_cases_match_their_definitions() {
+        for (um, ubar, re) in [
+            (DFG_2D1.um, DFG_2D1.ubar, 20.0),
+            (DFG_2D2.um, DFG_2D2.ubar, 100.0),
+        ] {
+            // Ubar = 2 Um / 3 (the mean of the parabola), Re = Ubar D / ν
+            assert!((ubar - 2.0 * um / 3.0).abs() < 1e-12);
+            assert!((ubar * DFG_DIAMETER / DFG_NU - re).abs() < 1e-9);
+        }
+        let [cd, cl, dp] = DFG_2D1_HIGH_ACCURACY;
+        assert_eq!(
+            [
+                DFG_2D1.cd.outside(cd),
+                DFG_2D1.cl.outside(cl),
+                DFG_2D1.dp.outside(dp)
+            ],
+            [0.0; 3]
+        );
+    }
+
+    #[test]
+    fn bad_settings_are_typed_errors() {
+        assert!(DfgChannel::new(3).is_err());
+        let mut case = Dfg2d2::new(4).unwrap();
+        case.window = 20.0;
+        assert!(matches!(
+            case.run(),
+            Err(FlowError::InvalidParameter { .. })
+        ));
+        let mut channel = DfgChannel::new(4).unwrap();
+        channel.courant = f64::NAN;
+        assert!(channel.scene(1.0).is_err());
+    }
+
+    #[test]
+    fn a_sine_lift_gives_its_frequency() {
+        // cL = sin(2π t / 0.3): period 0.3, St = D / (0.3 Ubar)
+        let history: Vec<[f64; 3]> = (0..3000)
+            .map(|k| {
+                let t = k as f64 * 1e-3;
+                [t, 3.0, (2.0 * std::f64::consts::PI * t / 0.3).sin()]
+            })
+            .collect();
+        let channel = DfgChannel::new(4).unwrap();
+        let scene = channel.scene(1.5).unwrap();
+        let state = DfgChannel::start(&scene);
+        let r = analyse(history, [0, 0], scene, state);
+        assert!(
+            (r.strouhal - DFG_DIAMETER / 0.3).abs() < 1e-6,
+            "{}",
+            r.strouhal
+        );
+        assert!(r.periodic);
+        assert!((r.cl_max - 1.0).abs() < 1e-4);
+    }
+}

@@ -1,0 +1,52 @@
+//! The published benchmarks guarded in CI, at small sizes: the floors come from
+//! the published tables (Ghia, Ghia and Shin 1982; Schäfer and Turek 1996) and
+//! the schemes' formal orders, not from our own runs (`flow::validation`).
+
+use diffphys_flow::validation::{Cavity, Dfg2d2, OrderStudy, TaylorGreen};
+use diffphys_flow::Advection;
+
+#[test]
+fn the_cavity_at_re_100_on_32_cells_matches_ghia_within_the_tables_own_accuracy() {
+    let result = Cavity::new(100, 32).unwrap().run().unwrap();
+    println!(
+        "cavity Re 100, 32 x 32: max |u - u_Ghia| {:.4}, max |v - v_Ghia| {:.4}",
+        result.max_deviation_u, result.max_deviation_v
+    );
+    assert!(result.run.steady, "the cavity did not reach a steady state");
+    assert!(!result.floors.is_empty());
+    for f in &result.floors {
+        assert!(f.met(), "{f}");
+    }
+    // A wrong viscosity moves the profiles past the floor: the guard can fail.
+    let wrong = Cavity::new(400, 32).unwrap().run().unwrap();
+    let table_100 = Cavity::new(100, 32).unwrap();
+    let moved = table_100.floors((wrong.max_deviation_u, wrong.max_deviation_v));
+    assert!(
+        moved.iter().any(|f| !f.met()),
+        "Re 400's flow passed Re 100's floors"
+    );
+}
+
+#[test]
+fn the_taylor_green_vortex_converges_at_second_order_with_maccormack() {
+    let advection = Advection::MacCormack { limiter: false };
+    let study = TaylorGreen::STUDY
+        .order_study(&[16, 32], advection)
+        .unwrap();
+    let floor = study.floor(16);
+    println!(
+        "Taylor-Green errors {:?}, orders {:?}",
+        study.errors, study.orders
+    );
+    assert!(floor.met(), "{floor}; errors {:?}", study.errors);
+    assert!(OrderStudy::least_order(advection) >= 1.8);
+}
+
+#[test]
+fn the_coarse_dfg_2d2_cylinder_sheds_at_the_published_strouhal_number() {
+    let result = Dfg2d2::new(8).unwrap().run().unwrap();
+    for f in &result.floors {
+        println!("DFG 2D-2, 8 cells per diameter: {f}");
+    }
+    assert!(result.floors_met(), "{result:?}");
+}

@@ -6,7 +6,7 @@
 //! training is deterministic for its seed, so the results do not depend on the
 //! scheduling and come back in job order), and [`Plan::groups`] gives the
 //! results back per `(variant, size)` with their training seeds, ready to be
-//! made [`Candidate`](crate::Candidate)s labelled by the typed `(variant, size)`
+//! made [`Candidate`]s labelled by the typed `(variant, size)`
 //! itself.
 //!
 //! ```

@@ -172,7 +172,7 @@ impl Cavity {
         self
     }
 
-    /// The scene: see the [module docs](self).
+    /// The scene (lid-driven cavity, the module docs give its setup).
     ///
     /// # Errors
     /// As [`crate::SceneBuilder::build`].

@@ -126,7 +126,7 @@ const FLOOR_SOURCE: &str = "Schaefer-Turek 1996 Table 4 interval; 5 % (the flow-
 pub struct DfgChannel {
     /// Cells across the cylinder's diameter.
     pub cpd: usize,
-    /// The channel's height ([`DFG_HEIGHT`]; 0.40 centres the cylinder).
+    /// The channel's height (0.41 in the benchmark; 0.40 centres the cylinder).
     pub height: f64,
     /// The Courant number of a step at the inflow's peak.
     pub courant: f64,

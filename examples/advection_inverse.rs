@@ -237,11 +237,29 @@ fn write_charts(out: &Path, scene: &Scene, run: &Run) -> Result<Vec<PathBuf>, Bo
     Ok(vec![loss_path, density_path, velocity_path])
 }
 
+/// Finds the velocity whose upwind advection carries a bump onto a target, by
+/// gradient descent through every step.
+#[derive(clap::Parser)]
+struct Cli {
+    #[command(flatten)]
+    common: common::ExampleArgs,
+    /// Gradient-descent iterations (10 with --small).
+    #[arg(
+        long,
+        value_name = "N",
+        default_value_t = 100,
+        default_value_if("small", "true", "10")
+    )]
+    iterations: usize,
+}
+
 fn main() -> Result<(), BoxError> {
-    let args = common::ExampleArgs::parse("advection_inverse")?;
+    let Cli {
+        common: args,
+        iterations,
+    } = common::parse_args("advection_inverse")?;
     let n = args.pick(128, 32);
     let steps = args.pick(200, 40);
-    let iterations = args.iterations.unwrap_or(args.pick(100, 10));
     let scene = Scene::new(n, steps)?;
     // Courant number of the initial guess: 0.1·dt/dx = 0.1·n/steps.
     let u0 = ArrayD::from_elem(vec![n], 0.1);

@@ -196,9 +196,26 @@ fn write_charts(
     Ok(files)
 }
 
+/// Reconstructs the Burgers scene's initial state from its state at t = 0.5.
+#[derive(clap::Parser)]
+struct Cli {
+    #[command(flatten)]
+    common: common::ExampleArgs,
+    /// Gradient-descent iterations (5 with --small).
+    #[arg(
+        long,
+        value_name = "N",
+        default_value_t = 50,
+        default_value_if("small", "true", "5")
+    )]
+    iterations: usize,
+}
+
 fn main() -> Result<(), BoxError> {
-    let args = common::ExampleArgs::parse("burgers_inverse")?;
-    let iterations = args.iterations.unwrap_or(args.pick(50, 5));
+    let Cli {
+        common: args,
+        iterations,
+    } = common::parse_args("burgers_inverse")?;
     let scene = Burgers::new(load_reference()?)?;
 
     let mut u0 = ArrayD::zeros(vec![N]);

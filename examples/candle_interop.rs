@@ -162,10 +162,28 @@ fn median(seconds: &mut [f64]) -> f64 {
     seconds[seconds.len() / 2]
 }
 
+/// diffphys's implicit Poisson solve inside a candle model, trained beside the
+/// same model on our tape.
+#[derive(clap::Parser)]
+struct Cli {
+    #[command(flatten)]
+    common: common::ExampleArgs,
+    /// Training steps (10 with --small).
+    #[arg(
+        long,
+        value_name = "N",
+        default_value_t = 40,
+        default_value_if("small", "true", "10")
+    )]
+    iterations: usize,
+}
+
 fn main() -> Result<(), BoxError> {
-    let args = common::ExampleArgs::parse("candle_interop")?;
+    let Cli {
+        common: args,
+        iterations: steps,
+    } = common::parse_args("candle_interop")?;
     let n = args.pick(64, 32);
-    let steps = args.iterations.unwrap_or(args.pick(40, 10));
     let scene = Scene::new(n)?;
     println!("candle model → diffphys Poisson solve: {n}² cells, {SOURCES} amplitudes, {steps} gradient steps");
 

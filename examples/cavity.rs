@@ -182,50 +182,42 @@ fn max_change(a: &FlowState<f64>, b: &FlowState<f64>) -> f64 {
     d(&a.ux, &b.ux).max(d(&a.uy, &b.uy))
 }
 
+/// The lid-driven cavity to steady state against Ghia, Ghia and Shin's table.
+#[derive(clap::Parser)]
+struct Cli {
+    #[command(flatten)]
+    common: common::ExampleArgs,
+    #[command(flatten)]
+    opt: Options,
+}
+
+#[derive(clap::Args)]
 struct Options {
+    /// Reynolds number: 100, 400 or 1000 (Ghia's table).
+    #[arg(long, default_value_t = 100)]
     re: u32,
+    /// Cells per side, even and at least 8 (32 with --small).
+    #[arg(long, default_value_t = 128, default_value_if("small", "true", "32"))]
     n: usize,
+    /// Steady when the velocity changes by less than this per unit time.
+    #[arg(long, default_value_t = 1e-4)]
     tol: f64,
+    /// Lid time units before the run stops unsteady [default: 40 at Re <= 150,
+    /// 80 at Re <= 500, else 160].
+    #[arg(long, value_name = "T")]
     max_time: Option<f64>,
+    /// Grids of earlier runs (their JSON files in OUT) to draw beside this one
+    /// [default: none].
+    #[arg(long, value_name = "LIST", value_delimiter = ',')]
     overlay_n: Vec<usize>,
 }
 
 fn parse() -> Result<(common::ExampleArgs, Options)> {
-    let mut rest = Vec::new();
-    let (mut re, mut n, mut tol, mut max_time) = (100, None, 1e-4, None);
-    let mut overlay_n = Vec::new();
-    let mut it = std::env::args().skip(1);
-    while let Some(a) = it.next() {
-        let mut value = |name: &str| it.next().ok_or_else(|| format!("{name} needs a value"));
-        match a.as_str() {
-            "--re" => re = value("--re")?.parse()?,
-            "--n" => n = Some(value("--n")?.parse()?),
-            "--tol" => tol = value("--tol")?.parse()?,
-            "--max-time" => max_time = Some(value("--max-time")?.parse()?),
-            "--overlay-n" => {
-                overlay_n = value("--overlay-n")?
-                    .split(',')
-                    .map(str::parse)
-                    .collect::<std::result::Result<Vec<usize>, _>>()?
-            }
-            _ => rest.push(a),
-        }
+    let Cli { common, opt } = common::parse_args("cavity")?;
+    if opt.n < 8 || opt.n % 2 != 0 {
+        return Err(format!("--n must be even and at least 8, got {}", opt.n).into());
     }
-    let args = common::ExampleArgs::parse_from("cavity", rest.into_iter())?;
-    let n = n.unwrap_or(args.pick(128, 32));
-    if n < 8 || n % 2 != 0 {
-        return Err(format!("--n must be even and at least 8, got {n}").into());
-    }
-    Ok((
-        args,
-        Options {
-            re,
-            n,
-            tol,
-            max_time,
-            overlay_n,
-        },
-    ))
+    Ok((common, opt))
 }
 
 fn main() -> Result<()> {

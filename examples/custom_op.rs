@@ -205,8 +205,15 @@ fn max_abs_diff(a: &ArrayD<f64>, b: &ArrayD<f64>) -> f64 {
         .fold(0.0, f64::max)
 }
 
+/// A first gradient on the tape, then a plugin op with a hand-written adjoint, checked three ways.
+#[derive(clap::Parser)]
+struct Cli {
+    #[command(flatten)]
+    common: common::ExampleArgs,
+}
+
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let args = common::ExampleArgs::parse("custom_op")?;
+    let Cli { common: args } = common::parse_args("custom_op")?;
     let n = args.pick(256, 32);
     let steps = args.pick(50, 10);
 

@@ -311,34 +311,40 @@ fn write_charts(
     Ok(())
 }
 
-/// `--preconditioner none|multigrid` taken out of the command line, the
-/// other arguments left for [`common::ExampleArgs`].
-fn preconditioner_flag() -> Result<(bool, Vec<String>), BoxError> {
-    let mut rest = Vec::new();
-    let mut multigrid = false;
-    let mut it = std::env::args().skip(1);
-    while let Some(arg) = it.next() {
-        if arg == "--preconditioner" {
-            multigrid = match it.next().as_deref() {
-                Some("multigrid") => true,
-                Some("none") => false,
-                other => {
-                    return Err(
-                        format!("--preconditioner: none or multigrid, not {other:?}").into(),
-                    )
-                }
-            };
-        } else {
-            rest.push(arg);
-        }
-    }
-    Ok((multigrid, rest))
+/// Finds an initial velocity whose pressure projection produces a target jet
+/// (PhiFlow's differentiate-pressure demo).
+#[derive(clap::Parser)]
+struct Cli {
+    #[command(flatten)]
+    common: common::ExampleArgs,
+    /// The CG solves' preconditioner.
+    #[arg(long, value_enum, default_value_t = Preconditioner::None)]
+    preconditioner: Preconditioner,
+    /// Gradient-descent iterations (5 with --small).
+    #[arg(
+        long,
+        value_name = "N",
+        default_value_t = 30,
+        default_value_if("small", "true", "5")
+    )]
+    iterations: usize,
+}
+
+#[derive(Clone, Copy, PartialEq, clap::ValueEnum)]
+enum Preconditioner {
+    /// Plain CG.
+    None,
+    /// Multigrid-preconditioned CG.
+    Multigrid,
 }
 
 fn main() -> Result<(), BoxError> {
-    let (multigrid, rest) = preconditioner_flag()?;
-    let args = common::ExampleArgs::parse_from("differentiate_pressure", rest.into_iter())?;
-    let iterations = args.iterations.unwrap_or(args.pick(30, 5));
+    let Cli {
+        common: args,
+        preconditioner,
+        iterations,
+    } = common::parse_args("differentiate_pressure")?;
+    let multigrid = preconditioner == Preconditioner::Multigrid;
     let scene = Scene::new()?;
     let mut projection =
         PressureProjection::new(scene.mac.clone(), CgParams::default().with_rel_tol(1e-5));

@@ -34,36 +34,28 @@ use serde_json::json;
 
 type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
 
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, clap::ValueEnum)]
 enum SceneKind {
+    /// PhiFlow's wake flow.
     Wake,
+    /// JAX-CFD's periodic Taylor–Green box.
     Box,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, clap::ValueEnum)]
 enum Solver {
     /// The scene's default (the fastest at these sizes).
     Default,
+    /// Sparse Cholesky.
     Cholesky,
+    /// CG to a relative residual of 1e-3.
     Cg,
+    /// Multigrid-preconditioned CG to a relative residual of 1e-3.
+    #[value(name = "mgpcg")]
     MgPcg,
 }
 
 impl Solver {
-    fn parse(s: &str) -> Result<Self> {
-        Ok(match s {
-            "default" => Solver::Default,
-            "cholesky" => Solver::Cholesky,
-            "cg" => Solver::Cg,
-            "mgpcg" => Solver::MgPcg,
-            other => {
-                return Err(
-                    format!("--solver: cholesky, cg, mgpcg or default, not {other:?}").into(),
-                )
-            }
-        })
-    }
-
     fn pressure(self) -> Option<PressureSolver> {
         // the peers' tolerance: PhiFlow's CG to a relative residual of 1e-3
         match self {
@@ -340,40 +332,40 @@ fn write_chart(path: &std::path::Path, rows: &[serde_json::Value]) -> Result<()>
     Ok(())
 }
 
+/// The flow step's speed and memory on the wake and box scenes, or with
+/// `--serve`, the peers' benchmark worker.
+#[derive(clap::Parser)]
+struct Cli {
+    #[command(flatten)]
+    common: common::ExampleArgs,
+    /// In f64 (f32 otherwise).
+    #[arg(long)]
+    f64: bool,
+    /// Speak the line protocol of benches/flow_peers/worker_protocol.md instead
+    /// of printing the table.
+    #[arg(long)]
+    serve: bool,
+    /// With --serve: the scene.
+    #[arg(long, value_enum, default_value_t = SceneKind::Wake)]
+    scene: SceneKind,
+    /// With --serve: the resolution factor (wake) or cells per side (box).
+    #[arg(long, value_name = "N", default_value_t = 32)]
+    res: usize,
+    /// With --serve: steps per rollout.
+    #[arg(long, value_name = "N", default_value_t = 20)]
+    steps: usize,
+    /// With --serve: the pressure solver.
+    #[arg(long, value_enum, default_value_t = Solver::Default)]
+    solver: Solver,
+}
+
 fn main() -> Result<()> {
-    let mut rest = Vec::new();
-    let (mut serve_mode, mut f64_mode) = (false, false);
-    let (mut kind, mut res, mut steps, mut solver) = (SceneKind::Wake, 32, 20, Solver::Default);
-    let mut it = std::env::args().skip(1);
-    while let Some(a) = it.next() {
-        let mut value = |name: &str| it.next().ok_or_else(|| format!("{name} needs a value"));
-        match a.as_str() {
-            "--serve" => serve_mode = true,
-            "--f64" => f64_mode = true,
-            "--scene" => {
-                kind = match value("--scene")?.as_str() {
-                    "wake" => SceneKind::Wake,
-                    "box" => SceneKind::Box,
-                    other => return Err(format!("--scene: wake or box, not {other:?}").into()),
-                }
-            }
-            "--res" => res = value("--res")?.parse()?,
-            "--steps" => steps = value("--steps")?.parse()?,
-            "--solver" => solver = Solver::parse(&value("--solver")?)?,
-            _ => rest.push(a),
-        }
-    }
-    if serve_mode {
-        return if f64_mode {
-            serve::<f64>(kind, res, steps, solver, "f64")
-        } else {
-            serve::<f32>(kind, res, steps, solver, "f32")
-        };
-    }
-    let args = common::ExampleArgs::parse_from("flow_step", rest.into_iter())?;
-    if f64_mode {
-        run_table::<f64>(&args, "f64")
-    } else {
-        run_table::<f32>(&args, "f32")
+    let cli: Cli = common::parse_args("flow_step")?;
+    let precision = if cli.f64 { "f64" } else { "f32" };
+    match (cli.serve, cli.f64) {
+        (true, true) => serve::<f64>(cli.scene, cli.res, cli.steps, cli.solver, precision),
+        (true, false) => serve::<f32>(cli.scene, cli.res, cli.steps, cli.solver, precision),
+        (false, true) => run_table::<f64>(&cli.common, precision),
+        (false, false) => run_table::<f32>(&cli.common, precision),
     }
 }

@@ -179,10 +179,27 @@ fn write_charts(
     Ok(())
 }
 
+/// Recovers a conductivity field from observations of the potential.
+#[derive(clap::Parser)]
+struct Cli {
+    #[command(flatten)]
+    common: common::ExampleArgs,
+    /// Adam iterations (120 with --small).
+    #[arg(
+        long,
+        value_name = "N",
+        default_value_t = 300,
+        default_value_if("small", "true", "120")
+    )]
+    iterations: usize,
+}
+
 fn main() -> Result<(), BoxError> {
-    let args = common::ExampleArgs::parse("inverse_conductivity")?;
+    let Cli {
+        common: args,
+        iterations,
+    } = common::parse_args("inverse_conductivity")?;
     let n = args.pick(32, 16);
-    let iterations = args.iterations.unwrap_or(args.pick(300, 120));
     if iterations == 0 {
         return Err("--iterations must be at least 1".into());
     }

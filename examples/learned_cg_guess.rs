@@ -118,13 +118,34 @@ fn iterations(
     Ok(mean)
 }
 
+/// A learned initial guess for conjugate gradient, trained through the CG iterations.
+#[derive(clap::Parser)]
+struct Cli {
+    #[command(flatten)]
+    common: common::ExampleArgs,
+    #[command(flatten)]
+    seeds: common::Seeds,
+    /// Adam steps (40 with --small).
+    #[arg(
+        long,
+        value_name = "N",
+        default_value_t = 300,
+        default_value_if("small", "true", "40")
+    )]
+    iterations: usize,
+}
+
 fn main() -> Result<(), BoxError> {
     let run_start = Instant::now();
-    let (args, seeds) = common::parse_with_seeds("learned_cg_guess")?;
+    let Cli {
+        common: args,
+        seeds,
+        iterations: steps,
+    } = common::parse_args("learned_cg_guess")?;
     let n = args.pick(64, 32);
     let widths = args.pick(vec![8, 16, 16, 32, 32], vec![4, 8, 8, 16]);
     let trainer = GuessTrainer {
-        steps: args.iterations.unwrap_or(args.pick(300, 40)),
+        steps,
         batch: args.pick(8, 4),
         learning_rate: 2e-3,
         schedule: LrSchedule::Cosine {

@@ -50,8 +50,15 @@ fn json_f64(v: Option<f64>) -> serde_json::Value {
         .map_or(serde_json::Value::Null, |v| v.into())
 }
 
+/// Naive vs implicit gradients through conjugate gradient on one scene.
+#[derive(clap::Parser)]
+struct Cli {
+    #[command(flatten)]
+    common: common::ExampleArgs,
+}
+
 fn main() -> Result<(), BoxError> {
-    let args = common::ExampleArgs::parse("naive_vs_implicit")?;
+    let Cli { common: args } = common::parse_args("naive_vs_implicit")?;
     let n = args.pick(64, 16);
     let fixed_counts: Vec<usize> = args.pick(vec![5, 10, 20, 50, 100], vec![5, 10, 20]);
 

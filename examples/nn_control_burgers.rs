@@ -165,11 +165,32 @@ struct Outcome {
     networks: Vec<(Training, HeldOutNetwork)>,
 }
 
+/// A network predicts the Burgers scene's initial state, trained through the solver and supervised.
+#[derive(clap::Parser)]
+struct Cli {
+    #[command(flatten)]
+    common: common::ExampleArgs,
+    #[command(flatten)]
+    seeds: common::Seeds,
+    /// Adam steps (20 with --small).
+    #[arg(
+        long,
+        value_name = "N",
+        default_value_t = 3000,
+        default_value_if("small", "true", "20")
+    )]
+    iterations: usize,
+}
+
 fn main() -> Result<(), BoxError> {
     let run_start = Instant::now();
-    let (args, seeds) = common::parse_with_seeds("nn_control_burgers")?;
+    let Cli {
+        common: args,
+        seeds,
+        iterations,
+    } = common::parse_args("nn_control_burgers")?;
     let budget = Budget {
-        steps: args.iterations.unwrap_or(args.pick(3000, 20)),
+        steps: iterations,
         batch: args.pick(16, 4),
         eval_every: args.pick(50, 10),
     };

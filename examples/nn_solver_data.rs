@@ -70,11 +70,32 @@ impl Source {
     }
 }
 
+/// The solver as a data generator: a network learns the Burgers map from solver-made pairs.
+#[derive(clap::Parser)]
+struct Cli {
+    #[command(flatten)]
+    common: common::ExampleArgs,
+    #[command(flatten)]
+    seeds: common::Seeds,
+    /// Adam steps (20 with --small).
+    #[arg(
+        long,
+        value_name = "N",
+        default_value_t = 1500,
+        default_value_if("small", "true", "20")
+    )]
+    iterations: usize,
+}
+
 fn main() -> Result<(), BoxError> {
     let run_start = Instant::now();
-    let (args, seeds) = common::parse_with_seeds("nn_solver_data")?;
+    let Cli {
+        common: args,
+        seeds,
+        iterations,
+    } = common::parse_args("nn_solver_data")?;
     let trainer = SupervisedTrainer {
-        steps: args.iterations.unwrap_or(args.pick(1500, 20)),
+        steps: iterations,
         batch: args.pick(16, 4),
         learning_rate: 2e-3,
         schedule: LrSchedule::Cosine {

@@ -87,14 +87,35 @@ fn network(seed: TrainSeed) -> Result<(Net, Params<f64>), BoxError> {
     ))
 }
 
+/// Solver-in-the-loop: a corrector trained through the solver it corrects.
+#[derive(clap::Parser)]
+struct Cli {
+    #[command(flatten)]
+    common: common::ExampleArgs,
+    #[command(flatten)]
+    seeds: common::Seeds,
+    /// Adam steps (8 with --small).
+    #[arg(
+        long,
+        value_name = "N",
+        default_value_t = 2000,
+        default_value_if("small", "true", "8")
+    )]
+    iterations: usize,
+}
+
 fn main() -> Result<(), BoxError> {
     let run_start = Instant::now();
-    let (args, seeds) = common::parse_with_seeds("solver_in_the_loop")?;
+    let Cli {
+        common: args,
+        seeds,
+        iterations,
+    } = common::parse_args("solver_in_the_loop")?;
     let [train_n, validation_n, held_out_n] = args.pick([48, 16, 16], [4, 2, 2]);
     let steps = args.pick(128, 32);
     let trainer = Trainer {
         budget: Budget {
-            iterations: args.iterations.unwrap_or(args.pick(2000, 8)),
+            iterations,
             evaluations_per_iteration: 64,
         },
         learning_rate: LEARNING_RATE,

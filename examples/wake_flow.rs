@@ -46,7 +46,6 @@ use diffphys_compare::harness::progress_bar;
 use ndarray::Array3;
 use serde_json::{json, Value};
 
-use clap::Parser;
 use phases::{references, select_and_evaluate, speed_study, train_variants, untrained};
 use report::{report, Results};
 use wake_flow_scene::cli::{self, Cli, Command, EvaluateArgs};
@@ -320,7 +319,6 @@ impl Ctx {
         let args = common::ExampleArgs {
             small,
             out: cli.train.scene.out(),
-            iterations: cli.train.iterations,
             npy: cli.train.npy,
         };
         std::fs::create_dir_all(&args.out)?;
@@ -329,7 +327,8 @@ impl Ctx {
         let coarse = Coarse::new(uncorrected(&sizes, 1, PressureSolver::Cholesky)?);
         let cache = Cache::new(&args.out, &sizes)?;
         // `--iterations N`: N Adam steps of STEP_EVALUATIONS evaluations each.
-        let evaluations = args
+        let evaluations = cli
+            .train
             .iterations
             .map_or(args.pick(EVALUATIONS, 16 * STEP_EVALUATIONS), |n| {
                 n * STEP_EVALUATIONS
@@ -395,7 +394,7 @@ struct Record {
 
 fn main() -> Result<(), BoxError> {
     let run_start = Instant::now();
-    let cli = Cli::parse();
+    let cli: Cli = common::parse_args("wake_flow")?;
     if let Some(Command::Evaluate(e)) = cli.command {
         return evaluate_command(e);
     }

@@ -1,67 +1,134 @@
 //! What every example shares: its command line (`--small` for CI, `--out DIR` for
-//! charts) and the closing JSON line.
+//! charts, `--npy`), parsed by clap with [`parse_args`], and the closing JSON line.
 
 #![allow(dead_code)] // each example uses a different part
 
+use std::ffi::OsString;
 use std::path::PathBuf;
 
-/// The options every example takes.
-#[derive(Debug, Clone)]
+use clap::error::ErrorKind;
+use clap::{Command, Parser};
+
+/// The exit code of a usage error: `EX_USAGE` of BSD's `sysexits.h`.
+pub const EX_USAGE: i32 = 64;
+
+/// The id of [`ExampleArgs::out`], whose default [`parse_args`] sets per example.
+const OUT: &str = "example_out";
+
+/// The options every example takes, flattened into its own `clap::Parser`.
+#[derive(Debug, Clone, clap::Args)]
 pub struct ExampleArgs {
     /// Run at a small size (CI and quick checks).
+    #[arg(long)]
     pub small: bool,
-    /// Folder for charts and other files.
+    /// Folder for charts and other files, created if missing.
+    // `parse_args` replaces this default with `out/NAME`.
+    #[arg(long, id = OUT, value_name = "DIR", default_value = "out")]
     pub out: PathBuf,
-    /// Overrides the number of optimisation iterations.
-    pub iterations: Option<usize>,
     /// Write the fields and gradients as `.npy` files under `OUT/npy`.
+    #[arg(long)]
     pub npy: bool,
 }
 
-impl ExampleArgs {
-    /// Reads `--small`, `--out DIR` and `--iterations N` from the command line;
-    /// `default_out` names the folder under `out/` when `--out` is not given.
-    pub fn parse(default_out: &str) -> Result<Self, String> {
-        Self::parse_from(default_out, std::env::args().skip(1))
-    }
+/// Parses the command line into `C`, the example `name`'s flags beside the
+/// flattened [`ExampleArgs`], whose `--out` defaults to `out/NAME`; creates that
+/// folder.
+///
+/// `--help` and `--version` print and exit 0; any other clap error prints
+/// clap's message (an unknown flag with the list of valid ones) and exits
+/// [`EX_USAGE`].
+///
+/// # Errors
+/// When the `--out` folder cannot be created.
+pub fn parse_args<C: Parser>(name: &'static str) -> Result<C, String> {
+    parse_argv(name, std::env::args_os().collect())
+}
 
-    /// [`ExampleArgs::parse`] of the arguments `it` (an example that takes
-    /// options of its own removes them first).
+/// [`parse_args`] of `argv`, its first item the program.
+fn parse_argv<C: Parser>(name: &'static str, argv: Vec<OsString>) -> Result<C, String> {
+    let mut command = command::<C>(name);
+    let mut matches = command
+        .try_get_matches_from_mut(&argv)
+        .unwrap_or_else(|e| exit_on(&e, &command, &argv));
+    if let Some(out) = matches.get_one::<PathBuf>(OUT) {
+        std::fs::create_dir_all(out)
+            .map_err(|e| format!("cannot create {}: {e}", out.display()))?;
+    }
+    Ok(C::from_arg_matches_mut(&mut matches).unwrap_or_else(|e| exit_on(&e, &command, &argv)))
+}
+
+/// [`parse_args`] of `argv` (its first item the program), with the error
+/// returned instead of printed, and no folder created.
+pub fn try_parse_args_from<C: Parser>(
+    name: &'static str,
+    argv: impl IntoIterator<Item = impl Into<OsString> + Clone>,
+) -> Result<C, clap::Error> {
+    let mut matches = command::<C>(name).try_get_matches_from(argv)?;
+    C::from_arg_matches_mut(&mut matches)
+}
+
+/// `C`'s command, named `name`, with `--out` (where `C` has [`ExampleArgs`])
+/// defaulting to `out/NAME`.
+fn command<C: Parser>(name: &'static str) -> Command {
+    let command = C::command().name(name);
+    if command.get_arguments().any(|a| a.get_id() == OUT) {
+        // clap (without its `string` feature) keeps `&'static str`s; a
+        // process parses its command line once.
+        let out: &'static str = format!("out/{name}").leak();
+        command.mut_arg(OUT, |a| a.default_value(out))
+    } else {
+        command
+    }
+}
+
+/// Prints `error` and exits: 0 after `--help` or `--version`, else
+/// [`EX_USAGE`], after an unknown flag with the flags of the (sub)command
+/// `argv` names.
+fn exit_on(error: &clap::Error, command: &Command, argv: &[OsString]) -> ! {
+    // printing to a closed pipe is no reason to panic
+    let _ = error.print();
+    if !error.use_stderr() {
+        std::process::exit(0);
+    }
+    if error.kind() == ErrorKind::UnknownArgument {
+        eprintln!("\nvalid flags: {}", valid_flags(command, argv));
+    }
+    std::process::exit(EX_USAGE)
+}
+
+/// The long flags (and subcommands) of `command`, or of the subcommand `argv`
+/// names.
+fn valid_flags(command: &Command, argv: &[OsString]) -> String {
+    let command = argv.iter().skip(1).fold(command, |c, arg| {
+        arg.to_str().and_then(|a| c.find_subcommand(a)).unwrap_or(c)
+    });
+    let flags = command
+        .get_arguments()
+        .filter(|a| !a.is_hide_set())
+        .filter_map(|a| a.get_long().map(|long| format!("--{long}")));
+    let subcommands = command.get_subcommands().map(|s| s.get_name().to_owned());
+    flags.chain(subcommands).collect::<Vec<_>>().join(", ")
+}
+
+impl ExampleArgs {
+    /// The options alone from `it` (the arguments after the program's name), for
+    /// the examples that still take their own flags out by hand first; `--out`
+    /// defaults to `out/{default_out}`. Exits as [`parse_args`] does.
+    ///
+    /// # Errors
+    /// When the `--out` folder cannot be created.
     pub fn parse_from(
-        default_out: &str,
-        mut it: impl Iterator<Item = String>,
+        default_out: &'static str,
+        it: impl Iterator<Item = String>,
     ) -> Result<Self, String> {
-        let mut args = ExampleArgs {
-            small: false,
-            out: PathBuf::from("out").join(default_out),
-            iterations: None,
-            npy: false,
-        };
-        while let Some(arg) = it.next() {
-            match arg.as_str() {
-                "--small" => args.small = true,
-                "--npy" => args.npy = true,
-                "--out" => args.out = it.next().ok_or("--out needs a folder")?.into(),
-                "--iterations" => {
-                    let n = it.next().ok_or("--iterations needs a number")?;
-                    args.iterations = Some(
-                        n.parse()
-                            .map_err(|_| format!("--iterations: not a number: {n}"))?,
-                    );
-                }
-                "-h" | "--help" => {
-                    println!(
-                        "options: --small (CI size), --out DIR (charts), --iterations N, \
-                         --npy (fields and gradients as .npy files under DIR/npy)"
-                    );
-                    std::process::exit(0);
-                }
-                other => return Err(format!("unknown argument {other:?}; try --help")),
-            }
+        #[derive(Parser)]
+        struct Only {
+            #[command(flatten)]
+            common: ExampleArgs,
         }
-        std::fs::create_dir_all(&args.out)
-            .map_err(|e| format!("cannot create {}: {e}", args.out.display()))?;
-        Ok(args)
+        let program = std::env::args_os().take(1);
+        let argv = program.chain(it.map(OsString::from)).collect();
+        Ok(parse_argv::<Only>(default_out, argv)?.common)
     }
 
     /// With `--npy`, writes each `(name, array, meaning)` as `OUT/npy/{name}.npy`
@@ -106,75 +173,31 @@ pub fn print_json_line(value: &serde_json::Value) {
     );
 }
 
-/// The learning scenes' seeds: `--data-seed N` (or `--data-seeds a,b,c`) and
-/// `--train-seeds a,b,c`, removed from `args`; the defaults are `full` (or
-/// `small` with `--small`).
-#[derive(Debug, Clone)]
+/// The learning scenes' seeds, flattened beside [`ExampleArgs`] (whose
+/// `--small` sets their defaults).
+#[derive(Debug, Clone, clap::Args)]
 pub struct Seeds {
-    /// Each a fresh draw of the train, validation and held-out splits.
+    /// Data seeds, each a fresh draw of the train, validation and held-out
+    /// splits (1 with --small).
+    #[arg(
+        long = "data-seeds",
+        visible_alias = "data-seed",
+        value_name = "LIST",
+        value_delimiter = ',',
+        default_value = "1,2,3",
+        default_value_if("small", "true", "1")
+    )]
     pub data: Vec<u64>,
-    /// Each a network initialisation and sampling stream.
+    /// Training seeds, each a network initialisation and sampling stream
+    /// (1 with --small).
+    #[arg(
+        long = "train-seeds",
+        value_name = "LIST",
+        value_delimiter = ',',
+        default_value = "1,2,3",
+        default_value_if("small", "true", "1")
+    )]
     pub train: Vec<u64>,
-}
-
-impl Seeds {
-    /// Parses and removes the seed options from `args`.
-    pub fn take(args: &mut Vec<String>, small: bool) -> Result<Self, String> {
-        let list = |v: &str, what: &str| -> Result<Vec<u64>, String> {
-            let seeds: Vec<u64> = v
-                .split(',')
-                .map(|s| {
-                    s.trim()
-                        .parse()
-                        .map_err(|_| format!("{what}: not a seed list: {v}"))
-                })
-                .collect::<Result<_, _>>()?;
-            if seeds.is_empty() {
-                return Err(format!("{what}: no seeds"));
-            }
-            Ok(seeds)
-        };
-        let mut seeds = if small {
-            Seeds {
-                data: vec![1],
-                train: vec![1],
-            }
-        } else {
-            Seeds {
-                data: vec![1, 2, 3],
-                train: vec![1, 2, 3],
-            }
-        };
-        let mut i = 0;
-        while i < args.len() {
-            let what = args[i].clone();
-            if ["--data-seed", "--data-seeds", "--train-seeds"].contains(&what.as_str()) {
-                let value = args
-                    .get(i + 1)
-                    .ok_or(format!("{what} needs a value"))?
-                    .clone();
-                match what.as_str() {
-                    "--train-seeds" => seeds.train = list(&value, &what)?,
-                    _ => seeds.data = list(&value, &what)?,
-                }
-                args.drain(i..i + 2);
-            } else {
-                i += 1;
-            }
-        }
-        Ok(seeds)
-    }
-}
-
-/// The command line with the learning scenes' seed options taken out.
-pub fn parse_with_seeds(default_out: &str) -> Result<(ExampleArgs, Seeds), String> {
-    let mut raw: Vec<String> = std::env::args().skip(1).collect();
-    let small = raw.iter().any(|a| a == "--small");
-    let seeds = Seeds::take(&mut raw, small)?;
-    Ok((
-        ExampleArgs::parse_from(default_out, raw.into_iter())?,
-        seeds,
-    ))
 }
 
 /// The process's peak resident set size in bytes (`VmHWM` of

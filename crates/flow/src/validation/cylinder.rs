@@ -259,6 +259,10 @@ pub struct SteadyCylinder {
     pub errors: [f64; 3],
     /// The 2D-1 floor: cD within 5 % of the interval.
     pub floors: Vec<FloorCheck>,
+    /// `[t, cD, cL]` after each window of the run (every 100 steps), the
+    /// surface force as in [`DfgChannel::coefficients`]: how the forces
+    /// settle.
+    pub history: Vec<[f64; 3]>,
     /// The scene.
     pub scene: Scene,
     /// The run.
@@ -278,7 +282,8 @@ impl Dfg2d1 {
         })
     }
 
-    /// Runs the case; `observe(steps, state, rate)` every 100 steps.
+    /// Runs the case, recording `[t, cD, cL]` and calling
+    /// `observe(steps, state, rate)` every 100 steps.
     ///
     /// # Errors
     /// Those of [`DfgChannel::scene`], [`run_to_steady`] and `observe`.
@@ -289,7 +294,13 @@ impl Dfg2d1 {
             max_time: self.max_time,
             window: 100,
         };
-        let run = run_to_steady(&scene, DfgChannel::start(&scene), stop, observe)?;
+        let mut history = Vec::new();
+        let mut record = |steps: usize, s: &FlowState<f64>, rate: f64| {
+            let [cd, cl] = DfgChannel::coefficients(&scene, s, DFG_2D1.ubar)?;
+            history.push([steps as f64 * scene.dt(), cd, cl]);
+            observe(steps, s, rate)
+        };
+        let run = run_to_steady(&scene, DfgChannel::start(&scene), stop, &mut record)?;
         let [cd, cl] = DfgChannel::coefficients(&scene, &run.state, DFG_2D1.ubar)?;
         let dp = DfgChannel::pressure_difference(&scene, &run.state);
         let errors = [
@@ -306,6 +317,7 @@ impl Dfg2d1 {
                 FLOOR,
                 FLOOR_SOURCE,
             )],
+            history,
             scene,
             run,
         })

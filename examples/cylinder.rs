@@ -42,7 +42,7 @@ use std::time::Instant;
 
 use diffphys::flow::diagnostics::vorticity;
 use diffphys::flow::validation::{
-    observed_orders, Dfg2d1, Dfg2d2, Interval, DFG_2D1, DFG_2D2, DFG_HEIGHT, DFG_LENGTH,
+    observed_orders, Dfg2d1, Dfg2d2, FloorCheck, Interval, DFG_2D1, DFG_2D2, DFG_HEIGHT, DFG_LENGTH,
 };
 use diffphys::flow::Scene;
 use ndarray::Array2;
@@ -53,6 +53,36 @@ type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
 /// An interval as the JSON pair `[lo, hi]`.
 fn pair(i: Interval) -> [f64; 2] {
     [i.lo, i.hi]
+}
+
+/// Where the stated grid of the floors, the finest, stands in `cpd`.
+fn stated_index(cpd: &[usize]) -> usize {
+    let stated = cpd.iter().max();
+    cpd.iter()
+        .position(|c| Some(c) == stated)
+        .expect("at least one grid")
+}
+
+/// Prints each quantity's relative distance outside its interval at each
+/// grid, then the floors of the stated grid.
+fn print_errors(cpd: &[usize], columns: [(&str, &[f64]); 3], floors: &[FloorCheck]) {
+    let names = columns.map(|(name, _)| format!("{name} error"));
+    println!(
+        "  cpd | {}   (relative distance outside the interval)",
+        names.join(" | ")
+    );
+    for (k, c) in cpd.iter().enumerate() {
+        let cells = columns
+            .iter()
+            .zip(&names)
+            .map(|((_, e), name)| format!("{:>w$.2} %", e[k] * 1e2, w = name.len() - 2))
+            .collect::<Vec<_>>();
+        println!("  {c:3} | {}", cells.join(" | "));
+    }
+    let stated = cpd[stated_index(cpd)];
+    for f in floors {
+        println!("  floor at cpd {stated}: {f}");
+    }
 }
 
 fn grid_json(scene: &Scene, cpd: usize) -> Value {
@@ -180,26 +210,12 @@ fn main() -> Result<()> {
         }
         let err = |k: usize| -> Vec<f64> { results.iter().map(|r| r.errors[k]).collect() };
         let (ecd, ecl, edp) = (err(0), err(1), err(2));
-        println!(
-            "  cpd | cD error | cL error | dp error   (relative distance outside the interval)"
+        let case_floors = &results[stated_index(&opt.cpd)].floors;
+        print_errors(
+            &opt.cpd,
+            [("cD", &ecd), ("cL", &ecl), ("dp", &edp)],
+            case_floors,
         );
-        for (k, c) in opt.cpd.iter().enumerate() {
-            println!(
-                "  {c:3} | {:7.2} % | {:7.2} % | {:7.2} %",
-                ecd[k] * 1e2,
-                ecl[k] * 1e2,
-                edp[k] * 1e2
-            );
-        }
-        let at = opt
-            .cpd
-            .iter()
-            .position(|&c| c == stated)
-            .expect("the stated grid ran");
-        let case_floors = &results[at].floors;
-        for f in case_floors {
-            println!("  floor at cpd {stated}: {f}");
-        }
         let last = results.last().expect("one grid at least");
         let costs = flow_common::step_costs(&last.scene, &last.run.state, args.pick(10, 3))?;
         out.insert(
@@ -255,24 +271,12 @@ fn main() -> Result<()> {
         }
         let err = |k: usize| -> Vec<f64> { results.iter().map(|r| r.errors[k]).collect() };
         let (est, ecd, ecl) = (err(0), err(1), err(2));
-        println!("  cpd | St error | max cD error | max cL error   (relative distance outside the interval)");
-        for (k, c) in opt.cpd.iter().enumerate() {
-            println!(
-                "  {c:3} | {:7.2} % | {:10.2} % | {:10.2} %",
-                est[k] * 1e2,
-                ecd[k] * 1e2,
-                ecl[k] * 1e2
-            );
-        }
-        let at = opt
-            .cpd
-            .iter()
-            .position(|&c| c == stated)
-            .expect("the stated grid ran");
-        let case_floors = &results[at].floors;
-        for f in case_floors {
-            println!("  floor at cpd {stated}: {f}");
-        }
+        let case_floors = &results[stated_index(&opt.cpd)].floors;
+        print_errors(
+            &opt.cpd,
+            [("St", &est), ("max cD", &ecd), ("max cL", &ecl)],
+            case_floors,
+        );
         let last = results.last().expect("one grid at least");
         let (scene, s) = (&last.scene, &last.state);
         let omega = vorticity(scene, s.ux.view(), s.uy.view())?;

@@ -3,8 +3,9 @@
 //! by two independent methods, the body's rasterised geometry, and a control
 //! whose lift is zero by symmetry.
 //!
-//! - **Surface**: [`obstacle_force`] over the staircase, split into its pressure
-//!   part (the same call with ν = 0) and its wall-shear part (the rest); and
+//! - **Surface**: the force on the staircase (`DfgChannel::force`, the
+//!   library's `obstacle_force`), split into its pressure part (the same call
+//!   with ν = 0) and its wall-shear part (the rest); and
 //!   two variants: the pressure extrapolated to the faces from two fluid
 //!   cells, and the shear as `ν ū_t / h` (the flux the Laplacian takes, which
 //!   reads the solid's zero tangential faces a cell away).
@@ -44,10 +45,9 @@ mod flow_common;
 
 use std::time::Instant;
 
-use diffphys::flow::diagnostics::obstacle_force;
 use diffphys::flow::validation::{
-    Dfg2d1, FloorCheck, DFG_2D1, DFG_2D1_HIGH_ACCURACY, DFG_CENTRE, DFG_DIAMETER, DFG_HEIGHT,
-    DFG_NU,
+    Dfg2d1, DfgChannel, FloorCheck, DFG_2D1, DFG_2D1_HIGH_ACCURACY, DFG_CENTRE, DFG_DIAMETER,
+    DFG_HEIGHT, DFG_NU,
 };
 use diffphys::flow::{FlowState, Scene};
 use ndarray::Array2;
@@ -278,23 +278,11 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
     let lift_history: Vec<[f64; 2]> = result.history.iter().map(|h| [h[0], h[2]]).collect();
     let next = scene.forward(s, &scene.params())?.0;
 
-    let total = obstacle_force(
-        scene.force_weights(),
-        s.ux.view(),
-        s.uy.view(),
-        s.pressure.view(),
-        DFG_NU,
-    )?;
-    let pressure = obstacle_force(
-        scene.force_weights(),
-        s.ux.view(),
-        s.uy.view(),
-        s.pressure.view(),
-        0.0,
-    )?;
+    let total = DfgChannel::force(scene, s, DFG_NU)?;
+    let pressure = DfgChannel::force(scene, s, 0.0)?;
     let c = |f: [f64; 2]| f.map(|v| coefficient * v);
     let surface = Parts {
-        pressure: [pressure[0], pressure[1]],
+        pressure,
         viscous: [total[0] - pressure[0], total[1] - pressure[1]],
         ..Parts::default()
     };

@@ -192,19 +192,32 @@ impl DfgChannel {
         FlowState::from_velocity(scene, ux, Array2::zeros(g.shape_y()))
     }
 
-    /// `[cD, cL]` of a state at mean inflow `ubar`: the surface force on the
-    /// staircase over `Ubar² D / 2`.
+    /// The force `[F_x, F_y]` of the flow on the staircase at viscosity `nu`,
+    /// `F = ∮ (−p n + ν ∂u/∂n) dS` over the solid faces ([`obstacle_force`]:
+    /// the pressure of the fluid cell next to each face, the wall shear
+    /// `ν ū_t / (h/2)`). `nu` = [`DFG_NU`] gives the whole force, `nu = 0` its
+    /// pressure part alone.
     ///
     /// # Errors
     /// [`FlowError::Shape`] for a state of another scene.
-    pub fn coefficients(scene: &Scene, s: &FlowState<f64>, ubar: f64) -> Result<[f64; 2]> {
+    pub fn force(scene: &Scene, s: &FlowState<f64>, nu: f64) -> Result<[f64; 2]> {
         let f = obstacle_force(
             scene.force_weights(),
             s.ux.view(),
             s.uy.view(),
             s.pressure.view(),
-            DFG_NU,
+            nu,
         )?;
+        Ok([f[0], f[1]])
+    }
+
+    /// `[cD, cL]` of a state at mean inflow `ubar`: the surface force on the
+    /// staircase ([`DfgChannel::force`] at [`DFG_NU`]) over `Ubar² D / 2`.
+    ///
+    /// # Errors
+    /// [`FlowError::Shape`] for a state of another scene.
+    pub fn coefficients(scene: &Scene, s: &FlowState<f64>, ubar: f64) -> Result<[f64; 2]> {
+        let f = Self::force(scene, s, DFG_NU)?;
         let c = 2.0 / (ubar * ubar * DFG_DIAMETER);
         Ok([c * f[0], c * f[1]])
     }

@@ -1,6 +1,6 @@
 //! The lid-driven cavity, run to steady state and compared with the table of
-//! Ghia, Ghia and Shin (J. Comput. Phys. 48, 1982) shipped in
-//! `data/ghia1982_cavity.json`.
+//! Ghia, Ghia and Shin (J. Comput. Phys. 48, 1982): the library's
+//! `diffphys::flow::validation::Cavity` and its constants `GHIA_1982`.
 //!
 //! The unit square, no-slip walls, the lid (y = 1) moving along +x at speed 1,
 //! ν = 1/Re; MacCormack advection with the limiter, Courant number 0.5 at the
@@ -14,7 +14,7 @@
 //! x = 0.5) and `centerline_v` (`x`, `v` along y = 0.5) on the grid, normalised
 //! by the lid speed; at Ghia's 17 points of each line the values interpolated
 //! linearly from the grid, the table's, and the largest deviation; steps, time,
-//! per-step time, `peak_rss_bytes`. A value the data file flags as suspect (a
+//! per-step time, `peak_rss_bytes`. A value the library flags as suspect (a
 //! likely misprint in Ghia's table) is shown and reported on its own but left
 //! out of the largest deviation. A chart of both profiles against the table is
 //! written to `OUT/cavity_re{Re}_n{n}.svg`, the JSON line to
@@ -31,79 +31,12 @@
 mod common;
 mod flow_common;
 
-use std::path::PathBuf;
 use std::time::Instant;
 
-use diffphys::flow::validation::Cavity;
-use diffphys::flow::{Advection, FlowState, Scene, Sides, ViscosityMode};
-use ndarray::Array2;
+use diffphys::flow::validation::{Cavity, GhiaTable, GHIA_X, GHIA_Y};
 use serde_json::{json, Value};
 
 type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
-
-const LID: f64 = 1.0;
-
-/// Ghia's table for one Reynolds number.
-struct Ghia {
-    y: Vec<f64>,
-    u: Vec<f64>,
-    x: Vec<f64>,
-    v: Vec<f64>,
-    /// Whether each point of `u` (`v`) is flagged as suspect in the data file.
-    u_suspect: Vec<bool>,
-    v_suspect: Vec<bool>,
-}
-
-fn ghia(re: u32) -> Result<Ghia> {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/ghia1982_cavity.json");
-    let text = std::fs::read_to_string(&path).map_err(|e| {
-        format!(
-            "the cavity example needs {} (in the repository): {e}",
-            path.display()
-        )
-    })?;
-    let table: Value = serde_json::from_str(&text)?;
-    let key = format!("re{re}");
-    let numbers = |v: &Value| -> Result<Vec<f64>> {
-        v.as_array()
-            .ok_or_else(|| {
-                format!(
-                    "{}: no table for Re = {re} (100, 400, 1000)",
-                    path.display()
-                )
-            })?
-            .iter()
-            .map(|x| x.as_f64().ok_or_else(|| "not a number".into()))
-            .collect()
-    };
-    let (u, v) = (
-        &table["u_along_vertical_centreline"],
-        &table["v_along_horizontal_centreline"],
-    );
-    let (y, x) = (numbers(&u["y"])?, numbers(&v["x"])?);
-    // the points `suspect` names for this Re in one table, by coordinate
-    let suspect = |name: &str, coords: &[f64]| -> Vec<bool> {
-        let flagged: Vec<f64> = table["suspect"]
-            .as_array()
-            .into_iter()
-            .flatten()
-            .filter(|s| s["table"] == name && s["re"].as_u64() == Some(re as u64))
-            .filter_map(|s| s["x"].as_f64().or_else(|| s["y"].as_f64()))
-            .collect();
-        coords
-            .iter()
-            .map(|c| flagged.iter().any(|f| (f - c).abs() < 1e-9))
-            .collect()
-    };
-    Ok(Ghia {
-        u_suspect: suspect("u_along_vertical_centreline", &y),
-        v_suspect: suspect("v_along_horizontal_centreline", &x),
-        y,
-        u: numbers(&u[&key])?,
-        x,
-        v: numbers(&v[&key])?,
-    })
-}
 
 /// The centrelines of a run, `(y, u, x, v)` as in its JSON.
 type Profiles = (Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>);
@@ -132,54 +65,6 @@ fn earlier_run(path: &std::path::Path) -> Result<Profiles> {
         numbers(&run["centerline_v"]["x"])?,
         numbers(&run["centerline_v"]["v"])?,
     ))
-}
-
-/// Linear interpolation of the samples `(s, f)` (ascending `s`) at `q`.
-fn interpolate(s: &[f64], f: &[f64], q: f64) -> f64 {
-    let k = s.partition_point(|&p| p <= q).clamp(1, s.len() - 1);
-    let t = (q - s[k - 1]) / (s[k] - s[k - 1]);
-    f[k - 1] + t * (f[k] - f[k - 1])
-}
-
-/// `u` along x = 0.5 (y ascending, walls included) and `v` along y = 0.5 (x
-/// ascending, walls included), each as (coordinates, values / lid speed).
-#[allow(clippy::type_complexity)]
-fn centrelines(scene: &Scene, s: &FlowState<f64>) -> ((Vec<f64>, Vec<f64>), (Vec<f64>, Vec<f64>)) {
-    let g = scene.grid();
-    let (nx, ny, dx, dy) = (g.nx, g.ny, g.dx, g.dy);
-    // u_x[a, b] at (a dx, (b + ½) dy): interpolate in x between the faces around 0.5
-    let xa = 0.5 / dx;
-    let (a0, ta) = ((xa.floor() as usize).min(nx - 1), xa - xa.floor());
-    let mut y = vec![0.0];
-    let mut u = vec![0.0];
-    for b in 0..ny {
-        y.push((b as f64 + 0.5) * dy);
-        u.push(((1.0 - ta) * s.ux[[a0, b]] + ta * s.ux[[a0 + 1, b]]) / LID);
-    }
-    y.push(1.0);
-    u.push(1.0);
-    // u_y[a, b] at ((a + ½) dx, b dy)
-    let yb = 0.5 / dy;
-    let (b0, tb) = ((yb.floor() as usize).min(ny - 1), yb - yb.floor());
-    let mut x = vec![0.0];
-    let mut v = vec![0.0];
-    for a in 0..nx {
-        x.push((a as f64 + 0.5) * dx);
-        v.push(((1.0 - tb) * s.uy[[a, b0]] + tb * s.uy[[a, b0 + 1]]) / LID);
-    }
-    x.push(1.0);
-    v.push(0.0);
-    ((y, u), (x, v))
-}
-
-/// The largest change of any face between two states.
-fn max_change(a: &FlowState<f64>, b: &FlowState<f64>) -> f64 {
-    let d = |p: &Array2<f64>, q: &Array2<f64>| {
-        p.iter()
-            .zip(q)
-            .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()))
-    };
-    d(&a.ux, &b.ux).max(d(&a.uy, &b.uy))
 }
 
 /// The lid-driven cavity to steady state against Ghia, Ghia and Shin's table.
@@ -222,7 +107,11 @@ fn parse() -> Result<(common::ExampleArgs, Options)> {
 
 fn main() -> Result<()> {
     let (args, opt) = parse()?;
-    let table = ghia(opt.re)?;
+    let mut cavity = Cavity::new(opt.re, opt.n)?.tol(opt.tol);
+    if let Some(t) = opt.max_time {
+        cavity = cavity.max_time(t);
+    }
+    let table = GhiaTable::at(opt.re).expect("Cavity::new checked Re");
     let chart_name = |n: usize, ext: &str| format!("cavity_re{}_n{n}.{ext}", opt.re);
     // read the earlier runs first: a missing file is an error before the run
     let overlays = opt
@@ -230,167 +119,109 @@ fn main() -> Result<()> {
         .iter()
         .map(|&n| Ok((n, earlier_run(&args.out.join(chart_name(n, "json")))?)))
         .collect::<Result<Vec<_>>>()?;
-    let nu = LID / opt.re as f64;
-    let h = 1.0 / opt.n as f64;
-    let dt = 0.5 * h / LID;
-    let base = Scene::builder(opt.n, opt.n, [1.0, 1.0])
-        .sides(Sides::cavity(LID))
-        .viscosity(nu)
-        .dt(dt)
-        .advection(Advection::MacCormack { limiter: true });
-    // the explicit diffusion number ν dt (1/dx² + 1/dy²); stable to ½
-    let explicit = nu * dt * 2.0 / (h * h) <= 0.45;
-    let mode = if explicit {
-        ViscosityMode::Explicit
-    } else {
-        ViscosityMode::Implicit
-    };
-    let scene = base.viscosity_mode(mode).build()?;
-    // Ghia's flows take this long to settle from rest (lid time units, generous).
-    let max_time = opt.max_time.unwrap_or(match opt.re {
-        0..=150 => 40.0,
-        151..=500 => 80.0,
-        _ => 160.0,
-    });
+    let (stop, dt) = (cavity.stop(), cavity.dt());
     println!(
-        "lid-driven cavity, Re = {}, {} x {} cells, dt = {dt:.3e}, {mode:?} viscosity, {:?} pressure; \
-         to d|u|/dt < {:.0e} or t = {max_time}",
-        opt.re,
-        opt.n,
-        opt.n,
-        scene.settings().pressure_solver,
-        opt.tol
+        "lid-driven cavity, Re = {}, {} x {} cells, dt = {dt:.3e}; to d|u|/dt < {:.0e} or t = {}",
+        opt.re, opt.n, opt.n, stop.tol, stop.max_time
     );
 
-    const WINDOW: usize = 100;
-    let params = scene.params();
-    let mut state = FlowState::<f64>::zeros(&scene);
-    let mut mark = state.clone();
     let t0 = Instant::now();
-    let (mut steps, mut rate, mut pressure_iterations) = (0usize, f64::INFINITY, 0usize);
-    while (steps as f64) * dt < max_time {
-        let (next, info) = scene.forward(&state, &params)?;
-        pressure_iterations += info.pressure_iterations.iter().sum::<usize>();
-        state = next;
-        steps += 1;
-        if steps % WINDOW == 0 {
-            rate = max_change(&state, &mark) / (WINDOW as f64 * dt);
-            mark = state.clone();
-            if steps % (20 * WINDOW) == 0 {
-                println!(
-                    "  t = {:7.2}  steps {steps:6}  d|u|/dt = {rate:.2e}",
-                    steps as f64 * dt
-                );
-            }
-            if rate < opt.tol {
-                break;
-            }
+    let result = cavity.run_observed(&mut |steps, _, rate| {
+        if steps % (20 * stop.window) == 0 {
+            println!(
+                "  t = {:7.2}  steps {steps:6}  d|u|/dt = {rate:.2e}",
+                steps as f64 * dt
+            );
         }
-    }
+        Ok(())
+    })?;
     let seconds = t0.elapsed().as_secs_f64();
-    let steady = rate < opt.tol;
+    let (run, settings) = (&result.run, result.scene.settings());
+    let mode = result.viscosity_mode;
+    println!(
+        "  {mode:?} viscosity, {:?} pressure",
+        settings.pressure_solver
+    );
 
-    let ((y, u), (x, v)) = centrelines(&scene, &state);
-    let u_at: Vec<f64> = table.y.iter().map(|&q| interpolate(&y, &u, q)).collect();
-    let v_at: Vec<f64> = table.x.iter().map(|&q| interpolate(&x, &v, q)).collect();
+    let (y, u) = &result.centreline_u;
+    let (x, v) = &result.centreline_v;
+    let (u_at, v_at) = (&result.ghia_u, &result.ghia_v);
     let dev = |ours: &[f64], theirs: &[f64]| -> Vec<f64> {
         ours.iter()
             .zip(theirs)
             .map(|(a, b)| (a - b).abs())
             .collect()
     };
-    let (du, dv) = (dev(&u_at, &table.u), dev(&v_at, &table.v));
-    // the largest deviation over the points not flagged as suspect
-    let worst = |d: &[f64], suspect: &[bool]| {
-        d.iter()
-            .zip(suspect)
-            .filter(|(_, &s)| !s)
-            .fold(0.0f64, |m, (&x, _)| m.max(x))
-    };
-    let (max_du, max_dv) = (worst(&du, &table.u_suspect), worst(&dv, &table.v_suspect));
-    let suspect_points: Vec<Value> = (0..table.y.len())
-        .filter(|&k| table.u_suspect[k])
-        .map(|k| json!({"line": "u", "y": table.y[k], "ours": u_at[k], "ghia": table.u[k], "abs_deviation": du[k]}))
-        .chain(
-            (0..table.x.len())
-                .filter(|&k| table.v_suspect[k])
-                .map(|k| json!({"line": "v", "x": table.x[k], "ours": v_at[k], "ghia": table.v[k], "abs_deviation": dv[k]})),
-        )
+    let (du, dv) = (dev(u_at, &table.u), dev(v_at, &table.v));
+    let (max_du, max_dv) = (result.max_deviation_u, result.max_deviation_v);
+    let suspect_points: Vec<Value> = result
+        .suspect
+        .iter()
+        .map(|p| json!({"line": "v", "x": p.x, "ours": p.ours, "ghia": p.ghia, "abs_deviation": (p.ours - p.ghia).abs()}))
         .collect();
     // The floors that apply at this Re and grid (Re 100 on 32 x 32 against
     // Ghia's own accuracy, on 128 x 128 the flow step's), from the library.
-    let floors = Cavity::new(opt.re, opt.n)?.floors((max_du, max_dv));
-    let floor_met = floors.iter().all(|f| f.met());
+    let floors = &result.floors;
 
     println!("   y       u (ours)   u (Ghia)   |diff|      x       v (ours)   v (Ghia)   |diff|");
-    let mark = |s: bool| if s { "*" } else { " " };
-    for k in 0..table.y.len() {
+    for k in 0..GHIA_Y.len() {
         println!(
-            "  {:.4}  {:+.5}  {:+.5}  {:.5}{}    {:.4}  {:+.5}  {:+.5}  {:.5}{}",
-            table.y[k],
+            "  {:.4}  {:+.5}  {:+.5}  {:.5}     {:.4}  {:+.5}  {:+.5}  {:.5}{}",
+            GHIA_Y[k],
             u_at[k],
             table.u[k],
             du[k],
-            mark(table.u_suspect[k]),
-            table.x[k],
+            GHIA_X[k],
             v_at[k],
             table.v[k],
             dv[k],
-            mark(table.v_suspect[k])
+            if table.v_suspect == Some(k) { "*" } else { " " }
         );
     }
     if !suspect_points.is_empty() {
-        println!(
-            "  * flagged as suspect in the data file (a likely misprint): not in the maxima below"
-        );
+        println!("  * flagged as suspect (a likely misprint): not in the maxima below");
     }
     println!(
-        "Re = {}: max |u - u_Ghia| = {max_du:.4}, max |v - v_Ghia| = {max_dv:.4}; {steps} steps to t = {:.2} \
+        "Re = {}: max |u - u_Ghia| = {max_du:.4}, max |v - v_Ghia| = {max_dv:.4}; {} steps to t = {:.2} \
          ({}), {seconds:.1} s ({:.3} ms per step)",
         opt.re,
-        steps as f64 * dt,
-        if steady { "steady" } else { "NOT steady: the time limit came first" },
-        seconds / steps as f64 * 1e3
+        run.steps,
+        run.time,
+        if run.steady { "steady" } else { "NOT steady: the time limit came first" },
+        seconds / run.steps as f64 * 1e3
     );
-    for f in &floors {
+    for f in floors {
         println!("floor: {f}");
     }
     let chart = args.out.join(chart_name(opt.n, "svg"));
     let ours = (y.clone(), u.clone(), x.clone(), v.clone());
-    write_chart(&chart, opt.re, (opt.n, &ours), &overlays, &table)?;
+    write_chart(&chart, opt.re, (opt.n, &ours), &overlays, table)?;
     println!("wrote {}", chart.display());
 
     let line = json!({
-        "re": opt.re, "n": opt.n, "dt": dt, "viscosity_mode": format!("{mode:?}"),
-        "pressure_solver": format!("{:?}", scene.settings().pressure_solver),
-        "advection": format!("{:?}", scene.settings().advection),
+        "re": opt.re, "n": opt.n, "dt": result.dt, "viscosity_mode": format!("{mode:?}"),
+        "pressure_solver": format!("{:?}", settings.pressure_solver),
+        "advection": format!("{:?}", settings.advection),
         "centerline_u": {"y": y, "u": u},
         "centerline_v": {"x": x, "v": v},
         "ghia": {
-            "y": table.y, "u_ours": u_at, "u_ghia": table.u,
-            "x": table.x, "v_ours": v_at, "v_ghia": table.v,
+            "y": GHIA_Y, "u_ours": u_at, "u_ghia": table.u,
+            "x": GHIA_X, "v_ours": v_at, "v_ghia": table.v,
         },
         "max_abs_u_deviation": max_du, "max_abs_v_deviation": max_dv,
         "suspect_points": suspect_points,
-        "floor": if floors.is_empty() { Value::Null } else { json!({"checks": floors.iter().map(|f| f.to_string()).collect::<Vec<_>>(), "met": floor_met}) },
-        "steady": steady, "rate_at_end": rate, "tol": opt.tol,
-        "steps": steps, "time": steps as f64 * dt, "wall_s": seconds,
-        "ms_per_step": seconds / steps as f64 * 1e3,
-        "pressure_iterations_per_step": pressure_iterations as f64 / steps as f64,
+        "floor": flow_common::floors_json(floors),
+        "steady": run.steady, "rate_at_end": run.rate, "tol": stop.tol,
+        "steps": run.steps, "time": run.time, "wall_s": seconds,
+        "ms_per_step": seconds / run.steps as f64 * 1e3,
+        "pressure_iterations_per_step": run.pressure_iterations as f64 / run.steps as f64,
         "peak_rss_bytes": flow_common::peak_rss_bytes(),
     });
     let path = args.out.join(chart_name(opt.n, "json"));
     std::fs::write(&path, serde_json::to_string(&line)?)?;
     println!("wrote {}", path.display());
     common::print_json_line(&line);
-    if !floor_met {
-        return Err(format!(
-            "Re {} on {} x {}: a published floor is not met",
-            opt.re, opt.n, opt.n
-        )
-        .into());
-    }
-    Ok(())
+    flow_common::require_floors(&format!("Re {} on {} x {}", opt.re, opt.n, opt.n), floors)
 }
 
 fn write_chart(
@@ -398,9 +229,10 @@ fn write_chart(
     re: u32,
     (n, ours): (usize, &Profiles),
     overlays: &[(usize, Profiles)],
-    table: &Ghia,
+    table: &GhiaTable,
 ) -> Result<()> {
     use plotters::prelude::*;
+    let v_suspect: [bool; 17] = std::array::from_fn(|k| table.v_suspect == Some(k));
     // the other grids' colours, in the order given
     const OTHERS: [RGBColor; 3] = [RGBColor(0, 150, 60), RGBColor(200, 120, 0), BLACK];
     let grids = std::iter::once(n)
@@ -479,7 +311,7 @@ fn write_chart(
         (-0.6..1.05, 0.0..1.0),
         ("u / U", "y"),
         &|p: &Profiles| (&p.0, &p.1),
-        (&table.y, &table.u, &table.u_suspect),
+        (&GHIA_Y, &table.u, &[false; 17]),
         &|y, u| (u, y),
         Some(SeriesLabelPosition::LowerRight),
     )?;
@@ -489,13 +321,12 @@ fn write_chart(
         (0.0..1.0, -0.6..0.45),
         ("x", "v / U"),
         &|p: &Profiles| (&p.2, &p.3),
-        (&table.x, &table.v, &table.v_suspect),
+        (&GHIA_X, &table.v, &v_suspect),
         &|x, v| (x, v),
         // the legend again where it explains the suspect marker
         table
             .v_suspect
-            .iter()
-            .any(|&s| s)
+            .is_some()
             .then_some(SeriesLabelPosition::UpperRight),
     )?;
     root.present()?;

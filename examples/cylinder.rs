@@ -1,7 +1,7 @@
 //! Flow around a cylinder in a channel: the DFG benchmark of Schaefer and
 //! Turek (1996), test cases 2D-1 (Re = 20, steady) and 2D-2 (Re = 100,
-//! periodic), beside the published reference intervals shipped in
-//! `data/schaefer_turek1996_cylinder.json`.
+//! periodic), beside the published reference intervals
+//! (`diffphys::flow::validation::DFG_2D1`, `DFG_2D2`).
 //!
 //! The channel is 2.2 × 0.41, the cylinder of diameter D = 0.1 is centred at
 //! (0.2, 0.2), ν = 1e-3, density 1; parabolic inflow of peak Um (0.3 for
@@ -9,7 +9,10 @@
 //! cylinder. The grid has `cpd` cells across the diameter (square cells of
 //! h = D / cpd, 22 cpd x 4.1 cpd cells) and the cylinder is a staircase of
 //! solid cells. MacCormack advection with the limiter, Courant number 0.4 at
-//! Um, explicit viscosity where stable, implicit otherwise.
+//! Um, explicit viscosity where stable, implicit otherwise. The setup, the
+//! runs and their analysis are the library's (`validation::DfgChannel`,
+//! `Dfg2d1`, `Dfg2d2`); this example runs them over a refinement table and
+//! charts the wake.
 //!
 //! - 2D-1: from the inflow profile extended through the channel, run until the
 //!   velocity changes by less than `--tol` (1e-4) per unit time; drag and lift
@@ -24,6 +27,7 @@
 //! Each case runs at each grid of `--cpd` (a refinement table with the error
 //! against the reference interval); the finest is the stated grid of the
 //! floors: 2D-1 drag within 5 % of the interval, 2D-2 Strouhal within 5 %.
+//! The example exits non-zero, after its JSON line, when a floor is missed.
 //! A vorticity chart of the 2D-2 wake at its last step is written to
 //! `OUT/cylinder_2d2_vorticity.svg`, the lift history to
 //! `OUT/cylinder_2d2_lift.svg`. The last stdout line is the JSON of it all.
@@ -34,137 +38,51 @@
 mod common;
 mod flow_common;
 
-use std::path::PathBuf;
 use std::time::Instant;
 
-use diffphys::flow::diagnostics::{obstacle_force, vorticity};
-use diffphys::flow::{Advection, FlowState, Obstacle, Scene, Sides, ViscosityMode};
+use diffphys::flow::diagnostics::vorticity;
+use diffphys::flow::validation::{
+    observed_orders, Dfg2d1, Dfg2d2, FloorCheck, Interval, DFG_2D1, DFG_2D2, DFG_HEIGHT, DFG_LENGTH,
+};
+use diffphys::flow::Scene;
 use ndarray::Array2;
 use serde_json::{json, Value};
 
 type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
 
-const LENGTH: f64 = 2.2;
-const HEIGHT: f64 = 0.41;
-const CENTRE: [f64; 2] = [0.2, 0.2];
-const D: f64 = 0.1;
-const NU: f64 = 1e-3;
-
-/// The reference intervals of one case, by name.
-fn intervals(case: &str) -> Result<serde_json::Map<String, Value>> {
-    let path =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/schaefer_turek1996_cylinder.json");
-    let text = std::fs::read_to_string(&path).map_err(|e| {
-        format!(
-            "the cylinder example needs {} (in the repository): {e}",
-            path.display()
-        )
-    })?;
-    let table: Value = serde_json::from_str(&text)?;
-    Ok(table["cases"][case]["intervals"]
-        .as_object()
-        .ok_or_else(|| format!("{}: no case {case}", path.display()))?
-        .clone())
+/// An interval as the JSON pair `[lo, hi]`.
+fn pair(i: Interval) -> [f64; 2] {
+    [i.lo, i.hi]
 }
 
-fn interval(map: &serde_json::Map<String, Value>, key: &str) -> [f64; 2] {
-    let v = &map[key];
-    [
-        v[0].as_f64().unwrap_or(f64::NAN),
-        v[1].as_f64().unwrap_or(f64::NAN),
-    ]
+/// Where the stated grid of the floors, the finest, stands in `cpd`.
+fn stated_index(cpd: &[usize]) -> usize {
+    let stated = cpd.iter().max();
+    cpd.iter()
+        .position(|c| Some(c) == stated)
+        .expect("at least one grid")
 }
 
-/// How far `x` lies outside `[lo, hi]`, relative to the nearer bound (0 inside).
-fn outside(x: f64, [lo, hi]: [f64; 2]) -> f64 {
-    if x < lo {
-        (lo - x) / lo.abs()
-    } else if x > hi {
-        (x - hi) / hi.abs()
-    } else {
-        0.0
+/// Prints each quantity's relative distance outside its interval at each
+/// grid, then the floors of the stated grid.
+fn print_errors(cpd: &[usize], columns: [(&str, &[f64]); 3], floors: &[FloorCheck]) {
+    let names = columns.map(|(name, _)| format!("{name} error"));
+    println!(
+        "  cpd | {}   (relative distance outside the interval)",
+        names.join(" | ")
+    );
+    for (k, c) in cpd.iter().enumerate() {
+        let cells = columns
+            .iter()
+            .zip(&names)
+            .map(|((_, e), name)| format!("{:>w$.2} %", e[k] * 1e2, w = name.len() - 2))
+            .collect::<Vec<_>>();
+        println!("  {c:3} | {}", cells.join(" | "));
     }
-}
-
-/// The channel at `cpd` cells per diameter with parabolic inflow of peak `um`.
-fn scene(cpd: usize, um: f64) -> Result<Scene> {
-    let h = D / cpd as f64;
-    let (nx, ny) = ((LENGTH / h).round() as usize, (HEIGHT / h).round() as usize);
-    let dt = 0.4 * h / um;
-    let explicit =
-        NU * dt * (1.0 / (LENGTH / nx as f64).powi(2) + 1.0 / (HEIGHT / ny as f64).powi(2)) <= 0.45;
-    Ok(Scene::builder(nx, ny, [LENGTH, HEIGHT])
-        .sides(Sides::channel())
-        .obstacle(Obstacle::cylinder(CENTRE, D / 2.0))
-        .parabolic_inflow(um)
-        .viscosity(NU)
-        .dt(dt)
-        .advection(Advection::MacCormack { limiter: true })
-        .viscosity_mode(if explicit {
-            ViscosityMode::Explicit
-        } else {
-            ViscosityMode::Implicit
-        })
-        .substepping(true)
-        .build()?)
-}
-
-/// The inflow profile carried through the whole channel (the obstacle's faces
-/// are set to zero by the first step).
-fn start(scene: &Scene) -> FlowState<f64> {
-    let profile = scene.params::<f64>().inflow;
-    let g = scene.grid();
-    let ux = Array2::from_shape_fn(g.shape_x(), |(_, b)| profile[b]);
-    FlowState::from_velocity(scene, ux, Array2::zeros(g.shape_y()))
-}
-
-/// `(cD, cL)` of a state.
-fn coefficients(scene: &Scene, s: &FlowState<f64>, ubar: f64) -> Result<(f64, f64)> {
-    let f = obstacle_force(
-        scene.force_weights(),
-        s.ux.view(),
-        s.uy.view(),
-        s.pressure.view(),
-        NU,
-    )?;
-    let c = 2.0 / (ubar * ubar * D);
-    Ok((c * f[0], c * f[1]))
-}
-
-/// `p(0.15, 0.2) − p(0.25, 0.2)`: along the two rows of cells around y = 0.2,
-/// the last fluid cells before the body (and the first after it) extrapolated
-/// linearly to the front (back) point, then averaged over the two rows.
-fn pressure_difference(scene: &Scene, s: &FlowState<f64>) -> f64 {
-    let g = scene.grid();
-    let solid = scene.solid();
-    let yc = CENTRE[1] / g.dy - 0.5;
-    let rows = [yc.floor() as usize, yc.ceil() as usize];
-    let weight = [1.0 - (yc - yc.floor()), yc - yc.floor()];
-    let xc = |i: usize| (i as f64 + 0.5) * g.dx;
-    let (front, back) = (CENTRE[0] - D / 2.0, CENTRE[0] + D / 2.0);
-    let mut dp = 0.0;
-    for (&j, &w) in rows.iter().zip(&weight) {
-        let w = if rows[0] == rows[1] { 0.5 } else { w };
-        let first_solid = (0..g.nx).find(|&i| solid[[i, j]]).unwrap_or(g.nx - 1);
-        let last_solid = (0..g.nx).rev().find(|&i| solid[[i, j]]).unwrap_or(0);
-        let (f1, f0) = (first_solid - 1, first_solid - 2);
-        let p_front = s.pressure[[f1, j]]
-            + (front - xc(f1)) * (s.pressure[[f1, j]] - s.pressure[[f0, j]]) / g.dx;
-        let (b1, b0) = (last_solid + 1, last_solid + 2);
-        let p_back = s.pressure[[b1, j]]
-            + (back - xc(b1)) * (s.pressure[[b1, j]] - s.pressure[[b0, j]]) / g.dx;
-        dp += w * (p_front - p_back);
+    let stated = cpd[stated_index(cpd)];
+    for f in floors {
+        println!("  floor at cpd {stated}: {f}");
     }
-    dp
-}
-
-fn largest_change(a: &FlowState<f64>, b: &FlowState<f64>) -> f64 {
-    let d = |p: &Array2<f64>, q: &Array2<f64>| {
-        p.iter()
-            .zip(q)
-            .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()))
-    };
-    d(&a.ux, &b.ux).max(d(&a.uy, &b.uy))
 }
 
 fn grid_json(scene: &Scene, cpd: usize) -> Value {
@@ -181,131 +99,6 @@ fn grid_json(scene: &Scene, cpd: usize) -> Value {
         "dt": scene.dt(), "viscosity_mode": format!("{:?}", scene.settings().viscosity_mode),
         "pressure_solver": format!("{:?}", scene.settings().pressure_solver),
     })
-}
-
-/// 2D-1 at `cpd`: run to steady state, report cD, cL, dp.
-fn steady(cpd: usize, max_time: f64, tol: f64) -> Result<(Value, Scene, FlowState<f64>)> {
-    let (um, ubar) = (0.3, 0.2);
-    let scene = scene(cpd, um)?;
-    let params = scene.params();
-    let mut s = start(&scene);
-    let mut mark = s.clone();
-    const WINDOW: usize = 100;
-    let dt = scene.dt();
-    let t0 = Instant::now();
-    let (mut steps, mut rate, mut substeps) = (0usize, f64::INFINITY, 0usize);
-    while (steps as f64) * dt < max_time {
-        let (next, info) = scene.forward(&s, &params)?;
-        substeps += info.substeps;
-        s = next;
-        steps += 1;
-        if steps % WINDOW == 0 {
-            rate = largest_change(&s, &mark) / (WINDOW as f64 * dt);
-            mark = s.clone();
-            if rate < tol {
-                break;
-            }
-        }
-    }
-    let seconds = t0.elapsed().as_secs_f64();
-    let (cd, cl) = coefficients(&scene, &s, ubar)?;
-    let dp = pressure_difference(&scene, &s);
-    println!(
-        "  2D-1 cpd {cpd:3}: cD {cd:.4}  cL {cl:+.5}  dp {dp:.4}  ({steps} steps to t = {:.2}, {}; {seconds:.1} s, {:.2} ms/step)",
-        steps as f64 * dt,
-        if rate < tol { "steady" } else { "NOT steady" },
-        seconds / steps as f64 * 1e3
-    );
-    let row = json!({
-        "grid": grid_json(&scene, cpd), "cd": cd, "cl": cl, "dp": dp,
-        "steady": rate < tol, "tol": tol, "rate_at_end": rate, "steps": steps, "substeps": substeps,
-        "time": steps as f64 * dt, "wall_s": seconds, "ms_per_step": seconds / steps as f64 * 1e3,
-    });
-    Ok((row, scene, s))
-}
-
-/// A 2D-2 run: its JSON row, the scene, the last state, the `(t, cD, cL)` history.
-type PeriodicRun = (Value, Scene, FlowState<f64>, Vec<[f64; 3]>);
-
-/// 2D-2 at `cpd`: run to `t_end`, analyse the last `window`.
-fn periodic(cpd: usize, t_end: f64, window: f64) -> Result<PeriodicRun> {
-    let (um, ubar) = (1.5, 1.0);
-    let scene = scene(cpd, um)?;
-    let params = scene.params();
-    let dt = scene.dt();
-    let mut s = start(&scene);
-    let t0 = Instant::now();
-    let steps = (t_end / dt).round() as usize;
-    let record_from = ((t_end - window) / dt).round() as usize;
-    let mut history = Vec::new(); // (t, cD, cL)
-    let mut substeps = 0usize;
-    for k in 1..=steps {
-        let (next, info) = scene.forward(&s, &params)?;
-        substeps += info.substeps;
-        s = next;
-        if k >= record_from {
-            let (cd, cl) = coefficients(&scene, &s, ubar)?;
-            history.push([k as f64 * dt, cd, cl]);
-        }
-    }
-    let seconds = t0.elapsed().as_secs_f64();
-    let cd_max = history
-        .iter()
-        .map(|h| h[1])
-        .fold(f64::NEG_INFINITY, f64::max);
-    let cl_max = history
-        .iter()
-        .map(|h| h[2])
-        .fold(f64::NEG_INFINITY, f64::max);
-    let cl_min = history.iter().map(|h| h[2]).fold(f64::INFINITY, f64::min);
-    let mean = history.iter().map(|h| h[2]).sum::<f64>() / history.len().max(1) as f64;
-    // up-crossings of the mean lift, interpolated linearly
-    let crossings: Vec<f64> = history
-        .windows(2)
-        .filter(|w| w[0][2] < mean && w[1][2] >= mean)
-        .map(|w| w[0][0] + (mean - w[0][2]) / (w[1][2] - w[0][2]) * (w[1][0] - w[0][0]))
-        .collect();
-    let (strouhal, periods) = if crossings.len() >= 3 {
-        let p = (crossings[crossings.len() - 1] - crossings[0]) / (crossings.len() - 1) as f64;
-        (
-            D / (p * ubar),
-            crossings
-                .windows(2)
-                .map(|w| w[1] - w[0])
-                .collect::<Vec<_>>(),
-        )
-    } else {
-        (f64::NAN, Vec::new())
-    };
-    // periodic: the last two periods' lengths agree to 1 %
-    let settled = periods.len() >= 2 && {
-        let (a, b) = (periods[periods.len() - 1], periods[periods.len() - 2]);
-        (a - b).abs() / a < 0.01
-    };
-    println!(
-        "  2D-2 cpd {cpd:3}: St {strouhal:.4}  max cD {cd_max:.4}  max cL {cl_max:.4}  ({} lift periods in the last {window} time units, {}; {steps} steps, {seconds:.1} s, {:.2} ms/step)",
-        periods.len(),
-        if settled { "periodic" } else { "NOT yet periodic" },
-        seconds / steps as f64 * 1e3
-    );
-    let row = json!({
-        "grid": grid_json(&scene, cpd), "strouhal": strouhal, "cd_max": cd_max, "cl_max": cl_max,
-        "cl_min": cl_min, "cl_mean": mean, "periods": periods, "periodic": settled,
-        "steps": steps, "substeps": substeps, "t_end": t_end, "window": window,
-        "wall_s": seconds, "ms_per_step": seconds / steps as f64 * 1e3,
-    });
-    Ok((row, scene, s, history))
-}
-
-/// Observed orders of convergence of `errors` on grids of `cpd` cells per diameter.
-fn orders(cpd: &[usize], errors: &[f64]) -> Vec<Option<f64>> {
-    (1..errors.len())
-        .map(|k| {
-            let (e0, e1) = (errors[k - 1], errors[k]);
-            (e0 > 0.0 && e1 > 0.0)
-                .then(|| (e0 / e1).ln() / (cpd[k] as f64 / cpd[k - 1] as f64).ln())
-        })
-        .collect()
 }
 
 struct Options {
@@ -381,115 +174,112 @@ fn main() -> Result<()> {
     let mut out = serde_json::Map::new();
     out.insert("cells_per_diameter".into(), json!(opt.cpd));
     let stated = *opt.cpd.iter().max().expect("at least one grid");
+    let mut floors = Vec::new();
 
     if opt.cases.iter().any(|c| c == "2d1") {
-        let iv = intervals("2D-1")?;
-        let (cd_iv, cl_iv, dp_iv) = (
-            interval(&iv, "cd"),
-            interval(&iv, "cl"),
-            interval(&iv, "dp"),
+        let iv = DFG_2D1;
+        println!(
+            "2D-1 (Re = 20, steady): reference cD {:?}, cL {:?}, dp {:?}",
+            pair(iv.cd),
+            pair(iv.cl),
+            pair(iv.dp)
         );
-        println!("2D-1 (Re = 20, steady): reference cD {cd_iv:?}, cL {cl_iv:?}, dp {dp_iv:?}");
         let mut rows = Vec::new();
-        let mut last = None;
-        for &c in &opt.cpd {
-            let (row, scene, s) = steady(c, opt.max_time, opt.tol)?;
-            rows.push(row);
-            last = Some((scene, s));
-        }
-        let err = |k: &str, iv: [f64; 2]| -> Vec<f64> {
-            rows.iter()
-                .map(|r| outside(r[k].as_f64().unwrap_or(f64::NAN), iv))
-                .collect()
-        };
-        let (ecd, ecl, edp) = (err("cd", cd_iv), err("cl", cl_iv), err("dp", dp_iv));
-        println!(
-            "  cpd | cD error | cL error | dp error   (relative distance outside the interval)"
-        );
-        for (k, c) in opt.cpd.iter().enumerate() {
+        let mut results = Vec::new();
+        for &cpd in &opt.cpd {
+            let mut case = Dfg2d1::new(cpd)?;
+            (case.tol, case.max_time) = (opt.tol, opt.max_time);
+            let t0 = Instant::now();
+            let r = case.run(&mut |_, _, _| Ok(()))?;
+            let seconds = t0.elapsed().as_secs_f64();
+            let ([cd, cl, dp], run) = (r.values, &r.run);
             println!(
-                "  {c:3} | {:7.2} % | {:7.2} % | {:7.2} %",
-                ecd[k] * 1e2,
-                ecl[k] * 1e2,
-                edp[k] * 1e2
+                "  2D-1 cpd {cpd:3}: cD {cd:.4}  cL {cl:+.5}  dp {dp:.4}  ({} steps to t = {:.2}, {}; {seconds:.1} s, {:.2} ms/step)",
+                run.steps,
+                run.time,
+                if run.steady { "steady" } else { "NOT steady" },
+                seconds / run.steps as f64 * 1e3
             );
+            rows.push(json!({
+                "grid": grid_json(&r.scene, cpd), "cd": cd, "cl": cl, "dp": dp,
+                "steady": run.steady, "tol": opt.tol, "rate_at_end": run.rate, "steps": run.steps,
+                "substeps": run.substeps, "time": run.time, "wall_s": seconds,
+                "ms_per_step": seconds / run.steps as f64 * 1e3,
+            }));
+            results.push(r);
         }
-        let at = opt
-            .cpd
-            .iter()
-            .position(|&c| c == stated)
-            .expect("the stated grid ran");
-        let floor_met = ecd[at] <= 0.05;
-        println!(
-            "  floor (2D-1 drag within 5 % of the interval at cpd {stated}): {} ({:.2} %)",
-            if floor_met { "met" } else { "NOT met" },
-            ecd[at] * 1e2
+        let err = |k: usize| -> Vec<f64> { results.iter().map(|r| r.errors[k]).collect() };
+        let (ecd, ecl, edp) = (err(0), err(1), err(2));
+        let case_floors = &results[stated_index(&opt.cpd)].floors;
+        print_errors(
+            &opt.cpd,
+            [("cD", &ecd), ("cL", &ecl), ("dp", &edp)],
+            case_floors,
         );
-        let (scene, s) = last.expect("one grid at least");
-        let costs = flow_common::step_costs(&scene, &s, args.pick(10, 3))?;
+        let last = results.last().expect("one grid at least");
+        let costs = flow_common::step_costs(&last.scene, &last.run.state, args.pick(10, 3))?;
         out.insert(
             "2d1".into(),
             json!({
-                "reference": iv, "runs": rows,
+                "reference": {"cd": pair(iv.cd), "cl": pair(iv.cl), "dp": pair(iv.dp)}, "runs": rows,
                 "error_outside_interval": {"cd": ecd, "cl": ecl, "dp": edp},
-                "observed_order": {"cd": orders(&opt.cpd, &ecd), "cl": orders(&opt.cpd, &ecl), "dp": orders(&opt.cpd, &edp)},
+                "observed_order": {"cd": observed_orders(&opt.cpd, &ecd), "cl": observed_orders(&opt.cpd, &ecl), "dp": observed_orders(&opt.cpd, &edp)},
                 "stated_cells_per_diameter": stated,
-                "floor": {"cd_within": 0.05, "met": floor_met},
+                "floor": flow_common::floors_json(case_floors),
                 "step_costs_at_stated_grid": costs,
             }),
         );
+        floors.extend_from_slice(case_floors);
     }
 
     if opt.cases.iter().any(|c| c == "2d2") {
-        let iv = intervals("2D-2")?;
-        let (st_iv, cd_iv, cl_iv) = (
-            interval(&iv, "strouhal"),
-            interval(&iv, "cd_max"),
-            interval(&iv, "cl_max"),
-        );
+        let iv = DFG_2D2;
         println!(
-            "2D-2 (Re = 100, periodic): reference St {st_iv:?}, max cD {cd_iv:?}, max cL {cl_iv:?}; t_end {}, window {}",
-            opt.t_end, opt.window
+            "2D-2 (Re = 100, periodic): reference St {:?}, max cD {:?}, max cL {:?}; t_end {}, window {}",
+            pair(iv.strouhal),
+            pair(iv.cd_max),
+            pair(iv.cl_max),
+            opt.t_end,
+            opt.window
         );
         let mut rows = Vec::new();
-        let mut last = None;
-        for &c in &opt.cpd {
-            let (row, scene, s, history) = periodic(c, opt.t_end, opt.window)?;
-            rows.push(row);
-            last = Some((scene, s, history));
-        }
-        let err = |k: &str, iv: [f64; 2]| -> Vec<f64> {
-            rows.iter()
-                .map(|r| outside(r[k].as_f64().unwrap_or(f64::NAN), iv))
-                .collect()
-        };
-        let (est, ecd, ecl) = (
-            err("strouhal", st_iv),
-            err("cd_max", cd_iv),
-            err("cl_max", cl_iv),
-        );
-        println!("  cpd | St error | max cD error | max cL error   (relative distance outside the interval)");
-        for (k, c) in opt.cpd.iter().enumerate() {
+        let mut results = Vec::new();
+        for &cpd in &opt.cpd {
+            let mut case = Dfg2d2::new(cpd)?;
+            (case.t_end, case.window) = (opt.t_end, opt.window);
+            let t0 = Instant::now();
+            let r = case.run()?;
+            let seconds = t0.elapsed().as_secs_f64();
+            let [steps, substeps] = r.steps;
             println!(
-                "  {c:3} | {:7.2} % | {:10.2} % | {:10.2} %",
-                est[k] * 1e2,
-                ecd[k] * 1e2,
-                ecl[k] * 1e2
+                "  2D-2 cpd {cpd:3}: St {:.4}  max cD {:.4}  max cL {:.4}  ({} lift periods in the last {} time units, {}; {steps} steps, {seconds:.1} s, {:.2} ms/step)",
+                r.strouhal,
+                r.cd_max,
+                r.cl_max,
+                r.periods.len(),
+                opt.window,
+                if r.periodic { "periodic" } else { "NOT yet periodic" },
+                seconds / steps as f64 * 1e3
             );
+            rows.push(json!({
+                "grid": grid_json(&r.scene, cpd), "strouhal": r.strouhal, "cd_max": r.cd_max,
+                "cl_max": r.cl_max, "cl_min": r.cl_min, "cl_mean": r.cl_mean, "periods": r.periods,
+                "periodic": r.periodic, "steps": steps, "substeps": substeps, "t_end": opt.t_end,
+                "window": opt.window, "wall_s": seconds, "ms_per_step": seconds / steps as f64 * 1e3,
+            }));
+            results.push(r);
         }
-        let at = opt
-            .cpd
-            .iter()
-            .position(|&c| c == stated)
-            .expect("the stated grid ran");
-        let floor_met = est[at] <= 0.05;
-        println!(
-            "  floor (2D-2 Strouhal within 5 % at cpd {stated}): {} ({:.2} %)",
-            if floor_met { "met" } else { "NOT met" },
-            est[at] * 1e2
+        let err = |k: usize| -> Vec<f64> { results.iter().map(|r| r.errors[k]).collect() };
+        let (est, ecd, ecl) = (err(0), err(1), err(2));
+        let case_floors = &results[stated_index(&opt.cpd)].floors;
+        print_errors(
+            &opt.cpd,
+            [("St", &est), ("max cD", &ecd), ("max cL", &ecl)],
+            case_floors,
         );
-        let (scene, s, history) = last.expect("one grid at least");
-        let omega = vorticity(&scene, s.ux.view(), s.uy.view())?;
+        let last = results.last().expect("one grid at least");
+        let (scene, s) = (&last.scene, &last.state);
+        let omega = vorticity(scene, s.ux.view(), s.uy.view())?;
         let solid = scene.solid();
         let (wx, wy) = omega.dim();
         // node (a, b) of the vorticity lies between cells a..a+1 and b..b+1
@@ -508,33 +298,36 @@ fn main() -> Result<()> {
             ),
             &omega,
             Some(&mask),
-            [LENGTH, HEIGHT],
+            [DFG_LENGTH, DFG_HEIGHT],
             40.0,
             220,
         )?;
         println!("wrote {}", path.display());
         let path = args.out.join("cylinder_2d2_lift.svg");
-        write_history(&path, &history)?;
+        write_history(&path, &last.history)?;
         println!("wrote {}", path.display());
-        let costs = flow_common::step_costs(&scene, &s, args.pick(10, 3))?;
+        let costs = flow_common::step_costs(scene, s, args.pick(10, 3))?;
         out.insert(
             "2d2".into(),
             json!({
-                "reference": iv, "runs": rows,
+                "reference": {"strouhal": pair(iv.strouhal), "cd_max": pair(iv.cd_max),
+                              "cl_max": pair(iv.cl_max), "dp_half_period": pair(iv.dp_half_period)},
+                "runs": rows,
                 "error_outside_interval": {"strouhal": est, "cd_max": ecd, "cl_max": ecl},
-                "observed_order": {"strouhal": orders(&opt.cpd, &est), "cd_max": orders(&opt.cpd, &ecd), "cl_max": orders(&opt.cpd, &ecl)},
+                "observed_order": {"strouhal": observed_orders(&opt.cpd, &est), "cd_max": observed_orders(&opt.cpd, &ecd), "cl_max": observed_orders(&opt.cpd, &ecl)},
                 "stated_cells_per_diameter": stated,
-                "floor": {"strouhal_within": 0.05, "met": floor_met},
+                "floor": flow_common::floors_json(case_floors),
                 "step_costs_at_stated_grid": costs,
             }),
         );
+        floors.extend_from_slice(case_floors);
     }
     out.insert(
         "peak_rss_bytes".into(),
         json!(flow_common::peak_rss_bytes()),
     );
     common::print_json_line(&Value::Object(out));
-    Ok(())
+    flow_common::require_floors(&format!("cylinder at cpd {stated}"), &floors)
 }
 
 /// cD and cL over the recorded window.

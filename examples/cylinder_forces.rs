@@ -3,8 +3,9 @@
 //! by two independent methods, the body's rasterised geometry, and a control
 //! whose lift is zero by symmetry.
 //!
-//! - **Surface**: [`obstacle_force`] over the staircase, split into its pressure
-//!   part (the same call with ν = 0) and its wall-shear part (the rest); and
+//! - **Surface**: the force on the staircase (`DfgChannel::force`, the
+//!   library's `obstacle_force`), split into its pressure part (the same call
+//!   with ν = 0) and its wall-shear part (the rest); and
 //!   two variants: the pressure extrapolated to the faces from two fluid
 //!   cells, and the shear as `ν ū_t / h` (the flux the Laplacian takes, which
 //!   reads the solid's zero tangential faces a cell away).
@@ -25,76 +26,37 @@
 //! - **Control** (`--cases symmetric`): the same body at the centre of a
 //!   channel of height 0.40 (symmetric about y = 0.2), where the exact lift is 0.
 //!
-//! The DFG setup is that of `examples/cylinder.rs`: channel 2.2 × 0.41, cylinder
-//! of diameter 0.1 at (0.2, 0.2), ν = 1e-3, parabolic inflow of peak 0.3
-//! (Ubar = 0.2, Re = 20), MacCormack with the limiter at Courant 0.4 of Um (`--courant`), run from
-//! the inflow profile until no face changes by more than `--tol` per unit time.
-//! The last stdout line is the JSON of every figure.
+//! The DFG setup and the steady run are the library's 2D-1
+//! (`diffphys::flow::validation::Dfg2d1`, as in `examples/cylinder.rs`): channel
+//! 2.2 × 0.41, cylinder of diameter 0.1 at (0.2, 0.2), ν = 1e-3, parabolic
+//! inflow of peak 0.3 (Ubar = 0.2, Re = 20), MacCormack with the limiter at
+//! Courant 0.4 of Um (`--courant`), run from the inflow profile until no face
+//! changes by more than `--tol` per unit time.
+//! The last stdout line is the JSON of every figure, with the 2D-1 floor (drag
+//! within 5 % of the published interval) at the finest grid of the `2d1` case;
+//! the example exits non-zero after that line when the floor is missed.
 //!
 //! `cargo run --release --example cylinder_forces -- [--cpd 10,20,40]
 //! [--cases 2d1,symmetric] [--tol 1e-4] [--max-time 40] [--courant 0.4]
 //! [--small] [--out DIR]` (`--small`: 10 cells across only)
 
 mod common;
+mod flow_common;
 
 use std::time::Instant;
 
-use diffphys::flow::diagnostics::obstacle_force;
-use diffphys::flow::{Advection, FlowState, Obstacle, Scene, Sides, ViscosityMode};
+use diffphys::flow::validation::{
+    Dfg2d1, DfgChannel, FloorCheck, DFG_2D1, DFG_2D1_HIGH_ACCURACY, DFG_CENTRE, DFG_DIAMETER,
+    DFG_HEIGHT, DFG_NU,
+};
+use diffphys::flow::{FlowState, Scene};
 use ndarray::Array2;
 use serde_json::{json, Value};
 
 type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
 
-const LENGTH: f64 = 2.2;
-const CENTRE: [f64; 2] = [0.2, 0.2];
-const D: f64 = 0.1;
-const NU: f64 = 1e-3;
-const UM: f64 = 0.3;
-const UBAR: f64 = 0.2;
-/// The later high-accuracy values of 2D-1 (cD, cL).
-const REFERENCE: [f64; 2] = [5.57953, 0.010618];
 /// Half-widths of the control volumes, squares centred on the cylinder.
 const BOXES: [f64; 4] = [0.06, 0.08, 0.1, 0.15];
-
-/// The channel of `height` at `cpd` cells per diameter.
-fn scene(cpd: usize, height: f64, courant: f64) -> Result<Scene> {
-    let h = D / cpd as f64;
-    let (nx, ny) = ((LENGTH / h).round() as usize, (height / h).round() as usize);
-    let dt = courant * h / UM;
-    let explicit =
-        NU * dt * (1.0 / (LENGTH / nx as f64).powi(2) + 1.0 / (height / ny as f64).powi(2)) <= 0.45;
-    Ok(Scene::builder(nx, ny, [LENGTH, height])
-        .sides(Sides::channel())
-        .obstacle(Obstacle::cylinder(CENTRE, D / 2.0))
-        .parabolic_inflow(UM)
-        .viscosity(NU)
-        .dt(dt)
-        .advection(Advection::MacCormack { limiter: true })
-        .viscosity_mode(if explicit {
-            ViscosityMode::Explicit
-        } else {
-            ViscosityMode::Implicit
-        })
-        .substepping(true)
-        .build()?)
-}
-
-fn start(scene: &Scene) -> FlowState<f64> {
-    let profile = scene.params::<f64>().inflow;
-    let g = scene.grid();
-    let ux = Array2::from_shape_fn(g.shape_x(), |(_, b)| profile[b]);
-    FlowState::from_velocity(scene, ux, Array2::zeros(g.shape_y()))
-}
-
-fn largest_change(a: &FlowState<f64>, b: &FlowState<f64>) -> f64 {
-    let d = |p: &Array2<f64>, q: &Array2<f64>| {
-        p.iter()
-            .zip(q)
-            .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()))
-    };
-    d(&a.ux, &b.ux).max(d(&a.uy, &b.uy))
-}
 
 /// A force split into its parts, each `[F_x, F_y]`.
 #[derive(Debug, Clone, Copy, Default)]
@@ -126,10 +88,10 @@ impl Box2 {
         let g = scene.grid();
         let face = |x: f64, h: f64, n: usize| ((x / h).round() as usize).clamp(1, n - 1);
         Box2 {
-            i0: face(CENTRE[0] - a, g.dx, g.nx),
-            i1: face(CENTRE[0] + a, g.dx, g.nx),
-            j0: face(CENTRE[1] - a, g.dy, g.ny),
-            j1: face(CENTRE[1] + a, g.dy, g.ny),
+            i0: face(DFG_CENTRE[0] - a, g.dx, g.nx),
+            i1: face(DFG_CENTRE[0] + a, g.dx, g.nx),
+            j0: face(DFG_CENTRE[1] - a, g.dy, g.ny),
+            j1: face(DFG_CENTRE[1] + a, g.dy, g.ny),
         }
     }
 
@@ -194,8 +156,8 @@ fn control_volume(
             let dudx = (ux[[i + 1, j]] - ux[[i - 1, j]]) / (2.0 * dx);
             let dvdx = (uyc(i, j) - uyc(i - 1, j)) / dx;
             f.pressure[0] -= pf * s * dy;
-            f.viscous[0] += NU * dudx * s * dy;
-            f.viscous[1] += NU * dvdx * s * dy;
+            f.viscous[0] += DFG_NU * dudx * s * dy;
+            f.viscous[1] += DFG_NU * dvdx * s * dy;
             f.convective[0] -= un * un * s * dy;
             f.convective[1] -= vf * un * s * dy;
         }
@@ -209,8 +171,8 @@ fn control_volume(
             let dvdy = (uy[[i, j + 1]] - uy[[i, j - 1]]) / (2.0 * dy);
             let dudy = (uxc(i, j) - uxc(i, j - 1)) / dy;
             f.pressure[1] -= pf * s * dx;
-            f.viscous[0] += NU * dudy * s * dx;
-            f.viscous[1] += NU * dvdy * s * dx;
+            f.viscous[0] += DFG_NU * dudy * s * dx;
+            f.viscous[1] += DFG_NU * dvdy * s * dx;
             f.convective[0] -= uf * vn * s * dx;
             f.convective[1] -= vn * vn * s * dx;
         }
@@ -238,12 +200,12 @@ fn geometry(scene: &Scene) -> Value {
             continue;
         }
         n += 1;
-        mx += (i as f64 + 0.5) * g.dx - CENTRE[0];
-        my += (j as f64 + 0.5) * g.dy - CENTRE[1];
-        if mirror(CENTRE[1], g.dy, j, g.ny).is_none_or(|m| !solid[[i, m]]) {
+        mx += (i as f64 + 0.5) * g.dx - DFG_CENTRE[0];
+        my += (j as f64 + 0.5) * g.dy - DFG_CENTRE[1];
+        if mirror(DFG_CENTRE[1], g.dy, j, g.ny).is_none_or(|m| !solid[[i, m]]) {
             asym_y += 1;
         }
-        if mirror(CENTRE[0], g.dx, i, g.nx).is_none_or(|m| !solid[[m, j]]) {
+        if mirror(DFG_CENTRE[0], g.dx, i, g.nx).is_none_or(|m| !solid[[m, j]]) {
             asym_x += 1;
         }
     }
@@ -251,7 +213,7 @@ fn geometry(scene: &Scene) -> Value {
     let area = n as f64 * cell;
     json!({
         "solid_cells": n, "area": area,
-        "area_over_disc": area / (std::f64::consts::PI * D * D / 4.0),
+        "area_over_disc": area / (std::f64::consts::PI * DFG_DIAMETER * DFG_DIAMETER / 4.0),
         "centroid_offset": [mx * cell / area, my * cell / area],
         "first_moment": [mx * cell, my * cell],
         "cells_without_mirror_image_about_y0.2": asym_y,
@@ -301,62 +263,30 @@ fn pressure_extrapolated(scene: &Scene, s: &FlowState<f64>) -> [f64; 2] {
     f
 }
 
-/// One steady run and its forces by both methods.
-fn run(cpd: usize, height: f64, opt: &Options) -> Result<Value> {
-    let (max_time, tol) = (opt.max_time, opt.tol);
-    let scene = scene(cpd, height, opt.courant)?;
-    let params = scene.params();
-    let dt = scene.dt();
-    let mut s = start(&scene);
-    let mut mark = s.clone();
-    const WINDOW: usize = 100;
+/// One steady 2D-1 run in a channel of `height` and its forces by both
+/// methods; with the run's floors (those of `validation::Dfg2d1`).
+fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>)> {
+    let mut case = Dfg2d1::new(cpd)?;
+    (case.channel.height, case.channel.courant) = (height, opt.courant);
+    (case.tol, case.max_time) = (opt.tol, opt.max_time);
     let t0 = Instant::now();
-    let (mut steps, mut rate) = (0usize, f64::INFINITY);
-    let coefficient = 2.0 / (UBAR * UBAR * D);
-    let mut lift_history = Vec::new();
-    while (steps as f64) * dt < max_time {
-        s = scene.forward(&s, &params)?.0;
-        steps += 1;
-        if steps % WINDOW == 0 {
-            rate = largest_change(&s, &mark) / (WINDOW as f64 * dt);
-            mark = s.clone();
-            let f = obstacle_force(
-                scene.force_weights(),
-                s.ux.view(),
-                s.uy.view(),
-                s.pressure.view(),
-                NU,
-            )?;
-            lift_history.push([steps as f64 * dt, coefficient * f[1]]);
-            if rate < tol {
-                break;
-            }
-        }
-    }
+    let result = case.run(&mut |_, _, _| Ok(()))?;
     let seconds = t0.elapsed().as_secs_f64();
-    let next = scene.forward(&s, &params)?.0;
+    let (scene, s) = (&result.scene, &result.run.state);
+    let (steps, rate, tol, dt) = (result.run.steps, result.run.rate, opt.tol, scene.dt());
+    let coefficient = 2.0 / (DFG_2D1.ubar * DFG_2D1.ubar * DFG_DIAMETER);
+    let lift_history: Vec<[f64; 2]> = result.history.iter().map(|h| [h[0], h[2]]).collect();
+    let next = scene.forward(s, &scene.params())?.0;
 
-    let total = obstacle_force(
-        scene.force_weights(),
-        s.ux.view(),
-        s.uy.view(),
-        s.pressure.view(),
-        NU,
-    )?;
-    let pressure = obstacle_force(
-        scene.force_weights(),
-        s.ux.view(),
-        s.uy.view(),
-        s.pressure.view(),
-        0.0,
-    )?;
+    let total = DfgChannel::force(scene, s, DFG_NU)?;
+    let pressure = DfgChannel::force(scene, s, 0.0)?;
     let c = |f: [f64; 2]| f.map(|v| coefficient * v);
     let surface = Parts {
-        pressure: [pressure[0], pressure[1]],
+        pressure,
         viscous: [total[0] - pressure[0], total[1] - pressure[1]],
         ..Parts::default()
     };
-    let extrapolated = pressure_extrapolated(&scene, &s);
+    let extrapolated = pressure_extrapolated(scene, s);
     let variants = [
         [0, 1].map(|d| extrapolated[d] + surface.viscous[d]),
         [0, 1].map(|d| surface.pressure[d] + 0.5 * surface.viscous[d]),
@@ -388,12 +318,12 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<Value> {
     );
     let mut boxes = Vec::new();
     for a in BOXES {
-        let b = Box2::around(&scene, a);
+        let b = Box2::around(scene, a);
         let clearance = b.clearance(scene.solid());
         if clearance < 2 {
             continue;
         }
-        let f = control_volume(&scene, &s, &next, dt, b);
+        let f = control_volume(scene, s, &next, dt, b);
         let t = c(f.total());
         println!(
             "  CV |x-0.2|,|y-0.2| <= {a:.2} ({clearance:2} cells clear): cD {:.4} cL {:+.5}   (pressure cL {:+.5}, viscous {:+.5}, convective {:+.5}, unsteady {:+.1e})",
@@ -413,7 +343,7 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<Value> {
                          "convective": c(f.convective)[1], "unsteady": c(f.unsteady)[1]},
         }));
     }
-    let geo = geometry(&scene);
+    let geo = geometry(scene);
     println!(
         "  body: {} solid cells, area/disc {:.4}, centroid offset ({:+.1e}, {:+.1e}), cells without a mirror image about y = 0.2: {}",
         geo["solid_cells"],
@@ -422,7 +352,7 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<Value> {
         geo["centroid_offset"][1].as_f64().unwrap_or(f64::NAN),
         geo["cells_without_mirror_image_about_y0.2"]
     );
-    Ok(json!({
+    let row = json!({
         "cpd": cpd, "height": height, "nx": g.nx, "ny": g.ny, "h": g.dx, "dt": dt,
         "courant": opt.courant, "steps": steps, "time": steps as f64 * dt, "steady": rate < tol, "tol": tol,
         "rate_at_end": rate, "wall_s": seconds,
@@ -433,7 +363,8 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<Value> {
         "control_volume": boxes,
         "geometry": geo,
         "surface_cl_history": lift_history,
-    }))
+    });
+    Ok((row, result.floors))
 }
 
 struct Options {
@@ -501,16 +432,36 @@ fn parse() -> Result<(common::ExampleArgs, Options)> {
 fn main() -> Result<()> {
     let (args, opt) = parse()?;
     let mut out = serde_json::Map::new();
-    out.insert("reference_cd_cl".into(), json!(REFERENCE));
+    out.insert("reference_cd_cl".into(), json!(DFG_2D1_HIGH_ACCURACY[..2]));
+    let stated = *opt.cpd.iter().max().expect("at least one grid");
+    let mut floors = Vec::new();
     for case in &opt.cases {
-        let height = if case == "2d1" { 0.41 } else { 0.40 };
+        let height = if case == "2d1" { DFG_HEIGHT } else { 0.40 };
         println!("{case}: channel 2.2 x {height}, cylinder at (0.2, 0.2)");
         let mut rows = Vec::new();
         for &c in &opt.cpd {
-            rows.push(run(c, height, &opt)?);
+            let (row, run_floors) = run(c, height, &opt)?;
+            rows.push(row);
+            // the DFG intervals are of the 0.41 channel; the floor is checked
+            // at the finest grid, as in examples/cylinder.rs
+            if case == "2d1" && c == stated {
+                floors = run_floors;
+            }
         }
         out.insert(case.clone(), Value::Array(rows));
     }
+    for f in &floors {
+        println!("floor (2d1, cpd {stated}): {f}");
+    }
+    out.insert("floor".into(), flow_common::floors_json(&floors));
+    out.insert(
+        "floor_applies_to".into(),
+        if floors.is_empty() {
+            json!("none: the 2D-1 floor needs the 2d1 case")
+        } else {
+            json!({"case": "2d1", "cells_per_diameter": stated})
+        },
+    );
     let path = args.out.join("cylinder_forces.json");
     std::fs::write(
         &path,
@@ -518,5 +469,5 @@ fn main() -> Result<()> {
     )?;
     println!("wrote {}", path.display());
     common::print_json_line(&Value::Object(out));
-    Ok(())
+    flow_common::require_floors(&format!("cylinder_forces at cpd {stated}"), &floors)
 }

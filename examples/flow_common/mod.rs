@@ -1,11 +1,12 @@
 //! What the flow examples and `benches/flow.rs` share: the scenes the peers
-//! are measured on, the per-step cost of a scene on and off the tape, and a
-//! heat-map chart of a field.
+//! are measured on, the per-step cost of a scene on and off the tape, a
+//! heat-map chart of a field, and how a validation example reports its floors.
 
 #![allow(dead_code)] // each example uses a different part
 
 use std::time::Instant;
 
+use diffphys::flow::validation::{all_met, FloorCheck};
 use diffphys::flow::{
     Advection, Boundary, FlowState, FlowVars, Obstacle, ParamVars, PressureSolver, Scene, Sides,
     Splitting, TaylorGreen,
@@ -195,4 +196,26 @@ pub fn peak_rss_bytes() -> Option<u64> {
     let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
     let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kib * 1024)
+}
+
+/// The floors of a run for its JSON line: each check as text and whether all
+/// are met (`null` where none applies).
+pub fn floors_json(floors: &[FloorCheck]) -> Value {
+    if floors.is_empty() {
+        return Value::Null;
+    }
+    json!({
+        "checks": floors.iter().map(|f| f.to_string()).collect::<Vec<_>>(),
+        "met": all_met(floors),
+    })
+}
+
+/// An error naming `run` when a floor is missed: what a validation example
+/// returns after printing its JSON line, so its exit status follows the floors.
+pub fn require_floors(run: &str, floors: &[FloorCheck]) -> Result<()> {
+    if all_met(floors) {
+        Ok(())
+    } else {
+        Err(format!("{run}: a published floor is not met").into())
+    }
 }

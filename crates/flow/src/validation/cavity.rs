@@ -172,6 +172,22 @@ impl Cavity {
         self
     }
 
+    /// When the run stops: steady at `tol`, or at `max_time`, looking every
+    /// 100 steps.
+    pub fn stop(&self) -> SteadyStop {
+        SteadyStop {
+            tol: self.tol,
+            max_time: self.max_time,
+            window: 100,
+        }
+    }
+
+    /// The time step `dt = h / 2` (Courant number 0.5 at the lid speed 1,
+    /// `h = 1 / n`).
+    pub fn dt(&self) -> f64 {
+        0.5 / self.n as f64
+    }
+
     /// The scene (lid-driven cavity, the module docs give its setup).
     ///
     /// # Errors
@@ -179,7 +195,7 @@ impl Cavity {
     pub fn scene(&self) -> Result<Scene> {
         let nu = 1.0 / self.re as f64;
         let h = 1.0 / self.n as f64;
-        let dt = 0.5 * h;
+        let dt = self.dt();
         // the explicit diffusion number ν dt (1/dx² + 1/dy²); stable to ½
         let mode = if nu * dt * 2.0 / (h * h) <= 0.45 {
             ViscosityMode::Explicit
@@ -212,13 +228,8 @@ impl Cavity {
         positive("cavity", "tol", self.tol)?;
         positive("cavity", "max_time", self.max_time)?;
         let scene = self.scene()?;
-        let stop = SteadyStop {
-            tol: self.tol,
-            max_time: self.max_time,
-            window: 100,
-        };
-        let run = run_to_steady(&scene, FlowState::zeros(&scene), stop, observe)?;
-        Ok(self.compare(&scene, run))
+        let run = run_to_steady(&scene, FlowState::zeros(&scene), self.stop(), observe)?;
+        Ok(self.compare(scene, run))
     }
 
     /// The floors that apply to this Reynolds number and grid (none for most):
@@ -251,9 +262,9 @@ impl Cavity {
         }
     }
 
-    fn compare(&self, scene: &Scene, run: SteadyRun) -> CavityResult {
+    fn compare(&self, scene: Scene, run: SteadyRun) -> CavityResult {
         let table = GhiaTable::at(self.re).unwrap_or(&GHIA_1982[0]);
-        let ((y, u), (x, v)) = centrelines(scene, &run.state);
+        let ((y, u), (x, v)) = centrelines(&scene, &run.state);
         let ours_u: Vec<f64> = GHIA_Y.iter().map(|&q| interpolate(&y, &u, q)).collect();
         let ours_v: Vec<f64> = GHIA_X.iter().map(|&q| interpolate(&x, &v, q)).collect();
         let worst = |ours: &[f64], theirs: &[f64], skip: Option<usize>| {
@@ -287,6 +298,7 @@ impl Cavity {
             max_deviation_v: max_dv,
             suspect,
             floors: self.floors((max_du, max_dv)),
+            scene,
             run,
         }
     }
@@ -330,6 +342,8 @@ pub struct CavityResult {
     pub suspect: Vec<SuspectPoint>,
     /// The floors of this Re and grid ([`Cavity::floors`]).
     pub floors: Vec<FloorCheck>,
+    /// The scene.
+    pub scene: Scene,
     /// The run: last state, steps, time, whether steady.
     pub run: SteadyRun,
 }

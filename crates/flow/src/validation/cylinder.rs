@@ -192,19 +192,32 @@ impl DfgChannel {
         FlowState::from_velocity(scene, ux, Array2::zeros(g.shape_y()))
     }
 
-    /// `[cD, cL]` of a state at mean inflow `ubar`: the surface force on the
-    /// staircase over `Ubar² D / 2`.
+    /// The force `[F_x, F_y]` of the flow on the staircase at viscosity `nu`,
+    /// `F = ∮ (−p n + ν ∂u/∂n) dS` over the solid faces ([`obstacle_force`]:
+    /// the pressure of the fluid cell next to each face, the wall shear
+    /// `ν ū_t / (h/2)`). `nu` = [`DFG_NU`] gives the whole force, `nu = 0` its
+    /// pressure part alone.
     ///
     /// # Errors
     /// [`FlowError::Shape`] for a state of another scene.
-    pub fn coefficients(scene: &Scene, s: &FlowState<f64>, ubar: f64) -> Result<[f64; 2]> {
+    pub fn force(scene: &Scene, s: &FlowState<f64>, nu: f64) -> Result<[f64; 2]> {
         let f = obstacle_force(
             scene.force_weights(),
             s.ux.view(),
             s.uy.view(),
             s.pressure.view(),
-            DFG_NU,
+            nu,
         )?;
+        Ok([f[0], f[1]])
+    }
+
+    /// `[cD, cL]` of a state at mean inflow `ubar`: the surface force on the
+    /// staircase ([`DfgChannel::force`] at [`DFG_NU`]) over `Ubar² D / 2`.
+    ///
+    /// # Errors
+    /// [`FlowError::Shape`] for a state of another scene.
+    pub fn coefficients(scene: &Scene, s: &FlowState<f64>, ubar: f64) -> Result<[f64; 2]> {
+        let f = Self::force(scene, s, DFG_NU)?;
         let c = 2.0 / (ubar * ubar * DFG_DIAMETER);
         Ok([c * f[0], c * f[1]])
     }
@@ -259,6 +272,10 @@ pub struct SteadyCylinder {
     pub errors: [f64; 3],
     /// The 2D-1 floor: cD within 5 % of the interval.
     pub floors: Vec<FloorCheck>,
+    /// `[t, cD, cL]` after each window of the run (every 100 steps), the
+    /// surface force as in [`DfgChannel::coefficients`]: how the forces
+    /// settle.
+    pub history: Vec<[f64; 3]>,
     /// The scene.
     pub scene: Scene,
     /// The run.
@@ -278,7 +295,8 @@ impl Dfg2d1 {
         })
     }
 
-    /// Runs the case; `observe(steps, state, rate)` every 100 steps.
+    /// Runs the case, recording `[t, cD, cL]` and calling
+    /// `observe(steps, state, rate)` every 100 steps.
     ///
     /// # Errors
     /// Those of [`DfgChannel::scene`], [`run_to_steady`] and `observe`.
@@ -289,7 +307,13 @@ impl Dfg2d1 {
             max_time: self.max_time,
             window: 100,
         };
-        let run = run_to_steady(&scene, DfgChannel::start(&scene), stop, observe)?;
+        let mut history = Vec::new();
+        let mut record = |steps: usize, s: &FlowState<f64>, rate: f64| {
+            let [cd, cl] = DfgChannel::coefficients(&scene, s, DFG_2D1.ubar)?;
+            history.push([steps as f64 * scene.dt(), cd, cl]);
+            observe(steps, s, rate)
+        };
+        let run = run_to_steady(&scene, DfgChannel::start(&scene), stop, &mut record)?;
         let [cd, cl] = DfgChannel::coefficients(&scene, &run.state, DFG_2D1.ubar)?;
         let dp = DfgChannel::pressure_difference(&scene, &run.state);
         let errors = [
@@ -306,6 +330,7 @@ impl Dfg2d1 {
                 FLOOR,
                 FLOOR_SOURCE,
             )],
+            history,
             scene,
             run,
         })

@@ -30,7 +30,8 @@ mod taylor_green;
 pub use cavity::{Cavity, CavityResult, GhiaTable, SuspectPoint, GHIA_1982, GHIA_X, GHIA_Y};
 pub use cylinder::{
     Dfg2d1, Dfg2d1Reference, Dfg2d2, Dfg2d2Reference, DfgChannel, PeriodicCylinder, SteadyCylinder,
-    DFG_2D1, DFG_2D1_HIGH_ACCURACY, DFG_2D2, DFG_DIAMETER, DFG_NU,
+    DFG_2D1, DFG_2D1_HIGH_ACCURACY, DFG_2D2, DFG_CENTRE, DFG_DIAMETER, DFG_HEIGHT, DFG_LENGTH,
+    DFG_NU,
 };
 pub use taylor_green::{OrderStudy, TaylorGreen};
 

@@ -101,72 +101,65 @@ fn grid_json(scene: &Scene, cpd: usize) -> Value {
     })
 }
 
+/// The DFG 2D-1 and 2D-2 cylinder benchmarks against Schäfer and Turek's intervals.
+#[derive(clap::Parser)]
+struct Cli {
+    #[command(flatten)]
+    common: common::ExampleArgs,
+    #[command(flatten)]
+    opt: Options,
+}
+
+#[derive(clap::Args)]
 struct Options {
+    /// Grids, as cells across the cylinder's diameter, at least 4 each (8 with
+    /// --small).
+    #[arg(long, value_name = "LIST", value_delimiter = ',', default_values_t = [10, 20],
+          default_value_if("small", "true", "8"))]
     cpd: Vec<usize>,
+    /// Cases: the steady 2D-1 (Re 20) and the periodic 2D-2 (Re 100).
+    #[arg(long, value_name = "LIST", value_delimiter = ',', ignore_case = true,
+          value_parser = ["2d1", "2d2"], default_values_t = ["2d1".to_string(), "2d2".to_string()])]
     cases: Vec<String>,
+    /// 2D-2: time units simulated (3 with --small).
+    #[arg(
+        long,
+        value_name = "T",
+        default_value_t = 12.0,
+        default_value_if("small", "true", "3")
+    )]
     t_end: f64,
+    /// 2D-2: the last time units measured, in (0, t-end) (1.5 with --small).
+    #[arg(
+        long,
+        value_name = "T",
+        default_value_t = 4.0,
+        default_value_if("small", "true", "1.5")
+    )]
     window: f64,
+    /// 2D-1: time units before the run stops unsteady (8 with --small).
+    #[arg(
+        long,
+        value_name = "T",
+        default_value_t = 40.0,
+        default_value_if("small", "true", "8")
+    )]
     max_time: f64,
+    /// 2D-1: steady when the velocity changes by less than this per unit time.
+    #[arg(long, default_value_t = 1e-4)]
     tol: f64,
 }
 
 fn parse() -> Result<(common::ExampleArgs, Options)> {
-    let mut rest = Vec::new();
-    let (mut cpd, mut cases, mut t_end, mut window, mut max_time) = (None, None, None, None, None);
-    let mut tol = 1e-4;
-    let mut it = std::env::args().skip(1);
-    while let Some(a) = it.next() {
-        let mut value = |name: &str| it.next().ok_or_else(|| format!("{name} needs a value"));
-        match a.as_str() {
-            "--cpd" => {
-                cpd = Some(
-                    value("--cpd")?
-                        .split(',')
-                        .map(|s| s.parse::<usize>())
-                        .collect::<std::result::Result<Vec<_>, _>>()?,
-                )
-            }
-            "--cases" => {
-                cases = Some(
-                    value("--cases")?
-                        .split(',')
-                        .map(str::to_lowercase)
-                        .collect::<Vec<_>>(),
-                )
-            }
-            "--t-end" => t_end = Some(value("--t-end")?.parse()?),
-            "--window" => window = Some(value("--window")?.parse()?),
-            "--max-time" => max_time = Some(value("--max-time")?.parse()?),
-            "--tol" => tol = value("--tol")?.parse()?,
-            _ => rest.push(a),
-        }
-    }
-    let args = common::ExampleArgs::parse_from("cylinder", rest.into_iter())?;
-    let cpd = cpd.unwrap_or_else(|| args.pick(vec![10, 20], vec![8]));
-    if cpd.iter().any(|&c| c < 4) {
+    let Cli { common, mut opt } = common::parse_args("cylinder")?;
+    if opt.cpd.iter().any(|&c| c < 4) {
         return Err("--cpd: at least 4 cells across the diameter".into());
     }
-    let cases = cases.unwrap_or_else(|| vec!["2d1".into(), "2d2".into()]);
-    if let Some(c) = cases.iter().find(|c| !matches!(c.as_str(), "2d1" | "2d2")) {
-        return Err(format!("--cases: 2d1 and/or 2d2, not {c:?}").into());
+    opt.cases.iter_mut().for_each(|c| *c = c.to_lowercase());
+    if !(opt.window > 0.0 && opt.window < opt.t_end) {
+        return Err(format!("--window must lie in (0, t_end = {})", opt.t_end).into());
     }
-    let t_end = t_end.unwrap_or(args.pick(12.0, 3.0));
-    let window = window.unwrap_or(args.pick(4.0, 1.5));
-    if !(window > 0.0 && window < t_end) {
-        return Err(format!("--window must lie in (0, t_end = {t_end})").into());
-    }
-    let max_time = max_time.unwrap_or(args.pick(40.0, 8.0));
-    Ok((
-        args,
-        Options {
-            cpd,
-            cases,
-            t_end,
-            window,
-            max_time,
-            tol,
-        },
-    ))
+    Ok((common, opt))
 }
 
 fn main() -> Result<()> {

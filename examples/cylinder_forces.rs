@@ -367,66 +367,46 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
     Ok((row, result.floors))
 }
 
+/// Where the staircase cylinder's forces come from: surface integral and
+/// control-volume momentum balance side by side.
+#[derive(clap::Parser)]
+struct Cli {
+    #[command(flatten)]
+    common: common::ExampleArgs,
+    #[command(flatten)]
+    opt: Options,
+}
+
+#[derive(clap::Args)]
 struct Options {
+    /// Grids, as cells across the cylinder's diameter, at least 4 each (10 with
+    /// --small).
+    #[arg(long, value_name = "LIST", value_delimiter = ',', default_values_t = [10, 20],
+          default_value_if("small", "true", "10"))]
     cpd: Vec<usize>,
+    /// Cases: DFG 2D-1, and the symmetric control (the body at the channel's centre).
+    #[arg(long, value_name = "LIST", value_delimiter = ',', ignore_case = true,
+          value_parser = ["2d1", "symmetric"],
+          default_values_t = ["2d1".to_string(), "symmetric".to_string()])]
     cases: Vec<String>,
+    /// Time units before a run stops unsteady.
+    #[arg(long, value_name = "T", default_value_t = 40.0)]
     max_time: f64,
+    /// Steady when the velocity changes by less than this per unit time.
+    #[arg(long, default_value_t = 1e-4)]
     tol: f64,
+    /// Courant number at the mean inflow speed.
+    #[arg(long, default_value_t = 0.4)]
     courant: f64,
 }
 
 fn parse() -> Result<(common::ExampleArgs, Options)> {
-    let mut rest = Vec::new();
-    let (mut cpd, mut cases, mut max_time, mut tol, mut courant) = (None, None, None, 1e-4, 0.4);
-    let mut it = std::env::args().skip(1);
-    while let Some(a) = it.next() {
-        let mut value = |name: &str| it.next().ok_or_else(|| format!("{name} needs a value"));
-        match a.as_str() {
-            "--cpd" => {
-                cpd = Some(
-                    value("--cpd")?
-                        .split(',')
-                        .map(str::parse::<usize>)
-                        .collect::<std::result::Result<Vec<_>, _>>()?,
-                )
-            }
-            "--cases" => {
-                cases = Some(
-                    value("--cases")?
-                        .split(',')
-                        .map(str::to_lowercase)
-                        .collect::<Vec<_>>(),
-                )
-            }
-            "--max-time" => max_time = Some(value("--max-time")?.parse()?),
-            "--tol" => tol = value("--tol")?.parse()?,
-            "--courant" => courant = value("--courant")?.parse()?,
-            _ => rest.push(a),
-        }
-    }
-    let args = common::ExampleArgs::parse_from("cylinder_forces", rest.into_iter())?;
-    let cpd = cpd.unwrap_or_else(|| args.pick(vec![10, 20], vec![10]));
-    if cpd.iter().any(|&c| c < 4) {
+    let Cli { common, mut opt } = common::parse_args("cylinder_forces")?;
+    if opt.cpd.iter().any(|&c| c < 4) {
         return Err("--cpd: at least 4 cells across the diameter".into());
     }
-    let cases = cases.unwrap_or_else(|| vec!["2d1".into(), "symmetric".into()]);
-    if let Some(c) = cases
-        .iter()
-        .find(|c| !matches!(c.as_str(), "2d1" | "symmetric"))
-    {
-        return Err(format!("--cases: 2d1 and/or symmetric, not {c:?}").into());
-    }
-    let max_time = max_time.unwrap_or(40.0);
-    Ok((
-        args,
-        Options {
-            cpd,
-            cases,
-            max_time,
-            tol,
-            courant,
-        },
-    ))
+    opt.cases.iter_mut().for_each(|c| *c = c.to_lowercase());
+    Ok((common, opt))
 }
 
 fn main() -> Result<()> {

@@ -5,7 +5,7 @@
 //! The inscribed and staircase bodies leave no flow on the faces the coarse
 //! solver pins; the cylinder body does.
 
-#[allow(dead_code)]
+#[allow(dead_code, unused_imports)] // the test uses a part of the scene
 #[path = "../examples/wake_flow_scene/mod.rs"]
 mod wake_flow_scene;
 

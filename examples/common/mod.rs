@@ -111,26 +111,6 @@ fn valid_flags(command: &Command, argv: &[OsString]) -> String {
 }
 
 impl ExampleArgs {
-    /// The options alone from `it` (the arguments after the program's name), for
-    /// the examples that still take their own flags out by hand first; `--out`
-    /// defaults to `out/{default_out}`. Exits as [`parse_args`] does.
-    ///
-    /// # Errors
-    /// When the `--out` folder cannot be created.
-    pub fn parse_from(
-        default_out: &'static str,
-        it: impl Iterator<Item = String>,
-    ) -> Result<Self, String> {
-        #[derive(Parser)]
-        struct Only {
-            #[command(flatten)]
-            common: ExampleArgs,
-        }
-        let program = std::env::args_os().take(1);
-        let argv = program.chain(it.map(OsString::from)).collect();
-        Ok(parse_argv::<Only>(default_out, argv)?.common)
-    }
-
     /// With `--npy`, writes each `(name, array, meaning)` as `OUT/npy/{name}.npy`
     /// and an `index.json` naming them; without it, nothing.
     pub fn write_npy(

@@ -175,8 +175,35 @@ pub(crate) fn report(
     // Beside the macro: its recursion is deep already.
     line["held_out_readings"] = held_out_readings.into();
     line["saved_models"] = json!(args.out.join("models").display().to_string());
+    // The floors are the full scene's (docs/11): `--small`'s budgets and grids
+    // measure that the study runs, not what it reaches.
+    line["floors_apply"] = json!(!args.small);
+    if args.small {
+        println!("floors: not applied at --small (they are the full scene's)");
+    }
     common::print_json_line(&line);
+    let missed = missed_floors(&line["floors_met"]);
+    if !args.small && !missed.is_empty() {
+        return Err(format!("a floor of the scene is not met: {}", missed.join(", ")).into());
+    }
     Ok(())
+}
+
+/// The floors (the `bool` entries of `floors_met` that are not goals) that
+/// are `false`. A floor a run did not measure (`"not measured"`, with
+/// `--no-capacity` say) neither holds nor fails it.
+fn missed_floors(floors: &Value) -> Vec<String> {
+    let Some(entries) = floors.as_object() else {
+        return vec!["floors_met (not reported)".into()];
+    };
+    entries
+        .iter()
+        .filter(|(name, _)| !name.starts_with("goal_"))
+        .filter_map(|(name, v)| match v {
+            Value::Bool(false) => Some(name.clone()),
+            _ => None,
+        })
+        .collect()
 }
 
 /// The floors of the scene (docs/11) from the held-out figures, and the

@@ -20,7 +20,7 @@ use std::time::{Duration, Instant};
 
 use diffphys::ops::advection::{AdvectionParams, Upwind1};
 use diffphys::prelude::*;
-use diffphys_compare::chart::{line_chart_svg, LineChart, Series};
+use diffphys::report::chart::{line_chart_svg, LineChart, Series};
 use ndarray::Array1;
 
 type BoxError = Box<dyn std::error::Error>;

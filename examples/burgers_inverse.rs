@@ -24,7 +24,7 @@ use diffphys::ops::advection::{semi_lagrangian1, SemiLagrangian1};
 use diffphys::ops::stencil::{DiffusionParams, ExplicitDiffusion1};
 use diffphys::ops::tape_ops::LinearOp;
 use diffphys::prelude::*;
-use diffphys_compare::chart::{heatmap_svg_with_axes, line_chart_svg, LineChart, Series};
+use diffphys::report::chart::{heatmap_svg_with_axes, line_chart_svg, LineChart, Series};
 use ndarray::{Array1, Array2, Ix1};
 
 type BoxError = Box<dyn std::error::Error>;

@@ -28,8 +28,8 @@ use diffphys::ops::cg::CgParams;
 use diffphys::ops::poisson::PoissonSolve;
 use diffphys::ops::stencil::Laplacian2;
 use diffphys::prelude::*;
+use diffphys::report::chart::{line_chart_svg, LineChart, Series};
 use diffphys_candle::CandlePoisson;
-use diffphys_compare::chart::{line_chart_svg, LineChart, Series};
 use ndarray::{Array1, Array2};
 
 type BoxError = Box<dyn std::error::Error>;

@@ -31,7 +31,7 @@ use diffphys::ops::poisson::{SolveLog, WarmStart};
 use diffphys::ops::projection::{max_abs_divergence, PressureProjection, ProjectionOp};
 use diffphys::ops::reference::SparseCholesky;
 use diffphys::prelude::*;
-use diffphys_compare::chart::{heatmap_svg, line_chart_svg, quiver_svg, LineChart, Series};
+use diffphys::report::chart::{heatmap_svg, line_chart_svg, quiver_svg, LineChart, Series};
 use ndarray::{Array2, Ix2, Zip};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};

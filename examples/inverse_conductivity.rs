@@ -31,8 +31,8 @@ use diffphys::ops::cg::NullSpace;
 use diffphys::ops::conductivity::{Conductivity2, ConductivitySolve};
 use diffphys::ops::reference::SparseCholesky;
 use diffphys::prelude::*;
+use diffphys::report::chart::{heatmap_svg_with_axes, line_chart_svg, LineChart, Series};
 use diffphys::tape::optim::{Adam, Optimizer};
-use diffphys_compare::chart::{heatmap_svg_with_axes, line_chart_svg, LineChart, Series};
 use ndarray::{Array2, Ix2};
 
 type BoxError = Box<dyn std::error::Error>;

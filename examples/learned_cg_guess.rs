@@ -35,8 +35,8 @@ use diffphys::learn::{
 use diffphys::nn::{Activation, Bound, Layer, Padding, Params, UNet, UNetConfig};
 use diffphys::ops::stencil::Laplacian2;
 use diffphys::prelude::{ArrayD, Boundary, Grid2, Var};
-use diffphys_compare::chart::{line_chart_svg, LineChart, Series};
-use diffphys_compare::harness::progress_bar;
+use diffphys::report::chart::{line_chart_svg, LineChart, Series};
+use diffphys::report::progress_bar;
 use ndarray::IxDyn;
 use rand::rngs::StdRng;
 use serde_json::json;

@@ -16,8 +16,8 @@
 
 mod common;
 
+use diffphys::report::chart::{line_chart_svg, LineChart, Series};
 use diffphys_compare::alloc::CountingAllocator;
-use diffphys_compare::chart::{line_chart_svg, LineChart, Series};
 use diffphys_compare::harness::measure;
 use diffphys_compare::methods::exact::ExactCholesky;
 use diffphys_compare::methods::implicit::ImplicitSolve;

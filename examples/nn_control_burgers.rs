@@ -30,7 +30,7 @@ use diffphys::learn::{
 };
 use diffphys::nn::Layer;
 use diffphys::prelude::*;
-use diffphys_compare::harness::progress_bar;
+use diffphys::report::progress_bar;
 use ndarray::Array1;
 use nn_control_burgers_scene::{
     baselines, descent_json, held_out_network, network_predictions, score, write_charts, Baselines,

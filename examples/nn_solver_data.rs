@@ -26,8 +26,8 @@ use diffphys::learn::{
     mean_squared_error, select_best, Candidate, DataSeed, LearnError, LrSchedule, Pair, PairSource,
     Report, Split, Splits, SupervisedTrainer, TrainSeed, Trained, TrainedNet,
 };
-use diffphys_compare::chart::{line_chart_svg, LineChart, Series};
-use diffphys_compare::harness::progress_bar;
+use diffphys::report::chart::{line_chart_svg, LineChart, Series};
+use diffphys::report::progress_bar;
 use ndarray::Axis;
 use rand::rngs::StdRng;
 use rand::Rng;

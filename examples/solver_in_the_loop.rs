@@ -32,8 +32,8 @@ use diffphys::learn::{
 };
 use diffphys::nn::{Activation, Bound, Layer, Padding, Params, UNet, UNetConfig};
 use diffphys::prelude::{check_gradient, GradCheckOptions, Var};
+use diffphys::report::progress_bar;
 use diffphys_compare::alloc::CountingAllocator;
-use diffphys_compare::harness::progress_bar;
 use serde_json::json;
 
 use solver_in_the_loop_scene::{one_step_rms, trajectories, BoxError, Solver};

@@ -42,7 +42,7 @@ use diffphys::learn::{
     Splits, Strategy, TrainSeed, Trained, TrainedCorrector, Trainer, Trajectory,
 };
 use diffphys::nn::{Arithmetic, Params};
-use diffphys_compare::harness::progress_bar;
+use diffphys::report::progress_bar;
 use ndarray::Array3;
 use serde_json::{json, Value};
 

@@ -54,6 +54,7 @@ pub use diffphys_flow as flow;
 pub use diffphys_learn as learn;
 pub use diffphys_nn as nn;
 pub use diffphys_ops as ops;
+pub use diffphys_report as report;
 pub use diffphys_tape as tape;
 /// The random-number crate that seeded initialisation takes (`StdRng`), so a
 /// user needs no version of their own to match ours.

@@ -194,8 +194,8 @@ pub fn mse(a: &Array1<f64>, b: &Array1<f64>) -> f64 {
 }
 
 /// `(step, value)` pairs as a chart series.
-pub fn curve(label: &str, points: &[(usize, f64)]) -> diffphys_compare::chart::Series {
-    diffphys_compare::chart::Series::new(
+pub fn curve(label: &str, points: &[(usize, f64)]) -> diffphys::report::chart::Series {
+    diffphys::report::chart::Series::new(
         label,
         points.iter().map(|&(s, v)| (s as f64, v)).collect(),
     )

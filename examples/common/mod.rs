@@ -116,11 +116,11 @@ impl ExampleArgs {
     pub fn write_npy(
         &self,
         arrays: &[(&str, ndarray::ArrayViewD<'_, f64>, &str)],
-    ) -> Result<(), diffphys_compare::CompareError> {
+    ) -> Result<(), diffphys::report::ReportError> {
         if !self.npy {
             return Ok(());
         }
-        let mut npy = diffphys_compare::npy::NpyWriter::new(self.out.join("npy"))?;
+        let mut npy = diffphys::report::npy::NpyWriter::new(self.out.join("npy"))?;
         for (name, array, meaning) in arrays {
             npy.write(name, array.view(), meaning)?;
         }

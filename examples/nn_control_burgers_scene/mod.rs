@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use diffphys::nn::{Layer, Params, UNet};
 use diffphys::prelude::*;
-use diffphys_compare::chart::{line_chart_svg, LineChart, Series};
+use diffphys::report::chart::{line_chart_svg, LineChart, Series};
 use ndarray::Array1;
 use rand::rngs::StdRng;
 use serde_json::{json, Value};

@@ -9,7 +9,7 @@ use std::time::Instant;
 
 use diffphys::learn::{states_at, Corrector, Hybrid, Schedule, Simulator, Trajectory};
 use diffphys::nn::Params;
-use diffphys_compare::chart::{line_chart_svg, LineChart, Series};
+use diffphys::report::chart::{line_chart_svg, LineChart, Series};
 
 use super::BoxError;
 

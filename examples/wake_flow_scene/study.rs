@@ -10,7 +10,7 @@ use diffphys::flow::diagnostics::vorticity;
 use diffphys::flow::{restrict_velocity, FlowParams, FlowState, PressureSolver, Scene};
 use diffphys::learn::{relative_l2, rollout, Corrector, Hybrid, Simulator, Trajectory};
 use diffphys::nn::Params;
-use diffphys_compare::chart::{
+use diffphys::report::chart::{
     heatmap_panels_svg, line_chart_svg, HeatmapPanels, LineChart, Outline, Series,
 };
 use ndarray::{Array2, Array3, Axis};
@@ -489,7 +489,7 @@ pub fn charts(
     coarse: &Scene,
     sol: Option<usize>,
 ) -> Result<()> {
-    let e = |e: diffphys_compare::CompareError| WakeError::Output(e.to_string());
+    let e = |e: diffphys::report::ReportError| WakeError::Output(e.to_string());
     let series: Vec<Series> = curves
         .iter()
         .filter(|(_, c)| !c.is_empty() && !c[0].is_empty())
@@ -590,8 +590,8 @@ fn write_vorticity(
     out: &Path,
     last: &BTreeMap<String, Array3<f64>>,
     coarse: &Scene,
-) -> std::result::Result<(), diffphys_compare::CompareError> {
-    let chart = |e: WakeError| diffphys_compare::CompareError::Chart(e.to_string());
+) -> std::result::Result<(), diffphys::report::ReportError> {
+    let chart = |e: WakeError| diffphys::report::ReportError::Chart(e.to_string());
     // The reference first, then the solvers in the order of the report.
     let order = ["reference", "src", "non", "noise", "sol_selected"];
     let mut names: Vec<&String> = last

@@ -60,6 +60,9 @@ pub enum CompareError {
     /// A chart could not be drawn (empty or degenerate data, or a drawing error).
     #[error("chart: {0}")]
     Chart(String),
+    /// A chart, a progress display or a file of [`diffphys_report`] failed.
+    #[error(transparent)]
+    Report(#[from] diffphys_report::ReportError),
     /// Serialising results to JSON failed.
     #[error("JSON: {0}")]
     Json(#[from] serde_json::Error),
@@ -138,6 +141,7 @@ impl CompareError {
             | CompareError::GridTooSmall { .. } => ErrorKind::InvalidArgument,
             CompareError::Io { .. }
             | CompareError::Chart(_)
+            | CompareError::Report(_)
             | CompareError::Json(_)
             | CompareError::NothingRan(_)
             | CompareError::NothingMeasured(_) => ErrorKind::Op,

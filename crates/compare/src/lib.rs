@@ -26,19 +26,16 @@
 #![warn(missing_docs)]
 
 pub mod alloc;
-pub mod chart;
 #[cfg(feature = "cli")]
 pub mod cli;
 mod error;
-pub mod format;
 pub mod harness;
 pub mod memory;
 pub mod methods;
 pub mod model;
-pub mod npy;
 pub mod problem;
-pub mod progress;
 pub mod report;
 pub mod stability;
 
+pub use diffphys_report::{chart, format, npy, progress};
 pub use error::{CompareError, Result};

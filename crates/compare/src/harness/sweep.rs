@@ -221,7 +221,7 @@ impl NpySink<'_> {
         }
         let values = array.mapv(|v| v.as_f64()).into_dyn();
         if let Err(e) = self.writer.write(name, values.view(), meaning) {
-            self.first_error = Some(e);
+            self.first_error = Some(e.into());
         }
     }
 }

@@ -1,6 +1,6 @@
 //! What `NpyWriter` writes reads back bit for bit, with an index that names it.
 
-use diffphys_compare::npy::{NpyEntry, NpyWriter};
+use diffphys_report::npy::{NpyEntry, NpyWriter};
 use diffphys_tape::test_array;
 use ndarray::ArrayD;
 use ndarray_npy::read_npy;

@@ -1,10 +1,10 @@
 //! Charts are written as SVG text, and input that cannot be drawn is a typed error.
 
-use diffphys_compare::chart::{
+use diffphys_report::chart::{
     heatmap_svg, heatmap_svg_string, heatmap_svg_string_with_axes, line_chart_svg,
     line_chart_svg_string, quiver_svg, quiver_svg_string, LineChart, Series,
 };
-use diffphys_compare::CompareError;
+use diffphys_report::ReportError;
 use ndarray::Array2;
 
 fn temp_dir(name: &str) -> std::path::PathBuf {
@@ -78,23 +78,23 @@ fn empty_or_unplaceable_line_charts_are_typed_errors() {
     let none: [Series; 0] = [];
     assert!(matches!(
         line_chart_svg_string(&chart(&none, false)),
-        Err(CompareError::Chart(_))
+        Err(ReportError::Chart(_))
     ));
     let empty = [Series::new("empty", vec![])];
     assert!(matches!(
         line_chart_svg_string(&chart(&empty, false)),
-        Err(CompareError::Chart(_))
+        Err(ReportError::Chart(_))
     ));
     let nan_x = [Series::new("nan x", vec![(f64::NAN, 1.0)])];
     assert!(matches!(
         line_chart_svg_string(&chart(&nan_x, false)),
-        Err(CompareError::Chart(_))
+        Err(ReportError::Chart(_))
     ));
     // Zero and negative x cannot sit on a log axis.
     let nonpositive = [Series::new("x ≤ 0", vec![(0.0, 1.0), (-1.0, 2.0)])];
     assert!(matches!(
         line_chart_svg_string(&chart(&nonpositive, true)),
-        Err(CompareError::Chart(_))
+        Err(ReportError::Chart(_))
     ));
     assert!(line_chart_svg_string(&chart(&nonpositive, false)).is_ok());
 }
@@ -104,7 +104,7 @@ fn unwritable_path_is_an_io_error() {
     let series = [Series::new("s", vec![(1.0, 1.0), (2.0, 3.0)])];
     let path = std::path::Path::new("/nonexistent-diffphys-dir/sub/chart.svg");
     let err = line_chart_svg(path, &chart(&series, false)).unwrap_err();
-    assert!(matches!(err, CompareError::Io { .. }), "{err}");
+    assert!(matches!(err, ReportError::Io { .. }), "{err}");
 }
 
 #[test]
@@ -141,7 +141,7 @@ fn heatmap_degenerate_fields() {
     let empty = Array2::<f64>::zeros((0, 4));
     assert!(matches!(
         heatmap_svg_string("empty", empty.view()),
-        Err(CompareError::Chart(_))
+        Err(ReportError::Chart(_))
     ));
     let constant = Array2::<f64>::zeros((4, 4));
     assert!(heatmap_svg_string("zeros", constant.view())
@@ -171,7 +171,7 @@ fn quiver_draws_arrows_and_rejects_mismatched_shapes() {
     let short = Array2::<f64>::zeros((n, n - 1));
     assert!(matches!(
         quiver_svg_string("bad", u.view(), short.view()),
-        Err(CompareError::Chart(_))
+        Err(ReportError::Chart(_))
     ));
     let zero = Array2::<f64>::zeros((5, 5));
     assert!(quiver_svg_string("still", zero.view(), zero.view())

@@ -2,13 +2,13 @@
 //! 2D fields, and quiver plots of 2D velocity fields.
 //!
 //! Everything is drawn with plotters' SVG backend into a string first and then
-//! written to the file, so a write failure is a [`CompareError::Io`] naming the
+//! written to the file, so a write failure is a [`ReportError::Io`] naming the
 //! path. Input that cannot be drawn (no series, no finite point, an empty field)
-//! is a [`CompareError::Chart`], never a panic: plotters itself panics on empty or
+//! is a [`ReportError::Chart`], never a panic: plotters itself panics on empty or
 //! NaN axis ranges, so every range is checked and padded before it reaches it.
 //!
 //! ```no_run
-//! use diffphys_compare::chart::{line_chart_svg, LineChart, Series};
+//! use diffphys_report::chart::{line_chart_svg, LineChart, Series};
 //!
 //! let series = [Series::new("naive f64", vec![(10.0, 1e-3), (100.0, 1e-9)])];
 //! let chart = LineChart {
@@ -20,7 +20,7 @@
 //!     series: &series,
 //! };
 //! line_chart_svg(std::path::Path::new("out/error.svg"), &chart)?;
-//! # Ok::<(), diffphys_compare::CompareError>(())
+//! # Ok::<(), diffphys_report::ReportError>(())
 //! ```
 
 use std::path::Path;
@@ -28,7 +28,7 @@ use std::path::Path;
 use plotters::prelude::*;
 
 use crate::format::format_value;
-use crate::{CompareError, Result};
+use crate::{ReportError, Result};
 
 mod axes;
 mod heatmap;
@@ -118,12 +118,12 @@ pub fn series_color(i: usize) -> RGBColor {
     PALETTE[i % PALETTE.len()]
 }
 
-fn chart_err(e: impl std::fmt::Display) -> CompareError {
-    CompareError::Chart(e.to_string())
+fn chart_err(e: impl std::fmt::Display) -> ReportError {
+    ReportError::Chart(e.to_string())
 }
 
 fn write_file(path: &Path, text: &str) -> Result<()> {
-    std::fs::write(path, text).map_err(|e| CompareError::io(path, e))
+    std::fs::write(path, text).map_err(|e| ReportError::io(path, e))
 }
 
 #[cfg(test)]

@@ -3,14 +3,14 @@
 //! shape, dtype and meaning.
 //!
 //! ```no_run
-//! use diffphys_compare::npy::NpyWriter;
+//! use diffphys_report::npy::NpyWriter;
 //! use ndarray::ArrayD;
 //!
 //! let mut npy = NpyWriter::new("out/scene/npy")?;
 //! let field = ArrayD::<f64>::zeros(ndarray::IxDyn(&[64, 64]));
 //! npy.write("pressure", field.view(), "the pressure after the last step")?;
 //! npy.finish()?; // writes out/scene/npy/index.json
-//! # Ok::<(), diffphys_compare::CompareError>(())
+//! # Ok::<(), diffphys_report::ReportError>(())
 //! ```
 //!
 //! In Python: `np.load("out/scene/npy/pressure.npy")`.
@@ -22,7 +22,7 @@ use ndarray::ArrayViewD;
 use ndarray_npy::{write_npy, WritableElement};
 use serde::{Deserialize, Serialize};
 
-use crate::{CompareError, Result};
+use crate::{ReportError, Result};
 
 /// One line of `index.json`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -46,8 +46,8 @@ pub struct NpyWriter {
     entries: Vec<NpyEntry>,
 }
 
-fn io_error(path: &Path, source: std::io::Error) -> CompareError {
-    CompareError::Io {
+fn io_error(path: &Path, source: std::io::Error) -> ReportError {
+    ReportError::Io {
         path: path.display().to_string(),
         source,
     }
@@ -57,7 +57,7 @@ impl NpyWriter {
     /// A writer into `dir`, created if missing.
     ///
     /// # Errors
-    /// [`CompareError::Io`] if the folder cannot be created.
+    /// [`ReportError::Io`] if the folder cannot be created.
     pub fn new(dir: impl AsRef<Path>) -> Result<Self> {
         let dir = dir.as_ref().to_path_buf();
         std::fs::create_dir_all(&dir).map_err(|e| io_error(&dir, e))?;
@@ -75,8 +75,8 @@ impl NpyWriter {
     /// Writes `array` as `{name}.npy` and records it in the index.
     ///
     /// # Errors
-    /// [`CompareError::InvalidArgument`] for a name that is empty, taken, or not
-    /// a plain file name; [`CompareError::Io`] if writing fails.
+    /// [`ReportError::InvalidArgument`] for a name that is empty, taken, or not
+    /// a plain file name; [`ReportError::Io`] if writing fails.
     pub fn write<T: Real + WritableElement>(
         &mut self,
         name: &str,
@@ -88,7 +88,7 @@ impl NpyWriter {
                 .chars()
                 .all(|c| c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '.'));
         if !plain || self.entries.iter().any(|e| e.name == name) {
-            return Err(CompareError::InvalidArgument(format!(
+            return Err(ReportError::InvalidArgument(format!(
                 "npy array name {name:?}: names must be unique and use only letters, digits, '_', '-' and '.'"
             )));
         }
@@ -119,7 +119,7 @@ impl NpyWriter {
     /// Writes `index.json` and returns its path.
     ///
     /// # Errors
-    /// [`CompareError::Io`] or [`CompareError::Json`].
+    /// [`ReportError::Io`] or [`ReportError::Json`].
     pub fn finish(self) -> Result<PathBuf> {
         let path = self.dir.join("index.json");
         let text = serde_json::to_string_pretty(&self.entries)?;

@@ -5,7 +5,7 @@ use std::path::Path;
 use ndarray::ArrayView2;
 use plotters::prelude::*;
 
-use crate::{CompareError, Result};
+use crate::{ReportError, Result};
 
 use super::axes::draw_cell_axes;
 use super::{chart_err, format_value, write_file, FONT, HEATMAP_SIZE, QUIVER_MAX_ARROWS};
@@ -18,8 +18,8 @@ use super::{chart_err, format_value, write_file, FONT, HEATMAP_SIZE, QUIVER_MAX_
 /// vectors are red crosses.
 ///
 /// # Errors
-/// [`CompareError::Chart`] if `u` and `v` differ in shape or are empty,
-/// [`CompareError::Io`] if the file cannot be written.
+/// [`ReportError::Chart`] if `u` and `v` differ in shape or are empty,
+/// [`ReportError::Io`] if the file cannot be written.
 pub fn quiver_svg(
     path: &Path,
     title: &str,
@@ -40,7 +40,7 @@ pub fn quiver_svg_string(
     v: ArrayView2<'_, f64>,
 ) -> Result<String> {
     if u.dim() != v.dim() {
-        return Err(CompareError::Chart(format!(
+        return Err(ReportError::Chart(format!(
             "quiver '{title}': u has shape {:?}, v has shape {:?}",
             u.shape(),
             v.shape()
@@ -48,7 +48,7 @@ pub fn quiver_svg_string(
     }
     let (nx, ny) = u.dim();
     if nx == 0 || ny == 0 {
-        return Err(CompareError::Chart(format!(
+        return Err(ReportError::Chart(format!(
             "quiver '{title}' of an empty field (shape [{nx}, {ny}])"
         )));
     }

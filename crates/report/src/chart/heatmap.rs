@@ -7,7 +7,7 @@ use ndarray::ArrayView2;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use crate::{CompareError, Result};
+use crate::{ReportError, Result};
 
 use super::axes::{draw_cell_axes, min_max, padded_range};
 use super::{
@@ -116,7 +116,7 @@ pub(super) fn block_average(
 /// Non-finite cells are grey and counted in the title.
 ///
 /// # Errors
-/// [`CompareError::Chart`] for an empty field, [`CompareError::Io`] if the file
+/// [`ReportError::Chart`] for an empty field, [`ReportError::Io`] if the file
 /// cannot be written.
 pub fn heatmap_svg(path: &Path, title: &str, field: ArrayView2<'_, f64>) -> Result<()> {
     heatmap_svg_with_axes(path, title, field, ["x (cell)", "y (cell)"])
@@ -156,7 +156,7 @@ pub fn heatmap_svg_string_with_axes(
 ) -> Result<String> {
     let (nx, ny) = field.dim();
     if nx == 0 || ny == 0 {
-        return Err(CompareError::Chart(format!(
+        return Err(ReportError::Chart(format!(
             "heat map '{title}' of an empty field (shape [{nx}, {ny}])"
         )));
     }

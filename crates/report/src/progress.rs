@@ -1,6 +1,10 @@
-//! Progress reporting for long runs, without a terminal dependency: the
-//! library's sweeps and studies report through [`Progress`]; the command line
-//! passes an `indicatif` bar (feature `cli`), tests and libraries [`NoProgress`].
+//! Progress reporting for long runs: sweeps, studies and trainings report
+//! through [`Progress`]; a program passes an `indicatif` bar ([`progress_bar`])
+//! or [`LineProgress`] for a log, tests and libraries [`NoProgress`].
+
+use std::io::IsTerminal;
+
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 /// Receives the progress of a sweep or a study. Every method has a no-op
 /// default, so an implementation overrides only what it shows.
@@ -78,5 +82,46 @@ impl Progress for LineProgress {
 
     fn finish(&self) {
         eprintln!("{}", self.line("done"));
+    }
+}
+
+/// A progress bar on stderr, hidden when stderr is not a terminal (CI, pipes),
+/// redrawn every second.
+pub fn progress_bar(len: usize, what: &str) -> ProgressBar {
+    let target = if std::io::stderr().is_terminal() {
+        ProgressDrawTarget::stderr()
+    } else {
+        ProgressDrawTarget::hidden()
+    };
+    let bar = ProgressBar::with_draw_target(Some(len as u64), target);
+    if let Ok(style) =
+        ProgressStyle::with_template("{prefix} [{elapsed_precise}] {bar:32} {pos}/{len} {msg}")
+    {
+        bar.set_style(style);
+    }
+    bar.set_prefix(what.to_string());
+    // Redraw every second, so the elapsed time moves during one long run (the
+    // exact gradient or plain CG at 2048²).
+    bar.enable_steady_tick(std::time::Duration::from_secs(1));
+    bar
+}
+
+impl Progress for ProgressBar {
+    fn begin(&self, total: usize, label: &str) {
+        self.reset();
+        self.set_length(total as u64);
+        self.set_prefix(label.to_string());
+    }
+
+    fn set_message(&self, message: String) {
+        ProgressBar::set_message(self, message);
+    }
+
+    fn inc(&self, steps: u64) {
+        ProgressBar::inc(self, steps);
+    }
+
+    fn finish(&self) {
+        self.finish_and_clear();
     }
 }

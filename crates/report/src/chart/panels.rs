@@ -7,7 +7,7 @@ use std::path::Path;
 use ndarray::ArrayView2;
 use plotters::prelude::*;
 
-use crate::{CompareError, Result};
+use crate::{ReportError, Result};
 
 use super::axes::{draw_cell_axes, min_max};
 use super::heatmap::{block_average, draw_color_bar, ColorScale, NON_FINITE_COLOR};
@@ -45,7 +45,7 @@ const PANEL_SIZE: (u32, u32) = (560, 330);
 /// Writes [`heatmap_panels_svg_string`] at `path`.
 ///
 /// # Errors
-/// As [`heatmap_panels_svg_string`]; [`CompareError::Io`] if the file cannot
+/// As [`heatmap_panels_svg_string`]; [`ReportError::Io`] if the file cannot
 /// be written.
 pub fn heatmap_panels_svg(path: &Path, figure: &HeatmapPanels<'_>) -> Result<()> {
     let svg = heatmap_panels_svg_string(figure)?;
@@ -58,29 +58,29 @@ pub fn heatmap_panels_svg(path: &Path, figure: &HeatmapPanels<'_>) -> Result<()>
 /// non-finite cells grey, and the outline drawn on each panel.
 ///
 /// # Errors
-/// [`CompareError::Chart`] without panels, for an empty field, for panels of
+/// [`ReportError::Chart`] without panels, for an empty field, for panels of
 /// different shapes or for 0 columns.
 pub fn heatmap_panels_svg_string(figure: &HeatmapPanels<'_>) -> Result<String> {
     let panels = figure.panels;
     let first = panels
         .first()
-        .ok_or_else(|| CompareError::Chart(format!("panels '{}' without a field", figure.title)))?;
+        .ok_or_else(|| ReportError::Chart(format!("panels '{}' without a field", figure.title)))?;
     let (nx, ny) = first.1.dim();
     if nx == 0 || ny == 0 {
-        return Err(CompareError::Chart(format!(
+        return Err(ReportError::Chart(format!(
             "panels '{}': an empty field (shape [{nx}, {ny}])",
             figure.title
         )));
     }
     if let Some((label, f)) = panels.iter().find(|p| p.1.dim() != (nx, ny)) {
-        return Err(CompareError::Chart(format!(
+        return Err(ReportError::Chart(format!(
             "panels '{}': '{label}' has shape {:?}, the first panel [{nx}, {ny}]",
             figure.title,
             f.dim()
         )));
     }
     if figure.columns == 0 {
-        return Err(CompareError::Chart(format!(
+        return Err(ReportError::Chart(format!(
             "panels '{}' in 0 columns",
             figure.title
         )));
@@ -186,7 +186,7 @@ mod tests {
         };
         assert!(matches!(
             heatmap_panels_svg_string(&bad),
-            Err(CompareError::Chart(m)) if m.contains("'c'")
+            Err(ReportError::Chart(m)) if m.contains("'c'")
         ));
         let none = HeatmapPanels {
             panels: &[],

@@ -4,7 +4,7 @@ use std::path::Path;
 
 use plotters::prelude::*;
 
-use crate::{CompareError, Result};
+use crate::{ReportError, Result};
 
 use super::axes::{min_max, padded_range, AxisScale, TickedAxis};
 use super::{chart_err, series_color, write_file, LineChart, Series, FONT, LINE_SIZE};
@@ -78,8 +78,8 @@ fn legend_corner(
 /// Writes `chart` as an SVG file at `path`.
 ///
 /// # Errors
-/// [`CompareError::Chart`] if there is no series or no point that can be placed
-/// (finite, and positive on a log axis), [`CompareError::Io`] if the file cannot be
+/// [`ReportError::Chart`] if there is no series or no point that can be placed
+/// (finite, and positive on a log axis), [`ReportError::Io`] if the file cannot be
 /// written.
 pub fn line_chart_svg(path: &Path, chart: &LineChart<'_>) -> Result<()> {
     let svg = line_chart_svg_string(chart)?;
@@ -92,7 +92,7 @@ pub fn line_chart_svg(path: &Path, chart: &LineChart<'_>) -> Result<()> {
 /// As [`line_chart_svg`], without the I/O.
 pub fn line_chart_svg_string(chart: &LineChart<'_>) -> Result<String> {
     if chart.series.is_empty() {
-        return Err(CompareError::Chart(format!(
+        return Err(ReportError::Chart(format!(
             "line chart '{}' has no series",
             chart.title
         )));
@@ -107,7 +107,7 @@ pub fn line_chart_svg_string(chart: &LineChart<'_>) -> Result<String> {
         .map(|p| p.0)
         .chain(placed.iter().flat_map(|p| p.non_finite_x.iter().copied()));
     let Some((x_lo, x_hi)) = min_max(xs) else {
-        return Err(CompareError::Chart(format!(
+        return Err(ReportError::Chart(format!(
             "line chart '{}' has no point that can be placed (all empty, non-finite{})",
             chart.title,
             if chart.log_x || chart.log_y {

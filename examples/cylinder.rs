@@ -20,9 +20,16 @@
 //!   force of the flow on the staircase body, pressure and wall shear), and the
 //!   pressure difference `dp = p(0.15, 0.2) − p(0.25, 0.2)` (the pressure of
 //!   the fluid cells next to the front and back points, extrapolated to them).
+//!   The drag and lift are reported by two methods side by side: the surface
+//!   integral over the staircase and the momentum balance over the square of
+//!   half-width 0.1 about the centre (`validation::control_volume_force`,
+//!   one box, the time term from one more step), each with its error and
+//!   observed order.
 //! - 2D-2: from the same start, run to `t_end`; over the last `window` time
 //!   units, `max cD`, `max cL` and the Strouhal number `St = D f / Ubar` from
-//!   the period of the lift (its up-crossings of the mean).
+//!   the period of the lift (its up-crossings of the mean); max cD and max cL
+//!   also by the momentum balance over the same square, its time term from
+//!   successive states (second order at the half step).
 //!
 //! Each case runs at each grid of `--cpd` (a refinement table with the error
 //! against the reference interval); the finest is the stated grid of the
@@ -42,7 +49,8 @@ use std::time::Instant;
 
 use diffphys::flow::diagnostics::vorticity;
 use diffphys::flow::validation::{
-    observed_orders, Dfg2d1, Dfg2d2, FloorCheck, Interval, DFG_2D1, DFG_2D2, DFG_HEIGHT, DFG_LENGTH,
+    observed_orders, Dfg2d1, Dfg2d2, FaceBox, FloorCheck, Interval, DFG_2D1, DFG_2D2, DFG_HEIGHT,
+    DFG_LENGTH,
 };
 use diffphys::flow::Scene;
 use ndarray::Array2;
@@ -55,6 +63,16 @@ fn pair(i: Interval) -> [f64; 2] {
     [i.lo, i.hi]
 }
 
+/// What the two force columns are, for the JSON.
+const FORCE_METHODS: &str = "cd, cl: surface integral over the staircase (DfgChannel::coefficients); \
+    *_cv: momentum balance over the square of half-width 0.1 about the centre (DfgChannel::control_box, \
+    validation::control_volume_force), one box; 2D-2 time term from successive states";
+
+/// A control box as the JSON `[i0, i1, j0, j1]`.
+fn box_faces(b: FaceBox) -> [usize; 4] {
+    [b.i0, b.i1, b.j0, b.j1]
+}
+
 /// Where the stated grid of the floors, the finest, stands in `cpd`.
 fn stated_index(cpd: &[usize]) -> usize {
     let stated = cpd.iter().max();
@@ -64,11 +82,15 @@ fn stated_index(cpd: &[usize]) -> usize {
 }
 
 /// Prints each quantity's relative distance outside its interval at each
-/// grid, then the floors of the stated grid.
-fn print_errors(cpd: &[usize], columns: [(&str, &[f64]); 3], floors: &[FloorCheck]) {
-    let names = columns.map(|(name, _)| format!("{name} error"));
+/// grid and its observed orders between successive grids, then the floors
+/// of the stated grid.
+fn print_errors(cpd: &[usize], columns: &[(&str, &[f64])], floors: &[FloorCheck]) {
+    let names: Vec<String> = columns
+        .iter()
+        .map(|(name, _)| format!("{name} error"))
+        .collect();
     println!(
-        "  cpd | {}   (relative distance outside the interval)",
+        "      cpd | {}   (relative distance outside the interval)",
         names.join(" | ")
     );
     for (k, c) in cpd.iter().enumerate() {
@@ -77,7 +99,23 @@ fn print_errors(cpd: &[usize], columns: [(&str, &[f64]); 3], floors: &[FloorChec
             .zip(&names)
             .map(|((_, e), name)| format!("{:>w$.2} %", e[k] * 1e2, w = name.len() - 2))
             .collect::<Vec<_>>();
-        println!("  {c:3} | {}", cells.join(" | "));
+        println!("  {c:>7} | {}", cells.join(" | "));
+    }
+    let orders: Vec<Vec<Option<f64>>> = columns
+        .iter()
+        .map(|(_, e)| observed_orders(cpd, e))
+        .collect();
+    for k in 1..cpd.len() {
+        let cells = orders
+            .iter()
+            .zip(&names)
+            .map(|(o, name)| match o[k - 1] {
+                Some(p) => format!("{p:>w$.2}", w = name.len()),
+                None => format!("{:>w$}", "-", w = name.len()),
+            })
+            .collect::<Vec<_>>();
+        let pair = format!("{}-{}", cpd[k - 1], cpd[k]);
+        println!("  {pair:>7} | {}   (observed order)", cells.join(" | "));
     }
     let stated = cpd[stated_index(cpd)];
     for f in floors {
@@ -185,9 +223,9 @@ fn main() -> Result<()> {
             let t0 = Instant::now();
             let r = case.run(&mut |_, _, _| Ok(()))?;
             let seconds = t0.elapsed().as_secs_f64();
-            let ([cd, cl, dp], run) = (r.values, &r.run);
+            let ([cd, cl, dp], [cd_cv, cl_cv], run) = (r.values, r.control_volume, &r.run);
             println!(
-                "  2D-1 cpd {cpd:3}: cD {cd:.4}  cL {cl:+.5}  dp {dp:.4}  ({} steps to t = {:.2}, {}; {seconds:.1} s, {:.2} ms/step)",
+                "  2D-1 cpd {cpd:3}: surface cD {cd:.4}  cL {cl:+.5}; control volume cD {cd_cv:.4}  cL {cl_cv:+.5}; dp {dp:.4}  ({} steps to t = {:.2}, {}; {seconds:.1} s, {:.2} ms/step)",
                 run.steps,
                 run.time,
                 if run.steady { "steady" } else { "NOT steady" },
@@ -195,6 +233,7 @@ fn main() -> Result<()> {
             );
             rows.push(json!({
                 "grid": grid_json(&r.scene, cpd), "cd": cd, "cl": cl, "dp": dp,
+                "cd_cv": cd_cv, "cl_cv": cl_cv, "cv_box_faces": box_faces(r.cv_box),
                 "steady": run.steady, "tol": opt.tol, "rate_at_end": run.rate, "steps": run.steps,
                 "substeps": run.substeps, "time": run.time, "wall_s": seconds,
                 "ms_per_step": seconds / run.steps as f64 * 1e3,
@@ -203,10 +242,19 @@ fn main() -> Result<()> {
         }
         let err = |k: usize| -> Vec<f64> { results.iter().map(|r| r.errors[k]).collect() };
         let (ecd, ecl, edp) = (err(0), err(1), err(2));
+        let cv_err =
+            |k: usize| -> Vec<f64> { results.iter().map(|r| r.control_volume_errors[k]).collect() };
+        let (ecd_cv, ecl_cv) = (cv_err(0), cv_err(1));
         let case_floors = &results[stated_index(&opt.cpd)].floors;
         print_errors(
             &opt.cpd,
-            [("cD", &ecd), ("cL", &ecl), ("dp", &edp)],
+            &[
+                ("cD", &ecd),
+                ("CV cD", &ecd_cv),
+                ("cL", &ecl),
+                ("CV cL", &ecl_cv),
+                ("dp", &edp),
+            ],
             case_floors,
         );
         let last = results.last().expect("one grid at least");
@@ -215,8 +263,10 @@ fn main() -> Result<()> {
             "2d1".into(),
             json!({
                 "reference": {"cd": pair(iv.cd), "cl": pair(iv.cl), "dp": pair(iv.dp)}, "runs": rows,
-                "error_outside_interval": {"cd": ecd, "cl": ecl, "dp": edp},
-                "observed_order": {"cd": observed_orders(&opt.cpd, &ecd), "cl": observed_orders(&opt.cpd, &ecl), "dp": observed_orders(&opt.cpd, &edp)},
+                "force_methods": FORCE_METHODS,
+                "error_outside_interval": {"cd": ecd, "cl": ecl, "dp": edp, "cd_cv": ecd_cv, "cl_cv": ecl_cv},
+                "observed_order": {"cd": observed_orders(&opt.cpd, &ecd), "cl": observed_orders(&opt.cpd, &ecl), "dp": observed_orders(&opt.cpd, &edp),
+                                   "cd_cv": observed_orders(&opt.cpd, &ecd_cv), "cl_cv": observed_orders(&opt.cpd, &ecl_cv)},
                 "stated_cells_per_diameter": stated,
                 "floor": flow_common::floors_json(case_floors),
                 "step_costs_at_stated_grid": costs,
@@ -245,10 +295,12 @@ fn main() -> Result<()> {
             let seconds = t0.elapsed().as_secs_f64();
             let [steps, substeps] = r.steps;
             println!(
-                "  2D-2 cpd {cpd:3}: St {:.4}  max cD {:.4}  max cL {:.4}  ({} lift periods in the last {} time units, {}; {steps} steps, {seconds:.1} s, {:.2} ms/step)",
+                "  2D-2 cpd {cpd:3}: St {:.4}  max cD {:.4} (CV {:.4})  max cL {:.4} (CV {:.4})  ({} lift periods in the last {} time units, {}; {steps} steps, {seconds:.1} s, {:.2} ms/step)",
                 r.strouhal,
                 r.cd_max,
+                r.cd_max_cv,
                 r.cl_max,
+                r.cl_max_cv,
                 r.periods.len(),
                 opt.window,
                 if r.periodic { "periodic" } else { "NOT yet periodic" },
@@ -256,7 +308,8 @@ fn main() -> Result<()> {
             );
             rows.push(json!({
                 "grid": grid_json(&r.scene, cpd), "strouhal": r.strouhal, "cd_max": r.cd_max,
-                "cl_max": r.cl_max, "cl_min": r.cl_min, "cl_mean": r.cl_mean, "periods": r.periods,
+                "cl_max": r.cl_max, "cd_max_cv": r.cd_max_cv, "cl_max_cv": r.cl_max_cv,
+                "cv_box_faces": box_faces(r.cv_box), "cl_min": r.cl_min, "cl_mean": r.cl_mean, "periods": r.periods,
                 "periodic": r.periodic, "steps": steps, "substeps": substeps, "t_end": opt.t_end,
                 "window": opt.window, "wall_s": seconds, "ms_per_step": seconds / steps as f64 * 1e3,
             }));
@@ -264,10 +317,18 @@ fn main() -> Result<()> {
         }
         let err = |k: usize| -> Vec<f64> { results.iter().map(|r| r.errors[k]).collect() };
         let (est, ecd, ecl) = (err(0), err(1), err(2));
+        let cv_err = |k: usize| -> Vec<f64> { results.iter().map(|r| r.cv_errors[k]).collect() };
+        let (ecd_cv, ecl_cv) = (cv_err(0), cv_err(1));
         let case_floors = &results[stated_index(&opt.cpd)].floors;
         print_errors(
             &opt.cpd,
-            [("St", &est), ("max cD", &ecd), ("max cL", &ecl)],
+            &[
+                ("St", &est),
+                ("max cD", &ecd),
+                ("CV max cD", &ecd_cv),
+                ("max cL", &ecl),
+                ("CV max cL", &ecl_cv),
+            ],
             case_floors,
         );
         let last = results.last().expect("one grid at least");
@@ -306,8 +367,10 @@ fn main() -> Result<()> {
                 "reference": {"strouhal": pair(iv.strouhal), "cd_max": pair(iv.cd_max),
                               "cl_max": pair(iv.cl_max), "dp_half_period": pair(iv.dp_half_period)},
                 "runs": rows,
-                "error_outside_interval": {"strouhal": est, "cd_max": ecd, "cl_max": ecl},
-                "observed_order": {"strouhal": observed_orders(&opt.cpd, &est), "cd_max": observed_orders(&opt.cpd, &ecd), "cl_max": observed_orders(&opt.cpd, &ecl)},
+                "force_methods": FORCE_METHODS,
+                "error_outside_interval": {"strouhal": est, "cd_max": ecd, "cl_max": ecl, "cd_max_cv": ecd_cv, "cl_max_cv": ecl_cv},
+                "observed_order": {"strouhal": observed_orders(&opt.cpd, &est), "cd_max": observed_orders(&opt.cpd, &ecd), "cl_max": observed_orders(&opt.cpd, &ecl),
+                                   "cd_max_cv": observed_orders(&opt.cpd, &ecd_cv), "cl_max_cv": observed_orders(&opt.cpd, &ecl_cv)},
                 "stated_cells_per_diameter": stated,
                 "floor": flow_common::floors_json(case_floors),
                 "step_costs_at_stated_grid": costs,

@@ -18,7 +18,8 @@
 //!
 //!   by the midpoint rule on each cell edge (pressure and tangential velocity
 //!   averaged to the edge, normal derivatives by central differences), for
-//!   several boxes; the time term from one more step. It never looks at the
+//!   several boxes; the time term from one more step. This is the library's
+//!   `validation::control_volume_force` on a `validation::FaceBox`. It never looks at the
 //!   staircase, so an error of the surface evaluation shows as a gap between
 //!   the two, and an error of the flow field as both moving together.
 //! - **Geometry**: the solid cells' area, centroid and first moments about the
@@ -46,141 +47,16 @@ mod flow_common;
 use std::time::Instant;
 
 use diffphys::flow::validation::{
-    Dfg2d1, DfgChannel, FloorCheck, DFG_2D1, DFG_2D1_HIGH_ACCURACY, DFG_CENTRE, DFG_DIAMETER,
-    DFG_HEIGHT, DFG_NU,
+    control_volume_force, Dfg2d1, DfgChannel, FaceBox, FloorCheck, CONTROL_VOLUME_CLEARANCE,
+    DFG_2D1, DFG_2D1_HIGH_ACCURACY, DFG_CENTRE, DFG_DIAMETER, DFG_HEIGHT, DFG_NU,
 };
 use diffphys::flow::{FlowState, Scene};
-use ndarray::Array2;
 use serde_json::{json, Value};
 
 type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
 
 /// Half-widths of the control volumes, squares centred on the cylinder.
 const BOXES: [f64; 4] = [0.06, 0.08, 0.1, 0.15];
-
-/// A force split into its parts, each `[F_x, F_y]`.
-#[derive(Debug, Clone, Copy, Default)]
-struct Parts {
-    pressure: [f64; 2],
-    viscous: [f64; 2],
-    convective: [f64; 2],
-    unsteady: [f64; 2],
-}
-
-impl Parts {
-    fn total(&self) -> [f64; 2] {
-        [0, 1].map(|d| self.pressure[d] + self.viscous[d] + self.convective[d] + self.unsteady[d])
-    }
-}
-
-/// A rectangle of cell faces: x from face `i0` to `i1`, y from `j0` to `j1`.
-#[derive(Debug, Clone, Copy)]
-struct Box2 {
-    i0: usize,
-    i1: usize,
-    j0: usize,
-    j1: usize,
-}
-
-impl Box2 {
-    /// The square of half-width `a` about the cylinder's centre, snapped to faces.
-    fn around(scene: &Scene, a: f64) -> Self {
-        let g = scene.grid();
-        let face = |x: f64, h: f64, n: usize| ((x / h).round() as usize).clamp(1, n - 1);
-        Box2 {
-            i0: face(DFG_CENTRE[0] - a, g.dx, g.nx),
-            i1: face(DFG_CENTRE[0] + a, g.dx, g.nx),
-            j0: face(DFG_CENTRE[1] - a, g.dy, g.ny),
-            j1: face(DFG_CENTRE[1] + a, g.dy, g.ny),
-        }
-    }
-
-    /// Cells between the box's edges and the nearest solid cell (at least 1
-    /// for a box that encloses the body).
-    fn clearance(&self, solid: &Array2<bool>) -> usize {
-        let (nx, ny) = solid.dim();
-        let mut gap = usize::MAX;
-        for i in 0..nx {
-            for j in 0..ny {
-                if !solid[[i, j]] {
-                    continue;
-                }
-                if i < self.i0 || i >= self.i1 || j < self.j0 || j >= self.j1 {
-                    return 0;
-                }
-                gap = gap
-                    .min(i - self.i0)
-                    .min(self.i1 - 1 - i)
-                    .min(j - self.j0)
-                    .min(self.j1 - 1 - j);
-            }
-        }
-        gap
-    }
-}
-
-/// The momentum inside `b`: `∫ u dV` from the cell-centred velocity.
-fn momentum(scene: &Scene, s: &FlowState<f64>, b: Box2) -> [f64; 2] {
-    let g = scene.grid();
-    let mut m = [0.0; 2];
-    for i in b.i0..b.i1 {
-        for j in b.j0..b.j1 {
-            m[0] += 0.5 * (s.ux[[i, j]] + s.ux[[i + 1, j]]) * g.dx * g.dy;
-            m[1] += 0.5 * (s.uy[[i, j]] + s.uy[[i, j + 1]]) * g.dx * g.dy;
-        }
-    }
-    m
-}
-
-/// The control-volume force on whatever lies inside `b` (see the module docs):
-/// the fluxes of the state `s`, the time term from `s` to `next` over `dt`.
-fn control_volume(
-    scene: &Scene,
-    s: &FlowState<f64>,
-    next: &FlowState<f64>,
-    dt: f64,
-    b: Box2,
-) -> Parts {
-    let g = scene.grid();
-    let (dx, dy) = (g.dx, g.dy);
-    let (ux, uy, p) = (&s.ux, &s.uy, &s.pressure);
-    let uxc = |i: usize, j: usize| 0.5 * (ux[[i, j]] + ux[[i + 1, j]]);
-    let uyc = |i: usize, j: usize| 0.5 * (uy[[i, j]] + uy[[i, j + 1]]);
-    let mut f = Parts::default();
-    // the left (n = −x) and right (n = +x) edges, one segment per row
-    for (i, s) in [(b.i0, -1.0), (b.i1, 1.0)] {
-        for j in b.j0..b.j1 {
-            let pf = 0.5 * (p[[i - 1, j]] + p[[i, j]]);
-            let un = ux[[i, j]];
-            let vf = 0.5 * (uyc(i - 1, j) + uyc(i, j));
-            let dudx = (ux[[i + 1, j]] - ux[[i - 1, j]]) / (2.0 * dx);
-            let dvdx = (uyc(i, j) - uyc(i - 1, j)) / dx;
-            f.pressure[0] -= pf * s * dy;
-            f.viscous[0] += DFG_NU * dudx * s * dy;
-            f.viscous[1] += DFG_NU * dvdx * s * dy;
-            f.convective[0] -= un * un * s * dy;
-            f.convective[1] -= vf * un * s * dy;
-        }
-    }
-    // the bottom (n = −y) and top (n = +y) edges, one segment per column
-    for (j, s) in [(b.j0, -1.0), (b.j1, 1.0)] {
-        for i in b.i0..b.i1 {
-            let pf = 0.5 * (p[[i, j - 1]] + p[[i, j]]);
-            let vn = uy[[i, j]];
-            let uf = 0.5 * (uxc(i, j - 1) + uxc(i, j));
-            let dvdy = (uy[[i, j + 1]] - uy[[i, j - 1]]) / (2.0 * dy);
-            let dudy = (uxc(i, j) - uxc(i, j - 1)) / dy;
-            f.pressure[1] -= pf * s * dx;
-            f.viscous[0] += DFG_NU * dudy * s * dx;
-            f.viscous[1] += DFG_NU * dvdy * s * dx;
-            f.convective[0] -= uf * vn * s * dx;
-            f.convective[1] -= vn * vn * s * dx;
-        }
-    }
-    let (m0, m1) = (momentum(scene, s, b), momentum(scene, next, b));
-    f.unsteady = [0, 1].map(|d| -(m1[d] - m0[d]) / dt);
-    f
-}
 
 /// The rasterised body against the true disc: area, centroid offset, first
 /// moments about the true centre, mirror symmetry about y = 0.2 and x = 0.2.
@@ -281,15 +157,11 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
     let total = DfgChannel::force(scene, s, DFG_NU)?;
     let pressure = DfgChannel::force(scene, s, 0.0)?;
     let c = |f: [f64; 2]| f.map(|v| coefficient * v);
-    let surface = Parts {
-        pressure,
-        viscous: [total[0] - pressure[0], total[1] - pressure[1]],
-        ..Parts::default()
-    };
+    let shear = [total[0] - pressure[0], total[1] - pressure[1]];
     let extrapolated = pressure_extrapolated(scene, s);
     let variants = [
-        [0, 1].map(|d| extrapolated[d] + surface.viscous[d]),
-        [0, 1].map(|d| surface.pressure[d] + 0.5 * surface.viscous[d]),
+        [0, 1].map(|d| extrapolated[d] + shear[d]),
+        [0, 1].map(|d| pressure[d] + 0.5 * shear[d]),
     ];
     let g = scene.grid();
     println!(
@@ -299,15 +171,15 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
         steps as f64 * dt,
         if rate < tol { "steady" } else { "NOT steady" }
     );
-    let st = c(surface.total());
+    let st = c([0, 1].map(|d| pressure[d] + shear[d]));
     println!(
         "  surface        cD {:.4} cL {:+.5}   (pressure cD {:.4} cL {:+.5}; shear cD {:.4} cL {:+.5})",
         st[0],
         st[1],
-        c(surface.pressure)[0],
-        c(surface.pressure)[1],
-        c(surface.viscous)[0],
-        c(surface.viscous)[1]
+        c(pressure)[0],
+        c(pressure)[1],
+        c(shear)[0],
+        c(shear)[1]
     );
     println!(
         "  surface variants: pressure extrapolated to the face cD {:.4} cL {:+.5}; shear nu u_t/h cD {:.4} cL {:+.5}",
@@ -318,12 +190,12 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
     );
     let mut boxes = Vec::new();
     for a in BOXES {
-        let b = Box2::around(scene, a);
+        let b = FaceBox::around(g, DFG_CENTRE, a);
         let clearance = b.clearance(scene.solid());
-        if clearance < 2 {
+        if clearance < CONTROL_VOLUME_CLEARANCE {
             continue;
         }
-        let f = control_volume(scene, s, &next, dt, b);
+        let f = control_volume_force(scene, b, s, Some(&next), DFG_NU)?;
         let t = c(f.total());
         println!(
             "  CV |x-0.2|,|y-0.2| <= {a:.2} ({clearance:2} cells clear): cD {:.4} cL {:+.5}   (pressure cL {:+.5}, viscous {:+.5}, convective {:+.5}, unsteady {:+.1e})",
@@ -357,7 +229,7 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
         "courant": opt.courant, "steps": steps, "time": steps as f64 * dt, "steady": rate < tol, "tol": tol,
         "rate_at_end": rate, "wall_s": seconds,
         "surface": {"cd": st[0], "cl": st[1],
-                    "pressure": c(surface.pressure), "shear": c(surface.viscous),
+                    "pressure": c(pressure), "shear": c(shear),
                     "pressure_extrapolated_to_face": c(variants[0]),
                     "shear_over_h": c(variants[1])},
         "control_volume": boxes,

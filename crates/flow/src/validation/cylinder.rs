@@ -15,10 +15,14 @@
 //!   lift coefficients `cD = 2 F_x / (Ubar² D)`, `cL = 2 F_y / (Ubar² D)`
 //!   (the surface force on the staircase, [`crate::diagnostics::obstacle_force`])
 //!   and `dp = p(0.15, 0.2) − p(0.25, 0.2)`.
+//!   The drag and lift are also reported by the momentum balance over a
+//!   square around the body ([`DfgChannel::control_box`],
+//!   [`control_volume_force`]), which never reads the staircase.
 //! - 2D-2 ([`Dfg2d2`]): from the same start to `t_end`; over the last
 //!   `window` time units the largest cD and cL and the Strouhal number
 //!   `St = D f / Ubar` from the period of the lift (its up-crossings of the
-//!   mean).
+//!   mean); the largest cD and cL also by the momentum balance, its time
+//!   term from successive states.
 //!
 //! # References
 //! M. Schäfer and S. Turek, *Benchmark computations of laminar flow around a
@@ -38,6 +42,7 @@ use crate::diagnostics::obstacle_force;
 use crate::diffusion::ViscosityMode;
 use crate::{FlowError, FlowState, Result, Scene};
 
+use super::{control_volume_force, FaceBox};
 use super::{positive, run_to_steady, FloorCheck, Interval, Observer, SteadyRun, SteadyStop};
 
 /// The channel's length.
@@ -130,6 +135,9 @@ pub struct DfgChannel {
     pub height: f64,
     /// The Courant number of a step at the inflow's peak.
     pub courant: f64,
+    /// The half-width of the control volume of [`DfgChannel::control_box`]
+    /// (0.1, one diameter).
+    pub cv_half_width: f64,
 }
 
 impl DfgChannel {
@@ -149,6 +157,7 @@ impl DfgChannel {
             cpd,
             height: DFG_HEIGHT,
             courant: 0.4,
+            cv_half_width: DFG_DIAMETER,
         })
     }
 
@@ -222,6 +231,32 @@ impl DfgChannel {
         Ok([c * f[0], c * f[1]])
     }
 
+    /// The control volume of the momentum-balance forces: the square of
+    /// half-width [`DfgChannel::cv_half_width`] about the cylinder's centre,
+    /// its edges snapped to faces ([`FaceBox::around`]).
+    pub fn control_box(&self, scene: &Scene) -> FaceBox {
+        FaceBox::around(scene.grid(), DFG_CENTRE, self.cv_half_width)
+    }
+
+    /// `[cD, cL]` of a state at mean inflow `ubar` by the momentum balance
+    /// over `b` ([`control_volume_force`] at [`DFG_NU`], the time term from
+    /// `next`, the state one step later, or none), over `Ubar² D / 2`.
+    ///
+    /// # Errors
+    /// Those of [`control_volume_force`]: a state of another scene, a box
+    /// that leaves the domain or cuts the body.
+    pub fn control_volume_coefficients(
+        scene: &Scene,
+        b: FaceBox,
+        s: &FlowState<f64>,
+        next: Option<&FlowState<f64>>,
+        ubar: f64,
+    ) -> Result<[f64; 2]> {
+        let f = control_volume_force(scene, b, s, next, DFG_NU)?.total();
+        let c = 2.0 / (ubar * ubar * DFG_DIAMETER);
+        Ok([c * f[0], c * f[1]])
+    }
+
     /// `p(0.15, 0.2) − p(0.25, 0.2)`: along the two rows of cells around
     /// y = 0.2, the last fluid cells before the body (the first after it)
     /// extrapolated linearly to the front (back) point, averaged over the rows.
@@ -266,10 +301,21 @@ pub struct Dfg2d1 {
 /// A 2D-1 run against [`DFG_2D1`].
 #[derive(Debug, Clone)]
 pub struct SteadyCylinder {
-    /// `[cD, cL, dp]` at the last state.
+    /// `[cD, cL, dp]` at the last state, the forces by the surface integral
+    /// ([`DfgChannel::coefficients`]).
     pub values: [f64; 3],
     /// How far each lies outside its interval, relative (0 inside).
     pub errors: [f64; 3],
+    /// `[cD, cL]` at the last state by the momentum balance over
+    /// [`SteadyCylinder::cv_box`] ([`DfgChannel::control_volume_coefficients`],
+    /// the time term from one more step): the second force method.
+    pub control_volume: [f64; 2],
+    /// How far each of [`SteadyCylinder::control_volume`] lies outside its
+    /// interval, relative.
+    pub control_volume_errors: [f64; 2],
+    /// The control volume, [`DfgChannel::control_box`] (one box, not a mean
+    /// over several).
+    pub cv_box: FaceBox,
     /// The 2D-1 floor: cD within 5 % of the interval.
     pub floors: Vec<FloorCheck>,
     /// `[t, cD, cL]` after each window of the run (every 100 steps), the
@@ -299,9 +345,14 @@ impl Dfg2d1 {
     /// `observe(steps, state, rate)` every 100 steps.
     ///
     /// # Errors
-    /// Those of [`DfgChannel::scene`], [`run_to_steady`] and `observe`.
+    /// Those of [`DfgChannel::scene`], [`run_to_steady`] and `observe`; those
+    /// of [`control_volume_force`] for a control box that cuts the body or
+    /// leaves the channel (checked before the run).
     pub fn run(&self, observe: &mut Observer<'_>) -> Result<SteadyCylinder> {
         let scene = self.channel.scene(DFG_2D1.um)?;
+        let cv_box = self.channel.control_box(&scene);
+        let start = DfgChannel::start(&scene);
+        control_volume_force(&scene, cv_box, &start, None, DFG_NU)?;
         let stop = SteadyStop {
             tol: self.tol,
             max_time: self.max_time,
@@ -313,7 +364,7 @@ impl Dfg2d1 {
             history.push([steps as f64 * scene.dt(), cd, cl]);
             observe(steps, s, rate)
         };
-        let run = run_to_steady(&scene, DfgChannel::start(&scene), stop, &mut record)?;
+        let run = run_to_steady(&scene, start, stop, &mut record)?;
         let [cd, cl] = DfgChannel::coefficients(&scene, &run.state, DFG_2D1.ubar)?;
         let dp = DfgChannel::pressure_difference(&scene, &run.state);
         let errors = [
@@ -321,9 +372,20 @@ impl Dfg2d1 {
             DFG_2D1.cl.outside(cl),
             DFG_2D1.dp.outside(dp),
         ];
+        let next = scene.forward(&run.state, &scene.params())?.0;
+        let cv = DfgChannel::control_volume_coefficients(
+            &scene,
+            cv_box,
+            &run.state,
+            Some(&next),
+            DFG_2D1.ubar,
+        )?;
         Ok(SteadyCylinder {
             values: [cd, cl, dp],
             errors,
+            control_volume: cv,
+            control_volume_errors: [DFG_2D1.cd.outside(cv[0]), DFG_2D1.cl.outside(cv[1])],
+            cv_box,
             floors: vec![FloorCheck::at_most(
                 "2D-1 cD distance outside the interval",
                 errors[0],
@@ -374,10 +436,26 @@ pub struct PeriodicCylinder {
     pub periods: Vec<f64>,
     /// Whether the last two periods agree to 1 %.
     pub periodic: bool,
-    /// `[t, cD, cL]` at every step of the window.
+    /// `[t, cD, cL]` at every step of the window, the surface force.
     pub history: Vec<[f64; 3]>,
     /// How far St, max cD and max cL lie outside their intervals, relative.
     pub errors: [f64; 3],
+    /// The largest cD in the window by the momentum balance over
+    /// [`PeriodicCylinder::cv_box`].
+    pub cd_max_cv: f64,
+    /// The largest cL in the window by the momentum balance.
+    pub cl_max_cv: f64,
+    /// How far [`PeriodicCylinder::cd_max_cv`] and
+    /// [`PeriodicCylinder::cl_max_cv`] lie outside their intervals, relative.
+    pub cv_errors: [f64; 2],
+    /// `[t, cD, cL]` by the momentum balance at each half step of the window,
+    /// `t = (k − ½) dt` between steps `k − 1` and `k`: the mean of the two
+    /// states' surface terms of [`control_volume_force`] and the time term
+    /// `−(M_k − M_{k−1}) / dt` of the momentum `M` inside the box (second
+    /// order in time at the half step).
+    pub cv_history: Vec<[f64; 3]>,
+    /// The control volume, [`DfgChannel::control_box`].
+    pub cv_box: FaceBox,
     /// The 2D-2 floor: St within 5 % of the interval.
     pub floors: Vec<FloorCheck>,
     /// Steps and substeps taken.
@@ -405,7 +483,9 @@ impl Dfg2d2 {
     ///
     /// # Errors
     /// [`FlowError::InvalidParameter`] unless `0 < window < t_end`; those of
-    /// [`DfgChannel::scene`] and [`Scene::forward`].
+    /// [`DfgChannel::scene`] and [`Scene::forward`]; those of
+    /// [`control_volume_force`] for a control box that cuts the body or
+    /// leaves the channel (checked before the run).
     pub fn run(&self) -> Result<PeriodicCylinder> {
         positive("DFG 2D-2", "window", self.window)?;
         if self.t_end.is_nan() || self.window >= self.t_end {
@@ -418,9 +498,18 @@ impl Dfg2d2 {
         let scene = self.channel.scene(DFG_2D2.um)?;
         let (params, dt) = (scene.params(), scene.dt());
         let mut s = DfgChannel::start(&scene);
+        let cv_box = self.channel.control_box(&scene);
+        // the surface terms and the momentum of a state in the control volume
+        let terms = |s: &FlowState<f64>| -> Result<[[f64; 2]; 2]> {
+            let f = control_volume_force(&scene, cv_box, s, None, DFG_NU)?;
+            Ok([f.total(), cv_box.momentum(&scene, s)?])
+        };
+        let start_terms = terms(&s)?;
         let steps = (self.t_end / dt).round() as usize;
         let record_from = ((self.t_end - self.window) / dt).round() as usize;
-        let (mut history, mut substeps) = (Vec::new(), 0);
+        let c = 2.0 / (DFG_2D2.ubar * DFG_2D2.ubar * DFG_DIAMETER);
+        let mut previous = (record_from <= 1).then_some(start_terms);
+        let (mut history, mut cv_history, mut substeps) = (Vec::new(), Vec::new(), 0);
         for k in 1..=steps {
             let (next, info) = scene.forward(&s, &params)?;
             substeps += info.substeps;
@@ -429,14 +518,35 @@ impl Dfg2d2 {
                 let [cd, cl] = DfgChannel::coefficients(&scene, &s, DFG_2D2.ubar)?;
                 history.push([k as f64 * dt, cd, cl]);
             }
+            if k + 1 >= record_from {
+                let [flux, momentum] = terms(&s)?;
+                if let Some([flux0, momentum0]) = previous.filter(|_| k >= record_from) {
+                    let f = [0, 1].map(|d| {
+                        c * (0.5 * (flux0[d] + flux[d]) - (momentum[d] - momentum0[d]) / dt)
+                    });
+                    cv_history.push([(k as f64 - 0.5) * dt, f[0], f[1]]);
+                }
+                previous = Some([flux, momentum]);
+            }
         }
-        Ok(analyse(history, [steps, substeps], scene, s))
+        let cv = ControlVolumeRecord {
+            cv_box,
+            history: cv_history,
+        };
+        Ok(analyse(history, cv, [steps, substeps], scene, s))
     }
+}
+
+/// The momentum-balance forces of a 2D-2 window.
+struct ControlVolumeRecord {
+    cv_box: FaceBox,
+    history: Vec<[f64; 3]>,
 }
 
 /// The Strouhal number and the extrema of a 2D-2 history.
 fn analyse(
     history: Vec<[f64; 3]>,
+    cv: ControlVolumeRecord,
     steps: [usize; 2],
     scene: Scene,
     state: FlowState<f64>,
@@ -468,6 +578,13 @@ fn analyse(
         DFG_2D2.cd_max.outside(cd_max),
         DFG_2D2.cl_max.outside(cl_max),
     ];
+    let cv_max = |c: usize| {
+        cv.history
+            .iter()
+            .map(|h| h[c])
+            .fold(f64::NEG_INFINITY, f64::max)
+    };
+    let (cd_max_cv, cl_max_cv) = (cv_max(1), cv_max(2));
     PeriodicCylinder {
         strouhal,
         cd_max,
@@ -478,6 +595,14 @@ fn analyse(
         periodic,
         history,
         errors,
+        cd_max_cv,
+        cl_max_cv,
+        cv_errors: [
+            DFG_2D2.cd_max.outside(cd_max_cv),
+            DFG_2D2.cl_max.outside(cl_max_cv),
+        ],
+        cv_history: cv.history,
+        cv_box: cv.cv_box,
         floors: vec![FloorCheck::at_most(
             "2D-2 St distance outside the interval",
             errors[0],
@@ -548,7 +673,11 @@ mod tests {
         let channel = DfgChannel::new(4).unwrap();
         let scene = channel.scene(1.5).unwrap();
         let state = DfgChannel::start(&scene);
-        let r = analyse(history, [0, 0], scene, state);
+        let cv = ControlVolumeRecord {
+            cv_box: channel.control_box(&scene),
+            history: history.clone(),
+        };
+        let r = analyse(history, cv, [0, 0], scene, state);
         assert!(
             (r.strouhal - DFG_DIAMETER / 0.3).abs() < 1e-6,
             "{}",
@@ -556,5 +685,6 @@ mod tests {
         );
         assert!(r.periodic);
         assert!((r.cl_max - 1.0).abs() < 1e-4);
+        assert_eq!([r.cd_max_cv, r.cl_max_cv], [r.cd_max, r.cl_max]);
     }
 }

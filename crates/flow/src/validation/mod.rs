@@ -8,6 +8,10 @@
 //! | [`Cavity`] | Ghia, Ghia and Shin 1982 ([`GHIA_1982`]) | [`CavityResult`]: centrelines and deviations |
 //! | [`Dfg2d1`], [`Dfg2d2`] | Schäfer and Turek 1996 ([`DFG_2D1`], [`DFG_2D2`]) | [`SteadyCylinder`], [`PeriodicCylinder`] |
 //!
+//! The cylinder's forces are reported by two methods: the surface integral over
+//! the staircase body and the momentum balance over a box around it
+//! ([`control_volume_force`] on a [`FaceBox`]).
+//!
 //! The published tables are constants here, with their citations; a floor is
 //! a [`FloorCheck`] (the quantity, its value, the limit and where the limit
 //! comes from), and a result's `floors_met()` is what an example's exit
@@ -24,10 +28,14 @@
 //! ```
 
 mod cavity;
+mod control_volume;
 mod cylinder;
 mod taylor_green;
 
 pub use cavity::{Cavity, CavityResult, GhiaTable, SuspectPoint, GHIA_1982, GHIA_X, GHIA_Y};
+pub use control_volume::{
+    control_volume_force, ControlVolumeForce, FaceBox, CONTROL_VOLUME_CLEARANCE,
+};
 pub use cylinder::{
     Dfg2d1, Dfg2d1Reference, Dfg2d2, Dfg2d2Reference, DfgChannel, PeriodicCylinder, SteadyCylinder,
     DFG_2D1, DFG_2D1_HIGH_ACCURACY, DFG_2D2, DFG_CENTRE, DFG_DIAMETER, DFG_HEIGHT, DFG_LENGTH,

@@ -1,9 +1,12 @@
-//! `Conv2` forward + backward as the fused op (a register-blocked direct kernel, one
-//! node, adjoint by hand) against the same convolution built from tape
-//! primitives (per kernel tap: roll, broadcast multiply, sum over input
-//! channels, add), and the fused op computing in f32 on the same f64 tape
-//! (`Arithmetic::Single`), at batch 8, 16 → 16 channels, 3×3 kernel, 64²
-//! cells, periodic padding, gradients in the input, the kernel and the bias.
+//! The convolution's forward + backward as the fused op (a register-blocked
+//! direct kernel, one node, adjoint by hand) against the same convolution built
+//! from tape primitives (per kernel tap: roll, broadcast multiply, sum over
+//! input channels, add), and the fused op computing in f32 on the same f64 tape
+//! (`Arithmetic::Single`), with periodic padding and gradients in the input, the
+//! kernel and the bias, in two cases: 2D at batch 8, 16 → 16 channels, 3×3
+//! kernel, 64² cells (the wake flow's corrector), and 1D at batch 16, 32 → 32
+//! channels, kernel 5, 128 cells (the widest layer of the Burgers scenes'
+//! U-Net, whose weight gradient was once 9× slower than it is).
 //!
 //! Run: `cargo bench --bench nn_conv` (`-- --quick` for a short run). Before
 //! timing it prints, for each variant, the tape's peak bytes, the best of five
@@ -18,10 +21,25 @@ use diffphys::nn::reference::conv_from_primitives;
 use diffphys::nn::{Arithmetic, ConvOp, Padding};
 use diffphys::prelude::*;
 
-const BATCH: usize = 8;
-const CHANNELS: usize = 16;
-const KERNEL: usize = 3;
-const N: usize = 64;
+/// One convolution: its name and the shapes of its input and kernel.
+struct Case {
+    name: &'static str,
+    x: &'static [usize],
+    w: &'static [usize],
+}
+
+const CASES: [Case; 2] = [
+    Case {
+        name: "conv2d batch 8, 16→16, 3×3, 64²",
+        x: &[8, 16, 64, 64],
+        w: &[16, 16, 3, 3],
+    },
+    Case {
+        name: "conv1d batch 16, 32→32, kernel 5, 128",
+        x: &[16, 32, 128],
+        w: &[32, 32, 5],
+    },
+];
 
 #[derive(Clone, Copy, Debug)]
 enum Variant {
@@ -39,12 +57,14 @@ struct Inputs {
     seed: ArrayD<f64>,
 }
 
-fn inputs() -> Inputs {
+fn inputs(case: &Case) -> Inputs {
+    let mut y = case.x.to_vec();
+    y[1] = case.w[0];
     Inputs {
-        x: test_array(&[BATCH, CHANNELS, N, N], 1),
-        w: test_array(&[CHANNELS, CHANNELS, KERNEL, KERNEL], 2),
-        b: test_array(&[CHANNELS], 3),
-        seed: test_array(&[BATCH, CHANNELS, N, N], 4),
+        x: test_array(case.x, 1),
+        w: test_array(case.w, 2),
+        b: test_array(&[case.w[0]], 3),
+        seed: test_array(&y, 4),
     }
 }
 
@@ -59,7 +79,7 @@ fn run(variant: Variant, inp: &Inputs) -> ([ArrayD<f64>; 3], TapeStats) {
     let y = match variant {
         Variant::Op | Variant::OpSingle => tape.apply(
             ConvOp {
-                name: "conv2d".into(),
+                name: "conv".into(),
                 padding: Padding::Periodic,
                 arithmetic: if matches!(variant, Variant::Op) {
                     Arithmetic::Native
@@ -89,7 +109,7 @@ fn best_seconds(variant: Variant, inp: &Inputs) -> f64 {
         .fold(f64::INFINITY, f64::min)
 }
 
-fn report(inp: &Inputs) {
+fn report(case: &Case, inp: &Inputs) {
     let (g_op, s_op) = run(Variant::Op, inp);
     let (g_single, _) = run(Variant::OpSingle, inp);
     let (g_prim, s_prim) = run(Variant::Primitives, inp);
@@ -106,10 +126,11 @@ fn report(inp: &Inputs) {
         best_seconds(Variant::Primitives, inp),
     );
     println!(
-        "conv2d batch {BATCH}, {CHANNELS}→{CHANNELS}, {KERNEL}×{KERNEL}, {N}²: op {:.2} ms, {} B, {} nodes; \
+        "{}: op {:.2} ms, {} B, {} nodes; \
          primitives {:.2} ms, {} B, {} nodes; primitives/op time {:.1}, bytes {:.1}; \
          max |grad difference| {diff:.1e}; op in f32 {:.2} ms ({:.2}× faster than f64), \
          max |grad difference| to f64 {diff_single:.1e}",
+        case.name,
         t_op * 1e3,
         s_op.peak_bytes,
         s_op.nodes,
@@ -124,17 +145,22 @@ fn report(inp: &Inputs) {
 }
 
 fn bench(c: &mut Criterion) {
-    let inp = inputs();
-    report(&inp);
-    let mut group = c.benchmark_group("conv2d_forward_backward");
-    group.throughput(Throughput::Elements((BATCH * CHANNELS * N * N) as u64));
-    group.sample_size(10);
-    for variant in [Variant::Op, Variant::OpSingle, Variant::Primitives] {
-        group.bench_function(format!("{variant:?}").to_lowercase(), |bench| {
-            bench.iter(|| black_box(run(variant, &inp)))
-        });
+    for (case, group_name) in CASES
+        .iter()
+        .zip(["conv2d_forward_backward", "conv1d_forward_backward"])
+    {
+        let inp = inputs(case);
+        report(case, &inp);
+        let mut group = c.benchmark_group(group_name);
+        group.throughput(Throughput::Elements(inp.x.len() as u64));
+        group.sample_size(10);
+        for variant in [Variant::Op, Variant::OpSingle, Variant::Primitives] {
+            group.bench_function(format!("{variant:?}").to_lowercase(), |bench| {
+                bench.iter(|| black_box(run(variant, &inp)))
+            });
+        }
+        group.finish();
     }
-    group.finish();
 }
 
 criterion_group!(benches, bench);

@@ -303,89 +303,34 @@ impl<U: Real> Correlation<'_, U> {
     }
 }
 
-/// Adds `Σ_t g[o, t] · x[c, t + base + p · pw + q]` over the flat cells into
-/// `gw[o, c · taps + first + p · KX + q]` for the output channels `o0..o0 + OB`
-/// and the `KY × KX` taps `(p, q)`, the sums held in registers `L` lanes wide
-/// in the compute type `U` (`g` holds `c_out` rows of `span`, zero on the
-/// dropped columns; `x` holds `c_in` planes). Two output channels share each
-/// load of `x`. The common kernels (3 × 3, and 3 and 5 in 1D) are one call;
-/// any other is one call per tap with `KY = KX = 1`.
-#[allow(clippy::too_many_arguments)]
-fn weight_gradient<
-    U: Real,
-    T: Real,
-    const OB: usize,
-    const KY: usize,
-    const KX: usize,
-    const L: usize,
->(
-    g: &[U],
-    x: &[U],
-    base: usize,
-    first: usize,
-    o0: usize,
-    geo: &Geometry,
-    lat: &Lattice,
-    gw: &mut Array2<T>,
-) {
-    let taps = geo.k_y * geo.k_x;
-    let pw = lat.pw;
-    let g_o: [&[U]; OB] = std::array::from_fn(|k| &g[(o0 + k) * lat.span..][..lat.span]);
-    for c in 0..geo.c_in {
-        let x_c = &x[c * lat.plane + base..(c + 1) * lat.plane];
-        let mut acc = [[[[U::zero(); L]; KX]; KY]; OB];
-        for t0 in (0..lat.span).step_by(L) {
-            let gs: [&[U; L]; OB] =
-                std::array::from_fn(|k| g_o[k][t0..t0 + L].try_into().expect("in the row"));
-            for p in 0..KY {
-                let row = &x_c[t0 + p * pw..][..L + KX - 1];
-                for q in 0..KX {
-                    for (acc_k, gs_k) in acc.iter_mut().zip(&gs) {
-                        let a = &mut acc_k[p][q];
-                        for l in 0..L {
-                            a[l] += gs_k[l] * row[q + l];
-                        }
-                    }
-                }
-            }
-        }
-        for (k, acc_k) in acc.iter().enumerate() {
-            for (p, acc_p) in acc_k.iter().enumerate() {
-                for (q, a) in acc_p.iter().enumerate() {
-                    gw[[o0 + k, c * taps + first + p * KX + q]] +=
-                        to(a.iter().fold(U::zero(), |s, &v| s + v));
-                }
-            }
+/// `Σ_t g[t] · x[t]` over `g.len()` cells (a multiple of `L`), as `L` lane
+/// sums (lane `l` adds the cells `t ≡ l mod L` in order) folded in lane order.
+/// One sum per call leaves the lanes the only dimension LLVM can vectorise:
+/// one vector register, one load of each operand and a product and a sum per
+/// `L` cells.
+#[inline(always)]
+fn lane_dot<U: Real, const L: usize>(g: &[U], x: &[U]) -> U {
+    let mut acc = [U::zero(); L];
+    for (gs, xs) in g.chunks_exact(L).zip(x.chunks_exact(L)) {
+        for ((s, &gv), &xv) in acc.iter_mut().zip(gs).zip(xs) {
+            *s += gv * xv;
         }
     }
+    acc.iter().fold(U::zero(), |s, &v| s + v)
 }
 
-/// [`weight_gradient`] for every tap of the kernel and the output channels
-/// `o0..o0 + OB`, `L` lanes wide.
-#[allow(clippy::too_many_arguments)]
-fn weight_gradient_taps<U: Real, T: Real, const OB: usize, const L: usize>(
-    g: &[U],
-    x: &[U],
-    offsets: &[usize],
-    o0: usize,
-    geo: &Geometry,
-    lat: &Lattice,
-    gw: &mut Array2<T>,
-) {
-    match (geo.k_y, geo.k_x) {
-        (3, 3) => weight_gradient::<U, T, OB, 3, 3, L>(g, x, 0, 0, o0, geo, lat, gw),
-        (1, 3) => weight_gradient::<U, T, OB, 1, 3, L>(g, x, 0, 0, o0, geo, lat, gw),
-        (1, 5) => weight_gradient::<U, T, OB, 1, 5, L>(g, x, 0, 0, o0, geo, lat, gw),
-        _ => {
-            for (k, &off) in offsets.iter().enumerate() {
-                weight_gradient::<U, T, OB, 1, 1, L>(g, x, off, k, o0, geo, lat, gw);
-            }
-        }
-    }
-}
-
-/// [`weight_gradient`] for every tap and output channel, two channels at a
-/// time, `L` lanes wide.
+/// Adds `∂L/∂w[o, c, k] = Σ_t g[o, t] · x[c, t + offsets[k]]` over the flat
+/// cells into `gw[o, c · taps + k]` for every output channel `o`, input
+/// channel `c` and tap `k`, `L` lanes wide in the compute type `U` (`g` holds
+/// `c_out` rows of `span`, zero on the dropped columns; `x` holds `c_in`
+/// planes), a [`lane_dot`] per sum.
+///
+/// Kernels that held the sums of several taps and output channels together
+/// in registers (so that two channels share each load of `x`) were faster or
+/// slower by chance: LLVM vectorised some of them across the taps or the
+/// channels instead of the lanes, with broadcasts, gathers and shuffles. The
+/// 1D kernel of 5 ran 6-10× slower than this, and the same 3 × 3 kernel 10-20 %
+/// faster or 2× slower depending on the code around it (docs/08-performance.md).
 fn weight_gradients<U: Real, T: Real, const L: usize>(
     g: &[U],
     x: &[U],
@@ -394,12 +339,13 @@ fn weight_gradients<U: Real, T: Real, const L: usize>(
     lat: &Lattice,
     gw: &mut Array2<T>,
 ) {
-    let pairs = geo.c_out / 2 * 2;
-    for o0 in (0..pairs).step_by(2) {
-        weight_gradient_taps::<U, T, 2, L>(g, x, offsets, o0, geo, lat, gw);
-    }
-    for o0 in pairs..geo.c_out {
-        weight_gradient_taps::<U, T, 1, L>(g, x, offsets, o0, geo, lat, gw);
+    let taps = offsets.len();
+    for (o, g_o) in g.chunks_exact(lat.span).take(geo.c_out).enumerate() {
+        for (c, x_c) in x.chunks_exact(lat.plane).take(geo.c_in).enumerate() {
+            for (k, &off) in offsets.iter().enumerate() {
+                gw[[o, c * taps + k]] += to(lane_dot::<U, L>(g_o, &x_c[off..off + lat.span]));
+            }
+        }
     }
 }
 

@@ -56,28 +56,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 
+pub use crate::split::Split;
 use crate::{LearnError, Result};
-
-/// One of the three data splits.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Split {
-    /// Fits the parameters.
-    Train,
-    /// Makes every choice: early stopping, learning rate, unroll length.
-    Validation,
-    /// Read once per trained model, after selection; reported.
-    HeldOut,
-}
-
-impl fmt::Display for Split {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(match self {
-            Split::Train => "train",
-            Split::Validation => "validation",
-            Split::HeldOut => "held-out",
-        })
-    }
-}
 
 /// SplitMix64's finaliser: a bijective mix of 64 bits.
 fn mix(mut z: u64) -> u64 {

@@ -6,7 +6,7 @@ use diffphys_ops::OpsError;
 use diffphys_tape::TapeError;
 use thiserror::Error;
 
-use crate::data::Split;
+use crate::split::Split;
 
 /// Everything that can go wrong while building, training, selecting or
 /// evaluating a model. Bad input (a zero budget, an empty split, a corrector of

@@ -36,7 +36,7 @@ pub trait Simulator {
     /// as the viscosity, padding, fixed boundary values) overrides it to
     /// perturb only the physical ones.
     fn perturb(&self, state: &mut ArrayD<f64>, sigma: f64, rng: &mut StdRng) {
-        state.mapv_inplace(|x| x + sigma * crate::standard_normal(rng));
+        state.mapv_inplace(|x| x + sigma * crate::strategy::standard_normal(rng));
     }
 }
 

@@ -3,6 +3,7 @@
 use std::fmt;
 
 use diffphys_tape::Schedule;
+use rand::Rng;
 
 use crate::{LearnError, Result};
 
@@ -155,4 +156,11 @@ impl LrSchedule {
             }
         }
     }
+}
+
+/// A standard normal sample (Box–Muller).
+pub fn standard_normal(rng: &mut impl Rng) -> f64 {
+    let u1: f64 = 1.0 - rng.random::<f64>();
+    let u2: f64 = rng.random();
+    (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
 }

@@ -12,7 +12,7 @@ use crate::data::{Split, TrainSeed, Trained};
 use crate::fit::{Fit, Validation};
 use crate::hybrid::{Corrector, Hybrid, Simulator};
 use crate::metrics::{batch_of, rollout, Trajectory};
-use crate::strategy::{Budget, LrSchedule, Strategy};
+use crate::strategy::{standard_normal, Budget, LrSchedule, Strategy};
 use crate::{LearnError, Result};
 
 /// One training batch: the (possibly perturbed) start states and the reference
@@ -225,13 +225,6 @@ impl Trainer {
             validation_failures: fitted.failures,
         }))
     }
-}
-
-/// A standard normal sample (Box–Muller).
-pub fn standard_normal(rng: &mut impl Rng) -> f64 {
-    let u1: f64 = 1.0 - rng.random::<f64>();
-    let u2: f64 = rng.random();
-    (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
 }
 
 /// The mean relative L2 error of a validation rollout of the hybrid with

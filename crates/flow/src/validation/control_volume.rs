@@ -252,21 +252,8 @@ pub fn control_volume_force(
 /// `Ok` for a state on the scene's lattices.
 fn check_state(scene: &Scene, s: &FlowState<f64>) -> Result<()> {
     let g = scene.grid();
-    for (name, found, expected) in [
-        ("u_x", s.ux.dim(), g.shape_x()),
-        ("u_y", s.uy.dim(), g.shape_y()),
-        ("pressure", s.pressure.dim(), g.cell_shape()),
-    ] {
-        if [found.0, found.1] != expected {
-            return Err(FlowError::shape(
-                "control-volume force",
-                name,
-                &expected,
-                &[found.0, found.1],
-            ));
-        }
-    }
-    Ok(())
+    g.check_velocity("control-volume force", s.ux.view(), s.uy.view())?;
+    g.check_cells("control-volume force", "pressure", s.pressure.view())
 }
 
 #[cfg(test)]

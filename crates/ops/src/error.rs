@@ -168,7 +168,8 @@ pub enum CgError {
     /// recomputed, stalled above it near the rounding floor, where restarting
     /// no longer gains. The solution array holds the last iterate, which is
     /// converged to working precision. Returned only with
-    /// [`CgParams::require_convergence`]; otherwise [`CgInfo::rounding_floor`]
+    /// [`CgParams::require_convergence`](crate::cg::CgParams::require_convergence);
+    /// otherwise [`CgInfo::rounding_floor`](crate::cg::CgInfo::rounding_floor)
     /// flags the same outcome.
     #[error(
         "conjugate gradient cannot reach the relative residual {requested:.1e} in {precision}: \
@@ -193,7 +194,7 @@ pub enum CgError {
     },
     /// A direction `p` with `<p, A p> ≤ 0` (or a non-positive diagonal entry for
     /// Jacobi): the operator is not positive definite, or it is singular and no
-    /// [`NullSpace`] was given.
+    /// [`NullSpace`](crate::linear::NullSpace) was given.
     #[error(
         "operator is not positive definite: curvature <p, A p> = {curvature:e} at iteration \
          {iteration} (a singular operator needs CgParams::null_space)"

@@ -46,10 +46,11 @@ use diffphys::report::progress_bar;
 use ndarray::Array3;
 use serde_json::{json, Value};
 
+use diffphys::learn::cache::Cache;
 use phases::{references, select_and_evaluate, speed_study, train_variants, untrained};
 use report::{report, Results};
 use wake_flow_scene::cli::{self, Cli, Command, EvaluateArgs};
-use wake_flow_scene::data::{base_state, reference, Bump, Cache, Reference};
+use wake_flow_scene::data::{self, base_state, reference, Bump, Reference};
 use wake_flow_scene::model;
 use wake_flow_scene::study::{self, HeldOutRun};
 use wake_flow_scene::{
@@ -325,7 +326,7 @@ impl Ctx {
         let sizes = Sizes::of(&options, small);
         let fine = reference_scene(&sizes)?;
         let coarse = Coarse::new(uncorrected(&sizes, 1, PressureSolver::Cholesky)?);
-        let cache = Cache::new(&args.out, &sizes)?;
+        let cache = data::cache(&args.out, &sizes)?;
         // `--iterations N`: N Adam steps of STEP_EVALUATIONS evaluations each.
         let evaluations = cli
             .train

@@ -10,11 +10,11 @@
 //! `record` coarse steps, each restricted and packed, plus the fine velocity
 //! at the rollout starts (the finer uncorrected solvers start from it).
 
-use std::io::{Read, Write};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use diffphys::flow::{restrict_velocity, FlowParams, FlowState, Scene};
-use ndarray::{Array2, Array3};
+use diffphys::learn::cache::{self, Arrays};
+use ndarray::{Array2, Array3, ArrayD, Axis, Ix2, Ix3};
 use rand::Rng;
 
 use super::{viscosity, Body, ReferenceScheme, Result, Sizes, WakeError, CENTRE, FACTOR, U_IN};
@@ -33,99 +33,57 @@ pub struct Reference {
     pub fine_starts: Vec<(Array2<f64>, Array2<f64>)>,
 }
 
-/// FNV-1a, 64 bits: a hash that stays the same across Rust versions.
-pub fn fnv1a(text: &str) -> u64 {
-    text.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
-        (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3)
+/// The reference cache of `sizes` under `OUT/reference/`: keyed by every
+/// setting the data depend on but the Re and the split's draw.
+pub fn cache(out: &Path, sizes: &Sizes) -> Result<cache::Cache> {
+    // The defaults add nothing, so earlier caches stay valid; the
+    // inscribed body changes only the coarse solver, not the reference.
+    let mut variant = String::new();
+    if sizes.body == Body::Staircase {
+        variant += &format!(" body {:?}", sizes.body);
+    }
+    if sizes.reference != ReferenceScheme::SecondOrder {
+        variant += &format!(" reference {:?}", sizes.reference);
+    }
+    let settings = format!(
+        "v{VERSION} coarse {}x{} dt {} factor {FACTOR} warm_base {} warm {} record {} \
+         base_re {} fine states at {:?}",
+        sizes.nx,
+        sizes.ny,
+        sizes.dt,
+        sizes.warm_base,
+        sizes.warm,
+        sizes.record,
+        sizes.base_re,
+        sizes.starts
+    ) + &variant;
+    Ok(cache::Cache::new(out.join("reference"), settings)?)
+}
+
+/// The array called `name` of a cache entry, with `D` dimensions.
+fn take<D: ndarray::Dimension>(arrays: &mut Arrays, name: &str) -> Result<ndarray::Array<f64, D>> {
+    let at = arrays.iter().position(|(n, _)| n == name);
+    let (_, a) = at
+        .map(|i| arrays.swap_remove(i))
+        .ok_or_else(|| WakeError::Cache {
+            path: name.into(),
+            message: "the cache entry lacks this array".into(),
+        })?;
+    a.into_dimensionality().map_err(|e| WakeError::Cache {
+        path: name.into(),
+        message: e.to_string(),
     })
 }
 
-fn cache_error(path: &Path, e: impl std::fmt::Display) -> WakeError {
-    WakeError::Cache {
-        path: path.display().to_string(),
+/// `arrays`, each with a leading axis, stacked.
+fn stacked<'a, D: ndarray::Dimension + 'a>(
+    arrays: impl Iterator<Item = &'a ndarray::Array<f64, D>>,
+) -> Result<ArrayD<f64>> {
+    let views: Vec<_> = arrays.map(|a| a.view().into_dyn()).collect();
+    ndarray::stack(Axis(0), &views).map_err(|e| WakeError::Cache {
+        path: "reference".into(),
         message: e.to_string(),
-    }
-}
-
-fn write_f64s(path: &Path, blocks: &[&[f64]]) -> Result<()> {
-    let mut bytes = Vec::new();
-    for b in blocks {
-        for v in *b {
-            bytes.extend_from_slice(&v.to_le_bytes());
-        }
-    }
-    let tmp = path.with_extension("tmp");
-    std::fs::File::create(&tmp)
-        .and_then(|mut f| f.write_all(&bytes))
-        .and_then(|()| std::fs::rename(&tmp, path))
-        .map_err(|e| cache_error(path, e))
-}
-
-fn read_f64s(path: &Path, expected: usize) -> Result<Option<Vec<f64>>> {
-    let Ok(mut file) = std::fs::File::open(path) else {
-        return Ok(None);
-    };
-    let mut bytes = Vec::new();
-    file.read_to_end(&mut bytes)
-        .map_err(|e| cache_error(path, e))?;
-    if bytes.len() != expected * 8 {
-        return Err(cache_error(
-            path,
-            format!("{} bytes, expected {}", bytes.len(), expected * 8),
-        ));
-    }
-    Ok(Some(
-        bytes
-            .chunks_exact(8)
-            .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")))
-            .collect(),
-    ))
-}
-
-/// Where the cache lives and what keys it.
-#[derive(Debug, Clone)]
-pub struct Cache {
-    /// The folder.
-    pub dir: PathBuf,
-    /// Everything the data depends on but the Re and the split's draw.
-    pub settings: String,
-}
-
-impl Cache {
-    /// The cache of `sizes` under `out`.
-    pub fn new(out: &Path, sizes: &Sizes) -> Result<Self> {
-        let dir = out.join("reference");
-        std::fs::create_dir_all(&dir).map_err(|e| cache_error(&dir, e))?;
-        // The defaults add nothing, so earlier caches stay valid; the
-        // inscribed body changes only the coarse solver, not the reference.
-        let mut variant = String::new();
-        if sizes.body == Body::Staircase {
-            variant += &format!(" body {:?}", sizes.body);
-        }
-        if sizes.reference != ReferenceScheme::SecondOrder {
-            variant += &format!(" reference {:?}", sizes.reference);
-        }
-        Ok(Cache {
-            dir,
-            settings: format!(
-                "v{VERSION} coarse {}x{} dt {} factor {FACTOR} warm_base {} warm {} record {} \
-                 base_re {} fine states at {:?}",
-                sizes.nx,
-                sizes.ny,
-                sizes.dt,
-                sizes.warm_base,
-                sizes.warm,
-                sizes.record,
-                sizes.base_re,
-                sizes.starts
-            ) + &variant,
-        })
-    }
-
-    fn file(&self, what: &str, key: &str) -> PathBuf {
-        let hash = fnv1a(&format!("{} {key}", self.settings));
-        self.dir.join(format!("{what}_{hash:016x}.f64"))
-    }
+    })
 }
 
 /// The perturbation of a split's base state: the bump's centre and signed
@@ -188,46 +146,40 @@ fn advance(
 
 /// The base state of a split (cached).
 pub fn base_state(
-    cache: &Cache,
+    cache: &cache::Cache,
     sizes: &Sizes,
     fine: &Scene,
     bump: Bump,
     tick: &(dyn Fn(u64) + Sync),
 ) -> Result<FlowState<f64>> {
-    let path = cache.file("base", &format!("{bump:?}"));
-    let g = fine.grid();
-    let (nx, ny) = (g.shape_x(), g.shape_y());
-    let c = g.cell_shape();
-    let sizes_of = [nx[0] * nx[1], ny[0] * ny[1], c[0] * c[1]];
-    if let Some(v) = read_f64s(&path, sizes_of.iter().sum())? {
-        let (a, rest) = v.split_at(sizes_of[0]);
-        let (b, p) = rest.split_at(sizes_of[1]);
-        let arr = |s: [usize; 2], d: &[f64]| {
-            Array2::from_shape_vec((s[0], s[1]), d.to_vec()).expect("sizes checked")
-        };
+    let (mut arrays, hit) = cache.get_or_make("base", &format!("{bump:?}"), || {
+        let s = advance(
+            fine,
+            start_state(fine, bump),
+            sizes.base_re,
+            sizes.warm_base,
+            tick,
+        )?;
+        Ok::<_, WakeError>(vec![
+            ("ux".into(), s.ux.into_dyn()),
+            ("uy".into(), s.uy.into_dyn()),
+            ("pressure".into(), s.pressure.into_dyn()),
+        ])
+    })?;
+    if hit {
         tick(sizes.warm_base as u64);
-        return Ok(FlowState {
-            ux: arr(nx, a),
-            uy: arr(ny, b),
-            pressure: arr(c, p),
-            scalars: Vec::new(),
-        });
     }
-    let s = advance(
-        fine,
-        start_state(fine, bump),
-        sizes.base_re,
-        sizes.warm_base,
-        tick,
-    )?;
-    let flat = |a: &Array2<f64>| a.iter().copied().collect::<Vec<_>>();
-    write_f64s(&path, &[&flat(&s.ux), &flat(&s.uy), &flat(&s.pressure)])?;
-    Ok(s)
+    Ok(FlowState {
+        ux: take::<Ix2>(&mut arrays, "ux")?,
+        uy: take::<Ix2>(&mut arrays, "uy")?,
+        pressure: take::<Ix2>(&mut arrays, "pressure")?,
+        scalars: Vec::new(),
+    })
 }
 
 /// The reference at `re` from `base` (cached).
 pub fn reference(
-    cache: &Cache,
+    cache: &cache::Cache,
     sizes: &Sizes,
     coarse: &Scene,
     fine: &Scene,
@@ -235,67 +187,48 @@ pub fn reference(
     re: f64,
     tick: &(dyn Fn(u64) + Sync),
 ) -> Result<Reference> {
-    let path = cache.file(&format!("re{re}"), &format!("{:?}", base.1));
-    let packed = coarse.packed_shape();
-    let per_state: usize = packed.iter().product();
-    let g = fine.grid();
-    let (fx, fy) = (g.shape_x(), g.shape_y());
-    let per_fine = fx[0] * fx[1] + fy[0] * fy[1];
-    let count = sizes.record + 1;
-    let total = count * per_state + sizes.starts.len() * per_fine;
-    let nu = viscosity(re);
-    let unflatten = |v: &[f64]| -> Reference {
-        let (c, f) = v.split_at(count * per_state);
-        let states = c
-            .chunks_exact(per_state)
-            .map(|s| {
-                Array3::from_shape_vec((packed[0], packed[1], packed[2]), s.to_vec())
-                    .expect("sizes checked")
-            })
-            .collect();
-        let fine_starts = f
-            .chunks_exact(per_fine)
-            .map(|s| {
-                let (a, b) = s.split_at(fx[0] * fx[1]);
-                (
-                    Array2::from_shape_vec((fx[0], fx[1]), a.to_vec()).expect("sizes"),
-                    Array2::from_shape_vec((fy[0], fy[1]), b.to_vec()).expect("sizes"),
-                )
-            })
-            .collect();
-        Reference {
-            re,
-            states,
-            fine_starts,
-        }
-    };
-    if let Some(v) = read_f64s(&path, total)? {
-        tick((sizes.warm + sizes.record) as u64);
-        return Ok(unflatten(&v));
-    }
-    let mut s = advance(fine, base.0.clone(), re, sizes.warm, tick)?;
-    let p = FlowParams {
-        viscosity: nu,
-        ..fine.params()
-    };
-    let mut flat = Vec::with_capacity(total);
-    let mut fine_flat = Vec::new();
-    for t in 0..count {
-        if t > 0 {
-            for _ in 0..FACTOR {
-                s = fine.forward(&s, &p)?.0;
+    let make = || {
+        let nu = viscosity(re);
+        let mut s = advance(fine, base.0.clone(), re, sizes.warm, tick)?;
+        let p = FlowParams {
+            viscosity: nu,
+            ..fine.params()
+        };
+        let (mut states, mut fine_starts) = (Vec::new(), Vec::new());
+        for t in 0..=sizes.record {
+            if t > 0 {
+                for _ in 0..FACTOR {
+                    s = fine.forward(&s, &p)?.0;
+                }
+                tick(1);
             }
-            tick(1);
+            let (ux, uy) = restrict_velocity(coarse.grid(), FACTOR, s.ux.view(), s.uy.view())?;
+            states.push(coarse.pack(&FlowState::from_velocity(coarse, ux, uy), nu)?);
+            if sizes.starts.contains(&t) {
+                fine_starts.push((s.ux.clone(), s.uy.clone()));
+            }
         }
-        let (ux, uy) = restrict_velocity(coarse.grid(), FACTOR, s.ux.view(), s.uy.view())?;
-        let state = coarse.pack(&FlowState::from_velocity(coarse, ux, uy), nu)?;
-        flat.extend(state.iter().copied());
-        if sizes.starts.contains(&t) {
-            fine_flat.extend(s.ux.iter().copied());
-            fine_flat.extend(s.uy.iter().copied());
-        }
+        Ok::<_, WakeError>(vec![
+            ("states".into(), stacked(states.iter())?),
+            ("fine_ux".into(), stacked(fine_starts.iter().map(|f| &f.0))?),
+            ("fine_uy".into(), stacked(fine_starts.iter().map(|f| &f.1))?),
+        ])
+    };
+    let (mut arrays, hit) =
+        cache.get_or_make(&format!("re{re}"), &format!("{:?}", base.1), make)?;
+    if hit {
+        tick((sizes.warm + sizes.record) as u64);
     }
-    flat.extend(fine_flat);
-    write_f64s(&path, &[&flat])?;
-    Ok(unflatten(&flat))
+    let states = take::<ndarray::Ix4>(&mut arrays, "states")?;
+    let fine_ux = take::<Ix3>(&mut arrays, "fine_ux")?;
+    let fine_uy = take::<Ix3>(&mut arrays, "fine_uy")?;
+    Ok(Reference {
+        re,
+        states: states.outer_iter().map(|s| s.to_owned()).collect(),
+        fine_starts: fine_ux
+            .outer_iter()
+            .zip(fine_uy.outer_iter())
+            .map(|(a, b)| (a.to_owned(), b.to_owned()))
+            .collect(),
+    })
 }

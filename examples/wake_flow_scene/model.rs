@@ -11,7 +11,7 @@ use diffphys::learn::{DataSeed, Hybrid, ModelCard, SavedModel, Split, TrainSeed}
 use diffphys::nn::Arithmetic;
 use serde_json::{json, Map, Value};
 
-use super::data::{base_state, reference, Bump, Cache, Reference};
+use super::data::{self, base_state, reference, Bump, Reference};
 use super::study::{held_out_re, HeldOutRun, ReRun};
 use super::{
     advection_label, arithmetic_label, reference_scene, uncorrected, Coarse, Net, NetSize, Result,
@@ -118,7 +118,7 @@ pub fn evaluate(e: &Evaluation<'_>) -> Result<Value> {
         .unwrap_or(1);
 
     // The held-out stream's start state, as training drew it.
-    let cache = Cache::new(e.out, e.sizes)?;
+    let cache = data::cache(e.out, e.sizes)?;
     let bump = Bump::draw(&mut DataSeed(data_seed).rng(Split::HeldOut));
     let base = base_state(&cache, e.sizes, &fine, bump, &|_| {})?;
     let refs: Vec<Reference> = run_jobs(e.re, e.threads, |&re| {

@@ -57,7 +57,7 @@ pub(crate) fn references(ctx: &Ctx, ds: u64) -> Result<Splits<Vec<Reference>>, B
     println!(
         "data seed {ds}: reference ready in {:.1} s (cached under {})",
         t0.elapsed().as_secs_f64(),
-        cache.dir.display()
+        cache.dir().display()
     );
     Ok(splits)
 }

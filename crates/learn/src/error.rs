@@ -93,6 +93,15 @@ pub enum LearnError {
         /// What went wrong.
         message: String,
     },
+    /// A cache entry that cannot be written or read, or was written for
+    /// other settings.
+    #[error("cache {}: {message}", path.display())]
+    Cache {
+        /// The file or folder.
+        path: std::path::PathBuf,
+        /// What went wrong.
+        message: String,
+    },
     /// Any other invalid argument.
     #[error("invalid {what}: {message}")]
     Invalid {

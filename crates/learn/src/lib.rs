@@ -29,6 +29,8 @@
 //!   trainings at once ([`study::run_jobs`]) and groups them back for
 //!   selection on typed labels; the held-out split counts its readings
 //!   ([`HeldOut::readings`]).
+//! - A [`cache::Cache`] keeps generated data (a reference solution) on disk
+//!   between runs, keyed by every setting that shaped it.
 //! - [`saved`] writes a trained model's parameters with the settings that
 //!   shaped them ([`ModelCard`]) and refuses to load it into a scene whose
 //!   settings differ ([`LearnError::SettingsMismatch`]).
@@ -94,6 +96,7 @@
 //! ```
 #![warn(missing_docs)]
 
+pub mod cache;
 pub mod data;
 mod error;
 pub mod fit;

@@ -20,19 +20,21 @@
 //! different keys can be written from several threads at once.
 //!
 //! ```
-//! use diffphys_learn::cache::Cache;
+//! use diffphys_learn::{cache::Cache, LearnError};
 //! use ndarray::{arr1, ArrayD};
 //!
 //! let dir = std::env::temp_dir().join(format!("diffphys-cache-doc-{}", std::process::id()));
 //! let cache = Cache::new(&dir, "grid 32 x 64, dt 0.01")?;
-//! let make = || Ok::<_, diffphys_learn::LearnError>(vec![("u".to_string(), arr1(&[1.0, 2.0]).into_dyn())]);
+//! let make = || Ok::<_, LearnError>(vec![("u".to_string(), arr1(&[1.0, 2.0]).into_dyn())]);
 //! let (first, hit) = cache.get_or_make("reference", "re 100", make)?;
 //! assert!(!hit);
-//! let (again, hit) = cache.get_or_make("reference", "re 100", || unreachable!())?;
+//! let (again, hit) = cache.get_or_make("reference", "re 100", || -> Result<_, LearnError> {
+//!     unreachable!("read from the cache")
+//! })?;
 //! assert!(hit);
 //! assert_eq!(first, again);
 //! # std::fs::remove_dir_all(&dir).ok();
-//! # Ok::<(), diffphys_learn::LearnError>(())
+//! # Ok::<(), LearnError>(())
 //! ```
 
 use std::fs::File;

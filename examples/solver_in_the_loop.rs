@@ -25,18 +25,18 @@ use solver_in_the_loop_scene::study;
 use std::collections::BTreeMap;
 use std::time::Instant;
 
-use diffphys::learn::study::select_groups;
+use diffphys::learn::study::{Job, OneSize, Plan, Protocol};
 use diffphys::learn::{
-    rollout, states_at, Budget, Corrector, DataSeed, Hybrid, LrSchedule, Report, Schedule, Split,
-    Splits, Strategy, TrainSeed, Trained, TrainedCorrector, Trainer,
+    rollout, states_at, Budget, DataSeed, Hybrid, LrSchedule, Report, Schedule, Split, Splits,
+    Strategy, TrainSeed, Trainer,
 };
-use diffphys::nn::{Activation, Bound, Layer, Padding, Params, UNet, UNetConfig};
-use diffphys::prelude::{check_gradient, GradCheckOptions, Var};
+use diffphys::nn::Params;
+use diffphys::prelude::{check_gradient, GradCheckOptions};
 use diffphys::report::progress_bar;
 use diffphys_compare::alloc::CountingAllocator;
 use serde_json::json;
 
-use solver_in_the_loop_scene::{one_step_rms, trajectories, BoxError, Solver};
+use solver_in_the_loop_scene::{network, one_step_rms, trajectories, BoxError, Solver};
 
 /// Counts heap bytes for the checkpointing measurements.
 #[global_allocator]
@@ -48,44 +48,6 @@ const LEARNING_RATE: f64 = 3e-3;
 const NOISE_FRACTION: f64 = 0.1;
 /// The checkpoint schedule of the JSON tail: every √1024 steps.
 const HEADLINE_SEGMENT: usize = 32;
-
-/// The corrector: a U-Net on the stepped state and the velocity.
-struct Net {
-    unet: UNet,
-    solver: Solver,
-}
-
-impl Corrector for Net {
-    fn correction<'t>(
-        &self,
-        p: &Bound<'t, f64>,
-        v: Var<'t, f64>,
-    ) -> diffphys::tape::Result<Var<'t, f64>> {
-        let c = v.tape().constant(self.solver.velocity_batch(v.shape()[0]));
-        self.unet.forward(p, Var::concat(&[v, c], 1)?)
-    }
-}
-
-fn network(seed: TrainSeed) -> Result<(Net, Params<f64>), BoxError> {
-    let config = UNetConfig {
-        dims: 1,
-        c_in: 2,
-        c_out: 1,
-        widths: vec![16, 32],
-        kernel: 5,
-        padding: Padding::Periodic,
-        activation: Activation::Relu,
-    };
-    let mut params = Params::new();
-    let unet = UNet::new(&mut params, "corrector", config, &mut seed.init_rng())?;
-    Ok((
-        Net {
-            unet,
-            solver: Solver::coarse()?,
-        },
-        params,
-    ))
-}
 
 /// Solver-in-the-loop: a corrector trained through the solver it corrects.
 #[derive(clap::Parser)]
@@ -169,72 +131,79 @@ fn main() -> Result<(), BoxError> {
             unroll,
             schedule: Schedule::Full,
         }));
-        let mut groups: Vec<(Strategy, Vec<Trained<TrainedCorrector>>)> = Vec::new();
-        for strategy in strategies {
-            let mut group = Vec::new();
-            for &ts in &seeds.train {
-                let (_, params) = network(TrainSeed(ts))?;
-                let bar = progress_bar(
-                    trainer.budget.iterations,
-                    &format!("data {ds} {strategy:>6} seed {ts}"),
-                );
-                let start = Instant::now();
-                let t = trainer.train(
-                    &hybrid,
-                    params,
-                    strategy,
-                    &splits.train,
-                    &splits.validation,
-                    TrainSeed(ts),
-                    &|| bar.inc(1),
-                )?;
-                bar.finish_and_clear();
-                println!(
-                    "  {strategy:>6}, train seed {ts}: {:.1} s, validation {:.5} (kept iteration {})",
-                    start.elapsed().as_secs_f64(), t.model.validation, t.model.best_iteration
-                );
-                validation.add(&strategy.name(), ds, Some(ts), t.model.validation);
-                group.push(t);
-            }
-            groups.push((strategy, group));
-        }
-        // Selection reads validation only: `k` by the mean validation score
-        // over the training seeds; non and noise have nothing to choose.
-        let selections = select_groups(
-            groups,
-            |s| matches!(s, Strategy::SolverInTheLoop { .. }),
-            |t| t.model.validation,
-        )?;
-        let chosen = *selections[0].chosen_label();
-        println!("  selected by validation: {chosen}");
-        selected_k.insert(ds.to_string(), json!(chosen.unroll()));
+        // Train every strategy at every seed, select k on validation only,
+        // then read the held-out split once per trained model.
+        let plan = Plan::new(
+            strategies.into_iter().map(|s| (s, OneSize)).collect(),
+            seeds.train.iter().map(|&ts| TrainSeed(ts)).collect(),
+        );
+        let train = |job: &Job<Strategy, OneSize>| {
+            let (strategy, ts) = (job.variant, job.seed);
+            // A hybrid of its own: the trainings may run on other threads.
+            let (net, params) = network(ts)?;
+            let hybrid = Hybrid::new(solver.clone(), net);
+            let bar = progress_bar(
+                trainer.budget.iterations,
+                &format!("data {ds} {strategy:>6} seed {}", ts.0),
+            );
+            let start = Instant::now();
+            let t = trainer.train(
+                &hybrid,
+                params,
+                strategy,
+                &splits.train,
+                &splits.validation,
+                ts,
+                &|| bar.inc(1),
+            )?;
+            bar.finish_and_clear();
+            println!(
+                "  {strategy:>6}, train seed {}: {:.1} s, validation {:.5} (kept iteration {})",
+                ts.0,
+                start.elapsed().as_secs_f64(),
+                t.model.validation,
+                t.model.best_iteration
+            );
+            Ok::<_, BoxError>(t)
+        };
         let coarse = splits
             .held_out()
             .evaluate_baseline(|d| rollout(&hybrid, None, d, steps))?;
+        let outcomes = Protocol {
+            plan: &plan,
+            threads: 1,
+        }
+        .run(
+            splits.held_out(),
+            train,
+            |t| t.model.validation,
+            |e| matches!(e.variant, Strategy::SolverInTheLoop { .. }),
+            |_, models, d| {
+                Ok(models
+                    .iter()
+                    .map(|t| rollout(&hybrid, Some(&t.model.params), d, steps))
+                    .collect::<Result<Vec<_>, _>>()?)
+            },
+        )?;
         held_out.add("coarse", ds, None, coarse.mean());
         curves
             .entry("coarse".into())
             .or_default()
             .push(coarse.per_step);
-        // Held-out: each trained model once, after selection.
-        for selection in selections {
-            for model in selection.models {
-                let e = splits.held_out().evaluate(model, |group, d| {
-                    group
-                        .iter()
-                        .map(|t| rollout(&hybrid, Some(&t.model.params), d, steps))
-                        .collect::<Result<Vec<_>, _>>()
-                })?;
-                for ((r, &ts), t) in e.result.iter().zip(&seeds.train).zip(&e.model) {
-                    let mut names = vec![e.label.name()];
-                    if matches!(e.label, Strategy::SolverInTheLoop { .. }) && e.chosen {
-                        names.push("sol_selected".into());
-                        probe_model.get_or_insert((ds, t.model.params.clone()));
-                    }
-                    for name in names {
-                        held_out.add(&name, ds, Some(ts), r.mean());
-                        curves.entry(name).or_default().push(r.per_step.clone());
-                    }
+        if let Some(o) = outcomes.iter().find(|o| o.selected()) {
+            println!("  selected by validation: {}", o.entry.variant);
+            selected_k.insert(ds.to_string(), json!(o.entry.variant.unroll()));
+            probe_model.get_or_insert((ds, o.runs[0].model.model.params.clone()));
+        }
+        for o in &outcomes {
+            let name = o.entry.variant.name();
+            let names = [Some(name.as_str()), o.selected().then_some("sol_selected")];
+            for run in &o.runs {
+                validation.add(&name, ds, Some(run.seed.0), run.model.model.validation);
+                for name in names.iter().flatten() {
+                    held_out.add(name, ds, Some(run.seed.0), run.held_out.mean());
+                    let curve = run.held_out.per_step.clone();
+                    curves.entry(name.to_string()).or_default().push(curve);
                 }
             }
         }

@@ -26,14 +26,15 @@
 
 use std::sync::Arc;
 
-use diffphys::learn::{Simulator, Trajectory};
+use diffphys::learn::{Corrector, Simulator, TrainSeed, Trajectory};
+use diffphys::nn::{Activation, Bound, Layer, Padding, Params, UNet, UNetConfig};
 use diffphys::ops::advection::{upwind1, upwind1_vjp, AdvectionParams, Wants};
 use diffphys::prelude::*;
 use diffphys::tape::Result as TapeResult;
 use ndarray::{s, Array1, Array2, ArrayView1, Axis};
 use rand::Rng;
 
-pub type BoxError = Box<dyn std::error::Error>;
+pub type BoxError = Box<dyn std::error::Error + Send + Sync>;
 
 /// Cells of the coarse grid.
 pub const COARSE: usize = 32;
@@ -281,3 +282,41 @@ pub fn one_step_rms(solver: &Solver, set: &[Trajectory]) -> Result<f64, BoxError
     Ok((sum / (set.len() * COARSE) as f64).sqrt())
 }
 pub mod study;
+
+/// The corrector: a U-Net on the stepped state and the velocity.
+pub struct Net {
+    unet: UNet,
+    solver: Solver,
+}
+
+impl Corrector for Net {
+    fn correction<'t>(
+        &self,
+        p: &Bound<'t, f64>,
+        v: Var<'t, f64>,
+    ) -> diffphys::tape::Result<Var<'t, f64>> {
+        let c = v.tape().constant(self.solver.velocity_batch(v.shape()[0]));
+        self.unet.forward(p, Var::concat(&[v, c], 1)?)
+    }
+}
+
+pub fn network(seed: TrainSeed) -> Result<(Net, Params<f64>), BoxError> {
+    let config = UNetConfig {
+        dims: 1,
+        c_in: 2,
+        c_out: 1,
+        widths: vec![16, 32],
+        kernel: 5,
+        padding: Padding::Periodic,
+        activation: Activation::Relu,
+    };
+    let mut params = Params::new();
+    let unet = UNet::new(&mut params, "corrector", config, &mut seed.init_rng())?;
+    Ok((
+        Net {
+            unet,
+            solver: Solver::coarse()?,
+        },
+        params,
+    ))
+}

@@ -7,7 +7,9 @@
 //! scheduling and come back in job order), and [`Plan::groups`] gives the
 //! results back per `(variant, size)` with their training seeds, ready to be
 //! made [`Candidate`]s labelled by the typed `(variant, size)`
-//! itself.
+//! itself. [`Protocol`] runs the whole protocol of one data seed: the
+//! trainings, selection on validation, and each trained model's one held-out
+//! evaluation.
 //!
 //! ```
 //! use diffphys_learn::study::{run_jobs, Plan};
@@ -25,6 +27,10 @@
 //! assert_eq!(groups[1].runs, vec![1.0, 2.0]);
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
+
+mod protocol;
+
+pub use protocol::{Entry, OneSize, Outcome, Protocol, Run};
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;

@@ -36,29 +36,29 @@ use std::collections::BTreeMap;
 use std::time::Instant;
 
 use diffphys::flow::PressureSolver;
-use diffphys::learn::study::{pilot_learning_rates, run_jobs, select_groups, Group, Plan};
+use diffphys::learn::study::{self as learn_study, pilot_learning_rates, run_jobs, Plan, Protocol};
 use diffphys::learn::{
     rollout, Budget, DataSeed, Hybrid, LrSchedule, Report, SavedModel, Schedule, Simulator, Split,
     Splits, Strategy, TrainSeed, Trained, TrainedCorrector, Trainer, Trajectory,
 };
 use diffphys::nn::{Arithmetic, Params};
-use diffphys::report::progress_bar;
+use diffphys::report::{progress_bar, Progress};
 use ndarray::Array3;
 use serde_json::{json, Value};
 
 use diffphys::learn::cache::Cache;
-use phases::{references, select_and_evaluate, speed_study, train_variants, untrained};
+use phases::{protocol, references, speed_study, untrained};
 use report::{report, Results};
 use wake_flow_scene::cli::{self, Cli, Command, EvaluateArgs};
 use wake_flow_scene::data::{self, base_state, reference, Bump, Reference};
 use wake_flow_scene::model;
 use wake_flow_scene::study::{self, HeldOutRun};
 use wake_flow_scene::{
-    free_faces, reference_scene, uncorrected, Body, Coarse, Entry, Net, NetSize, Options, Sizes,
-    Variant, WakeError, MAIN_SIZE, SIZES, STEP_EVALUATIONS,
+    free_faces, reference_scene, uncorrected, Body, Coarse, Net, NetSize, Options, Sizes, Variant,
+    WakeError, MAIN_SIZE, SIZES, STEP_EVALUATIONS,
 };
 
-type BoxError = Box<dyn std::error::Error>;
+type BoxError = Box<dyn std::error::Error + Send + Sync>;
 type Wake = Hybrid<Coarse, Net>;
 
 /// Corrector evaluations per training at full size (each variant's Adam steps
@@ -365,10 +365,6 @@ impl Ctx {
     }
 }
 
-/// The trained groups of one data seed: a variant and its runs, one per
-/// training seed.
-type Groups = Vec<(Variant, Vec<Model>)>;
-
 /// The selected SOL corrector of the first data seed: its parameters and size.
 type Probe = (Params<f64>, NetSize);
 
@@ -410,8 +406,7 @@ fn main() -> Result<(), BoxError> {
     for &ds in &ctx.seeds.data {
         let splits = references(&ctx, ds)?;
         let (train, validation, sigma) = untrained(&ctx, ds, &splits, &mut rec)?;
-        let trained = train_variants(&ctx, ds, (&train, &validation), sigma, &mut rec)?;
-        let probe = select_and_evaluate(&ctx, ds, &splits, trained, &mut rec)?;
+        let probe = protocol(&ctx, ds, &splits, (&train, &validation), sigma, &mut rec)?;
         if speed_inputs.is_none() {
             speed_inputs = Some((splits, probe));
         }

@@ -29,7 +29,7 @@ mod net;
 mod solvers;
 pub mod study;
 
-pub use net::{Entry, Net, NetSize, MAIN_SIZE, SIZES};
+pub use net::{Net, NetSize, MAIN_SIZE, SIZES};
 pub use solvers::{free_faces, reference_scene, uncorrected, Body, Coarse, ReferenceScheme};
 
 use diffphys::flow::{Advection, FlowError};
@@ -162,6 +162,12 @@ pub enum Variant {
     Noise,
     /// Solver in the loop over `k` steps.
     Sol(usize),
+}
+
+impl std::fmt::Display for Variant {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.name())
+    }
 }
 
 impl Variant {

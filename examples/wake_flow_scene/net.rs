@@ -1,5 +1,4 @@
-//! The corrector: its size, the typed label of a candidate (variant at a
-//! size), and the network.
+//! The corrector: its size and the network.
 
 use diffphys::flow::Scene;
 use diffphys::learn::Corrector;
@@ -7,23 +6,7 @@ use diffphys::nn::{Arithmetic, Bound, Conv2, ConvConfig, Init, Layer, Padding, P
 use diffphys::tape::{ArrayD, TapeError, Var};
 use rand::Rng;
 
-use super::{free_faces, re_code, Result, Variant, WakeError};
-
-/// A variant at a corrector size: what selection on validation chooses among
-/// (the typed label of a candidate, printed `sol_4@w16b2`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Entry {
-    /// The variant.
-    pub variant: Variant,
-    /// The corrector's size.
-    pub size: NetSize,
-}
-
-impl std::fmt::Display for Entry {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{}@{}", self.variant.name(), self.size.label())
-    }
-}
+use super::{free_faces, re_code, Result, WakeError};
 
 /// The corrector's size: a ResNet of `width` channels and `blocks` residual
 /// blocks (two 3 × 3 convolutions each).
@@ -60,6 +43,12 @@ impl NetSize {
     /// A short label, `w16b2`.
     pub fn label(&self) -> String {
         format!("w{}b{}", self.width, self.blocks)
+    }
+}
+
+impl std::fmt::Display for NetSize {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.label())
     }
 }
 

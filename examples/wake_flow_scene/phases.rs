@@ -153,146 +153,8 @@ pub(crate) fn untrained(
     Ok((train, validation, sigma))
 }
 
-/// Phases 2 and 3 of data seed `ds`: the learning rates on validation, then
-/// every entry of the plan at every training seed; the groups at the main size
-/// and those of the capacity sweep.
-pub(crate) fn train_variants(
-    ctx: &Ctx,
-    ds: u64,
-    (train, validation): (&[Trajectory], &[Trajectory]),
-    sigma: f64,
-    rec: &mut Record,
-) -> Result<(Groups, Groups), BoxError> {
-    let Ctx {
-        options,
-        seeds,
-        args,
-        coarse,
-        ..
-    } = ctx;
-    let (threads, arithmetic, evaluations) = (ctx.threads, ctx.arithmetic, ctx.evaluations);
-    let Record {
-        validation_report,
-        chosen_lr,
-        train_seconds,
-        validation_curves,
-        validation_per_re,
-        ..
-    } = rec;
-    let sizes = &ctx.sizes;
-    let setup = Setup {
-        schedule: LrSchedule::Cosine {
-            final_fraction: 0.1,
-        },
-        validation_steps: sizes.rollout,
-        validation_evaluations: args.pick(VALIDATION_EVALUATIONS, 32),
-        coarse,
-        arithmetic,
-        sigma,
-        data_seed: ds,
-        train,
-        validation,
-    };
-    let run = |jobs: &[Job]| {
-        run_jobs(jobs, threads, |job| {
-            train_one(&setup, job).map_err(|e| e.to_string())
-        })
-    };
-    let lr_of = learning_rates(ctx, ds, &run, chosen_lr)?;
-    let lr_for = |v: Variant| {
-        match v {
-            Variant::Sol(_) => lr_of.get("sol"),
-            _ => lr_of.get("non"),
-        }
-        .copied()
-        .unwrap_or(options.learning_rates[0])
-    };
-
-    // Phase 3: every variant at the main size and, for the capacity
-    // sweep, non and the first SOL at the other sizes; every training seed.
-    // The largest first, so the workers finish together.
-    let sol = options.unrolls().first().copied().map(Variant::Sol);
-    let mut plan: Vec<(Variant, NetSize)> = Vec::new();
-    let mut sweep = options.capacity.clone();
-    sweep.sort_by_key(|s| std::cmp::Reverse(s.width * s.width * (2 * s.blocks + 2)));
-    let (larger, smaller): (Vec<NetSize>, Vec<NetSize>) = sweep
-        .iter()
-        .partition(|s| s.width * s.width * (2 * s.blocks + 2) > 16 * 16 * 6);
-    for size in larger {
-        for variant in [Some(Variant::Non), sol].into_iter().flatten() {
-            plan.push((variant, size));
-        }
-    }
-    for &variant in options.variants.iter().filter(|v| **v != Variant::Src) {
-        plan.push((variant, MAIN_SIZE));
-    }
-    for size in smaller {
-        for variant in [Some(Variant::Non), sol].into_iter().flatten() {
-            plan.push((variant, size));
-        }
-    }
-    let plan = Plan::new(plan, seeds.train.iter().map(|&s| TrainSeed(s)).collect());
-    let jobs: Vec<Job> = plan
-        .jobs()
-        .into_iter()
-        .map(|j| Job {
-            variant: j.variant,
-            size: j.size,
-            seed: j.seed.0,
-            lr: lr_for(j.variant),
-            evaluations,
-        })
-        .collect();
-    let mut groups: Vec<(Variant, Vec<Model>)> = Vec::new();
-    let mut capacity_groups: Vec<(Variant, Vec<Model>)> = Vec::new();
-    for Group {
-        variant,
-        size,
-        runs: group,
-        ..
-    } in plan.groups(run(&jobs)?)?
-    {
-        for m in &group {
-            let key = if size == MAIN_SIZE {
-                validation_report.add(
-                    &variant.name(),
-                    ds,
-                    Some(m.seed),
-                    m.trained.model.validation,
-                );
-                for (re, e) in options.validation_re.iter().zip(&m.validation_per_re) {
-                    validation_per_re
-                        .entry(variant.name())
-                        .or_default()
-                        .entry(re.to_string())
-                        .or_default()
-                        .push(*e);
-                }
-                variant.name()
-            } else {
-                format!("{}_{}", variant.name(), size.label())
-            };
-            let t = &m.trained.model;
-            validation_curves.insert(
-                format!("{key}_data_{ds}_seed_{}", m.seed),
-                json!({"curve": t.validation_curve, "kept_iteration": t.best_iteration,
-                       "failures": t.validation_failures}),
-            );
-            train_seconds.entry(key).or_default().push(m.seconds);
-        }
-        if size == MAIN_SIZE {
-            groups.push((variant, group));
-        } else {
-            capacity_groups.push((variant, group));
-        }
-    }
-
-    mem("training");
-    Ok((groups, capacity_groups))
-}
-
-/// Trains a list of jobs on the workers (the first error, as text).
-type Trainings<'a> = dyn Fn(&[Job]) -> std::result::Result<Vec<Model>, String> + 'a;
+/// Trains a list of jobs on the workers (the first error).
+type Trainings<'a> = dyn Fn(&[Job]) -> Result<Vec<Model>, BoxError> + 'a;
 
 /// Phase 2: the learning rate of `non` (and `noise`) and of SOL, on
 /// validation: pilot runs at a quarter of the budget, first training seed
@@ -360,165 +222,286 @@ fn learning_rates(
     Ok(lr_of)
 }
 
-/// Phases 4 and 5 of data seed `ds`: selection on validation, then the
-/// held-out split, each trained model once (and saved); the selected SOL
-/// corrector's parameters for the speed study.
-pub(crate) fn select_and_evaluate(
+/// Phases 2 to 5 of data seed `ds`: the learning rates on validation, then
+/// the library's protocol over the plan (every entry at every training seed,
+/// selection on validation, each trained model once on the held-out split,
+/// saved); the selected SOL corrector's parameters for the speed study.
+pub(crate) fn protocol(
     ctx: &Ctx,
     ds: u64,
     splits: &Splits<Vec<Reference>>,
-    (groups, capacity_groups): (Groups, Groups),
+    (train, validation): (&[Trajectory], &[Trajectory]),
+    sigma: f64,
     rec: &mut Record,
 ) -> Result<Option<Probe>, BoxError> {
     let Ctx {
         options,
-        sizes,
+        seeds,
         args,
         coarse,
+        sizes,
         ..
     } = ctx;
-    let (threads, arithmetic) = (ctx.threads, ctx.arithmetic);
-    let Record {
-        results,
-        selected_k,
-        selected_size,
-        capacity_runs,
-        held_out_readings,
-        ..
-    } = rec;
-    let new_net = |size, seed| ctx.new_net(size, seed);
-    // Phase 4: selection on validation only. Every SOL variant trained,
-    // at every size, is a candidate: the unroll and the corrector's size
-    // are both chosen here; the others are candidates on their own.
-    let labelled = groups
-        .into_iter()
-        .chain(capacity_groups)
-        .map(|(variant, g): (Variant, Vec<Model>)| {
-            let size = g.first().map_or(MAIN_SIZE, |m| m.size);
-            (Entry { variant, size }, g)
-        })
-        .collect();
-    let selections = select_groups(
-        labelled,
-        |e| matches!(e.variant, Variant::Sol(_)),
-        |m| m.trained.model.validation,
-    )?;
-    if let Some(Entry {
-        variant: Variant::Sol(k),
-        size,
-    }) = selections.first().map(|s| *s.chosen_label())
-    {
-        let size = size.label();
-        println!("  selected by validation: sol_{k} at {size}");
-        selected_k.insert(ds.to_string(), json!(k));
-        selected_size.insert(ds.to_string(), json!(size));
-    }
-
-    // Phase 5: held-out, each trained model once.
+    let setup = Setup {
+        schedule: LrSchedule::Cosine {
+            final_fraction: 0.1,
+        },
+        validation_steps: sizes.rollout,
+        validation_evaluations: args.pick(VALIDATION_EVALUATIONS, 32),
+        coarse,
+        arithmetic: ctx.arithmetic,
+        sigma,
+        data_seed: ds,
+        train,
+        validation,
+    };
+    let run = |jobs: &[Job]| run_jobs(jobs, ctx.threads, |job| train_one(&setup, job));
+    let lr_of = learning_rates(ctx, ds, &run, &mut rec.chosen_lr)?;
+    let lr_for = |v: Variant| {
+        match v {
+            Variant::Sol(_) => lr_of.get("sol"),
+            _ => lr_of.get("non"),
+        }
+        .copied()
+        .unwrap_or(options.learning_rates[0])
+    };
+    let plan = plan(options, seeds);
     let bar = progress_bar(
-        options.held_out_re.len() * (1 + selections.iter().map(|s| s.models.len()).sum::<usize>()),
+        options.held_out_re.len() * (1 + plan.jobs().len()),
         &format!("data {ds}: held-out"),
     );
-    let invalid = |e: BoxError| diffphys::learn::LearnError::Invalid {
-        what: "held-out",
-        message: e.to_string(),
-    };
-    // Each model at each held-out Re is one job; the workers share them.
-    let evaluate = |models: &[(Option<&Params<f64>>, NetSize, u64)], refs: &[Reference]| {
-        let jobs: Vec<(usize, usize)> = (0..models.len())
-            .flat_map(|m| (0..refs.len()).map(move |r| (m, r)))
-            .collect();
-        let runs = run_jobs(&jobs, threads, |&(m, r)| {
-            let (params, size, seed) = models[m];
-            let (net, _) = new_net(size, seed).map_err(|e| e.to_string())?;
-            let h = Hybrid::new(coarse.clone(), net);
-            let run = study::held_out_re(&h, params, &refs[r], sizes).map_err(|e| e.to_string());
-            bar.inc(1);
-            run
-        })?;
-        let mut runs = runs.into_iter();
-        Ok::<_, BoxError>(
-            (0..models.len())
-                .map(|_| HeldOutRun {
-                    per_re: runs.by_ref().take(refs.len()).collect(),
-                })
-                .collect::<Vec<_>>(),
-        )
-    };
-    let src = splits
-        .held_out()
-        .evaluate_baseline(|refs| evaluate(&[(None, MAIN_SIZE, 0)], refs).map_err(invalid))?
-        .remove(0);
-    results.record("src", ds, None, &src);
-    let reference_last = splits
-        .held_out()
-        .evaluate_baseline(|refs| Ok(refs[0].states[sizes.long].clone()))?;
-    results
+    let (src, reference_last) = baselines(ctx, splits, &bar)?;
+    rec.results.record("src", ds, None, &src);
+    rec.results
         .last
         .entry("reference".into())
         .or_insert(reference_last);
-    let mut probe: Option<(Params<f64>, NetSize)> = None;
-    for selection in selections {
-        for model in selection.models {
-            let e = splits.held_out().evaluate(model, |group, refs| {
-                let models: Vec<_> = group
-                    .iter()
-                    .map(|m| (Some(&m.trained.model.params), m.size, m.seed))
-                    .collect();
-                evaluate(&models, refs).map_err(invalid)
-            })?;
-            for (run, m) in e.result.iter().zip(&e.model) {
-                let t = &m.trained.model;
-                let card = model::card(sizes, m.size, arithmetic)
-                    .provenance("variant", m.variant.name())
-                    .provenance("chosen_on_validation", e.chosen)
-                    .provenance("data_seed", ds)
-                    .provenance("train_seed", m.seed)
-                    .provenance("learning_rate", m.lr)
-                    .provenance("corrector_evaluations", m.evaluations)
-                    .provenance("kept_iteration", t.best_iteration)
-                    .provenance("validation", t.validation)
-                    .provenance("train_re", &options.train_re)
-                    .provenance("validation_re", &options.validation_re)
-                    .provenance("held_out_per_re", model::per_re_json(run));
-                let name = model::dir_name(&m.variant.name(), m.size, ds, m.seed);
-                SavedModel::save(args.out.join("models").join(name), &t.params, &card)?;
-                let params = t.params.count();
-                if m.size != MAIN_SIZE || matches!(m.variant, Variant::Non | Variant::Sol(_)) {
-                    let first_sol = options.unrolls().first().copied();
-                    let in_sweep =
-                        m.variant == Variant::Non || Some(m.variant) == first_sol.map(Variant::Sol);
-                    if in_sweep {
-                        capacity_runs.push((
-                            m.size,
-                            m.variant,
-                            m.seed,
-                            run.mean(),
-                            run.long_mean(),
-                            params,
-                        ));
-                    }
-                }
-                if m.size == MAIN_SIZE {
-                    results.record(&m.variant.name(), ds, Some(m.seed), run);
-                }
-                if matches!(m.variant, Variant::Sol(_)) && e.chosen {
-                    results.record("sol_selected", ds, Some(m.seed), run);
-                    if probe.is_none() {
-                        probe = Some((m.trained.model.params.clone(), m.size));
-                    }
-                }
+    let train_job = |j: &learn_study::Job<Variant, NetSize>| {
+        train_one(
+            &setup,
+            &Job {
+                variant: j.variant,
+                size: j.size,
+                seed: j.seed.0,
+                lr: lr_for(j.variant),
+                evaluations: ctx.evaluations,
+            },
+        )
+    };
+    // Selection on validation only: every SOL variant trained, at every
+    // size, competes (the unroll and the corrector's size are both chosen
+    // here); the others stand alone. Then the held-out split, each trained
+    // model once.
+    let outcomes = Protocol {
+        plan: &plan,
+        threads: ctx.threads,
+    }
+    .run(
+        splits.held_out(),
+        train_job,
+        |m| m.trained.model.validation,
+        |e| matches!(e.variant, Variant::Sol(_)),
+        |_, models, refs| {
+            let models: Vec<_> = models
+                .iter()
+                .map(|m| (Some(&m.trained.model.params), m.size, m.seed))
+                .collect();
+            held_out_runs(ctx, &models, refs, &bar)
+        },
+    )?;
+    bar.finish_and_clear();
+    mem("held-out");
+    for &(variant, size) in &plan.entries {
+        let entry = learn_study::Entry { variant, size };
+        if let Some(o) = outcomes.iter().find(|o| o.entry == entry) {
+            record_training(options, ds, o, rec);
+        }
+    }
+    let mut probe = None;
+    for o in &outcomes {
+        if let (true, Variant::Sol(k)) = (o.selected(), o.entry.variant) {
+            println!("  selected by validation: {}", o.entry);
+            rec.selected_k.insert(ds.to_string(), json!(k));
+            rec.selected_size
+                .insert(ds.to_string(), json!(o.entry.size.label()));
+        }
+        for r in &o.runs {
+            record_held_out(ctx, ds, o, r, rec)?;
+            if o.selected() && probe.is_none() {
+                probe = Some((r.model.trained.model.params.clone(), o.entry.size));
             }
         }
     }
-    bar.finish_and_clear();
-    mem("held-out");
     let (models_read, baseline_reads) = splits.held_out().readings();
-    held_out_readings.insert(
+    rec.held_out_readings.insert(
         format!("data_{ds}"),
         json!({"trained_models": models_read, "baseline_readings": baseline_reads}),
     );
     Ok(probe)
+}
+
+/// Every variant at the main size and, for the capacity sweep, `non` and the
+/// first SOL at the other sizes; every training seed. The largest first, so
+/// that the workers finish together.
+fn plan(options: &Options, seeds: &common::Seeds) -> Plan<Variant, NetSize> {
+    let sol = options.unrolls().first().copied().map(Variant::Sol);
+    let mut plan: Vec<(Variant, NetSize)> = Vec::new();
+    let mut sweep = options.capacity.clone();
+    sweep.sort_by_key(|s| std::cmp::Reverse(s.width * s.width * (2 * s.blocks + 2)));
+    let (larger, smaller): (Vec<NetSize>, Vec<NetSize>) = sweep
+        .iter()
+        .partition(|s| s.width * s.width * (2 * s.blocks + 2) > 16 * 16 * 6);
+    for size in larger {
+        for variant in [Some(Variant::Non), sol].into_iter().flatten() {
+            plan.push((variant, size));
+        }
+    }
+    for &variant in options.variants.iter().filter(|v| **v != Variant::Src) {
+        plan.push((variant, MAIN_SIZE));
+    }
+    for size in smaller {
+        for variant in [Some(Variant::Non), sol].into_iter().flatten() {
+            plan.push((variant, size));
+        }
+    }
+    Plan::new(plan, seeds.train.iter().map(|&s| TrainSeed(s)).collect())
+}
+
+/// The held-out runs of `models` (parameters, size, seed) at every held-out
+/// Re: each model at each Re is one job, and the workers share them.
+fn held_out_runs(
+    ctx: &Ctx,
+    models: &[(Option<&Params<f64>>, NetSize, u64)],
+    refs: &[Reference],
+    bar: &(dyn Progress + Sync),
+) -> Result<Vec<HeldOutRun>, BoxError> {
+    let jobs: Vec<(usize, usize)> = (0..models.len())
+        .flat_map(|m| (0..refs.len()).map(move |r| (m, r)))
+        .collect();
+    let runs = run_jobs(&jobs, ctx.threads, |&(m, r)| {
+        let (params, size, seed) = models[m];
+        let (net, _) = ctx.new_net(size, seed)?;
+        let h = Hybrid::new(ctx.coarse.clone(), net);
+        let run = study::held_out_re(&h, params, &refs[r], &ctx.sizes)?;
+        bar.inc(1);
+        Ok::<_, BoxError>(run)
+    })?;
+    let mut runs = runs.into_iter();
+    Ok((0..models.len())
+        .map(|_| HeldOutRun {
+            per_re: runs.by_ref().take(refs.len()).collect(),
+        })
+        .collect())
+}
+
+/// The baselines' held-out readings: `src` (the uncorrected coarse solver)
+/// and the reference's last state (for the charts).
+fn baselines(
+    ctx: &Ctx,
+    splits: &Splits<Vec<Reference>>,
+    bar: &(dyn Progress + Sync),
+) -> Result<(HeldOutRun, Array3<f64>), BoxError> {
+    let invalid = |e: BoxError| diffphys::learn::LearnError::Invalid {
+        what: "held-out",
+        message: e.to_string(),
+    };
+    let src = splits
+        .held_out()
+        .evaluate_baseline(|refs| {
+            held_out_runs(ctx, &[(None, MAIN_SIZE, 0)], refs, bar).map_err(invalid)
+        })?
+        .remove(0);
+    let last = splits
+        .held_out()
+        .evaluate_baseline(|refs| Ok(refs[0].states[ctx.sizes.long].clone()))?;
+    Ok((src, last))
+}
+
+/// What a training leaves in the report: its validation score and curve
+/// (per validation Re at the main size) and its time.
+fn record_training(
+    options: &Options,
+    ds: u64,
+    o: &learn_study::Outcome<Variant, NetSize, Model, HeldOutRun>,
+    rec: &mut Record,
+) {
+    let (variant, size) = (o.entry.variant, o.entry.size);
+    for r in &o.runs {
+        let m = &r.model;
+        let key = if size == MAIN_SIZE {
+            rec.validation_report.add(
+                &variant.name(),
+                ds,
+                Some(m.seed),
+                m.trained.model.validation,
+            );
+            for (re, e) in options.validation_re.iter().zip(&m.validation_per_re) {
+                rec.validation_per_re
+                    .entry(variant.name())
+                    .or_default()
+                    .entry(re.to_string())
+                    .or_default()
+                    .push(*e);
+            }
+            variant.name()
+        } else {
+            format!("{}_{}", variant.name(), size.label())
+        };
+        let t = &m.trained.model;
+        rec.validation_curves.insert(
+            format!("{key}_data_{ds}_seed_{}", m.seed),
+            json!({"curve": t.validation_curve, "kept_iteration": t.best_iteration,
+                   "failures": t.validation_failures}),
+        );
+        rec.train_seconds.entry(key).or_default().push(m.seconds);
+    }
+}
+
+/// What a trained model's held-out reading leaves: its saved model (with the
+/// settings and figures that describe it), the capacity sweep's entry, the
+/// report's.
+fn record_held_out(
+    ctx: &Ctx,
+    ds: u64,
+    o: &learn_study::Outcome<Variant, NetSize, Model, HeldOutRun>,
+    r: &learn_study::Run<Model, HeldOutRun>,
+    rec: &mut Record,
+) -> Result<(), BoxError> {
+    let Ctx { options, sizes, .. } = ctx;
+    let (m, run) = (&r.model, &r.held_out);
+    let t = &m.trained.model;
+    let card = model::card(sizes, m.size, ctx.arithmetic)
+        .provenance("variant", m.variant.name())
+        .provenance("chosen_on_validation", o.chosen)
+        .provenance("data_seed", ds)
+        .provenance("train_seed", m.seed)
+        .provenance("learning_rate", m.lr)
+        .provenance("corrector_evaluations", m.evaluations)
+        .provenance("kept_iteration", t.best_iteration)
+        .provenance("validation", t.validation)
+        .provenance("train_re", &options.train_re)
+        .provenance("validation_re", &options.validation_re)
+        .provenance("held_out_per_re", model::per_re_json(run));
+    let name = model::dir_name(&m.variant.name(), m.size, ds, m.seed);
+    SavedModel::save(ctx.args.out.join("models").join(name), &t.params, &card)?;
+    let first_sol = options.unrolls().first().copied().map(Variant::Sol);
+    if m.variant == Variant::Non || Some(m.variant) == first_sol {
+        rec.capacity_runs.push((
+            m.size,
+            m.variant,
+            m.seed,
+            run.mean(),
+            run.long_mean(),
+            t.params.count(),
+        ));
+    }
+    if m.size == MAIN_SIZE {
+        rec.results.record(&m.variant.name(), ds, Some(m.seed), run);
+    }
+    if o.selected() {
+        rec.results.record("sol_selected", ds, Some(m.seed), run);
+    }
+    Ok(())
 }
 
 /// Phase 6: speed against accuracy on the first data seed's held-out split

@@ -36,7 +36,9 @@ use std::collections::BTreeMap;
 use std::time::Instant;
 
 use diffphys::flow::PressureSolver;
-use diffphys::learn::study::{self as learn_study, pilot_learning_rates, run_jobs, Plan, Protocol};
+use diffphys::learn::study::{
+    self as learn_study, pilot_learning_rates, run_jobs, Ledger, Plan, Protocol,
+};
 use diffphys::learn::{
     rollout, Budget, DataSeed, Hybrid, LrSchedule, Report, SavedModel, Schedule, Simulator, Split,
     Splits, Strategy, TrainSeed, Trained, TrainedCorrector, Trainer, Trajectory,
@@ -384,9 +386,12 @@ struct Record {
     validation_per_re: BTreeMap<String, BTreeMap<String, Vec<f64>>>,
     sigma_used: f64,
     pinned_face_error: serde_json::Map<String, Value>,
-    /// How often each data seed's held-out split was read (each trained model
-    /// once; the baselines: src, the reference's last state, the speed study).
-    held_out_readings: serde_json::Map<String, Value>,
+    /// How often each data seed's held-out split was read in this run,
+    /// `(trained models, baseline readings)` (each trained model once; the
+    /// baselines: src, the reference's last state, the speed study).
+    held_out_readings: BTreeMap<u64, (usize, usize)>,
+    /// Each split's tally in the output folder's ledger, over every run.
+    held_out_evaluations: serde_json::Map<String, Value>,
 }
 
 fn main() -> Result<(), BoxError> {
@@ -412,7 +417,46 @@ fn main() -> Result<(), BoxError> {
         }
     }
     let speed = speed_study(&ctx, speed_inputs.as_ref(), &mut rec)?;
+    count_readings(&ctx, &mut rec)?;
     report(&ctx, rec, speed, params_count, run_start)
+}
+
+/// Appends this run's held-out readings to the output folder's ledger: per
+/// data seed, the split (the reference's settings, the held-out Re, the seed)
+/// and the configuration that shaped the models read on it (every option but
+/// the held-out Re, the thread count and the speed study; the budget; the
+/// training seeds).
+fn count_readings(ctx: &Ctx, rec: &mut Record) -> Result<(), BoxError> {
+    let ledger = Ledger::open(&ctx.args.out)?;
+    let shaping = Options {
+        held_out_re: Vec::new(),
+        threads: 0,
+        speed: false,
+        ..ctx.options.clone()
+    };
+    let configuration = format!(
+        "{shaping:?} | {:?} | corrector evaluations {} | training seeds {:?}",
+        ctx.sizes, ctx.evaluations, ctx.seeds.train
+    );
+    for (&ds, &readings) in &rec.held_out_readings {
+        let split = format!(
+            "{} | held-out Re {:?} | data seed {ds}",
+            ctx.cache.settings(),
+            ctx.options.held_out_re
+        );
+        let tally = ledger.record(&split, &configuration, readings)?;
+        println!(
+            "data seed {ds}: held-out split read by {} run(s) of this configuration, {} of any ({} configuration(s), {} trained models in all; {})",
+            tally.runs_of_this_configuration,
+            tally.runs_of_any_configuration,
+            tally.configurations,
+            tally.trained_models,
+            ledger.path().display()
+        );
+        rec.held_out_evaluations
+            .insert(format!("data_{ds}"), json!(tally));
+    }
+    Ok(())
 }
 
 /// Prints the peak resident memory so far (the tapes' buffer pools are freed

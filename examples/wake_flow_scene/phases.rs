@@ -332,11 +332,8 @@ pub(crate) fn protocol(
             }
         }
     }
-    let (models_read, baseline_reads) = splits.held_out().readings();
-    rec.held_out_readings.insert(
-        format!("data_{ds}"),
-        json!({"trained_models": models_read, "baseline_readings": baseline_reads}),
-    );
+    rec.held_out_readings
+        .insert(ds, splits.held_out().readings());
     Ok(probe)
 }
 
@@ -534,11 +531,8 @@ pub(crate) fn speed_study(
             })
         })?;
         speed = result;
-        let (models_read, baseline_reads) = splits.held_out().readings();
-        rec.held_out_readings.insert(
-            format!("data_{}", splits.seed.0),
-            json!({"trained_models": models_read, "baseline_readings": baseline_reads}),
-        );
+        rec.held_out_readings
+            .insert(splits.seed.0, splits.held_out().readings());
         mem("speed");
         pressure = study::pressure_solves(sizes, options.validation_re[0])?;
     }

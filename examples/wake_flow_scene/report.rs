@@ -36,6 +36,7 @@ pub(crate) fn report(
         sigma_used,
         pinned_face_error,
         held_out_readings,
+        held_out_evaluations,
     } = rec;
     // Report.
     let summary = |r: &Report| -> serde_json::Map<String, Value> {
@@ -173,7 +174,15 @@ pub(crate) fn report(
         "wall_s": run_start.elapsed().as_secs_f64(),
     });
     // Beside the macro: its recursion is deep already.
-    line["held_out_readings"] = held_out_readings.into();
+    line["held_out_readings"] = held_out_readings
+        .iter()
+        .map(|(ds, (models, baselines))| {
+            let reading = json!({"trained_models": models, "baseline_readings": baselines});
+            (format!("data_{ds}"), reading)
+        })
+        .collect::<serde_json::Map<_, _>>()
+        .into();
+    line["held_out_evaluations"] = held_out_evaluations.into();
     line["saved_models"] = json!(args.out.join("models").display().to_string());
     // The floors are the full scene's (docs/11): `--small`'s budgets and grids
     // measure that the study runs, not what it reaches.

@@ -9,7 +9,8 @@
 //! made [`Candidate`]s labelled by the typed `(variant, size)`
 //! itself. [`Protocol`] runs the whole protocol of one data seed: the
 //! trainings, selection on validation, and each trained model's one held-out
-//! evaluation.
+//! evaluation; a [`Ledger`] counts the readings of each held-out split across
+//! runs.
 //!
 //! ```
 //! use diffphys_learn::study::{run_jobs, Plan};
@@ -28,8 +29,10 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+mod ledger;
 mod protocol;
 
+pub use ledger::{Ledger, Reading, Tally, LEDGER_FILE};
 pub use protocol::{Entry, OneSize, Outcome, Protocol, Run};
 
 use std::sync::atomic::{AtomicUsize, Ordering};

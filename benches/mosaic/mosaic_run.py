@@ -297,6 +297,41 @@ def summarize(root: Path, debug: bool) -> dict:
             "hardware": vc.get("extras", {}).get("hardware"),
             "timestamp": vc.get("provenance", {}).get("run_meta", {}).get("timestamp"),
         }
+    # every other experiment: its scalar metrics per solver and sweep value
+    # (for an eps sweep, the best cosine and relative error over eps)
+    done = {k for k in out if "/" in k}
+    for path in sorted(base.glob(f"*/**/result.json")):
+        rel = path.parent.relative_to(base).as_posix()
+        if sfx and not rel.endswith(sfx):
+            continue
+        key = rel[: len(rel) - len(sfx)] if sfx else rel
+        if key in done or (not sfx and rel.endswith("_debug")):
+            continue
+        res = _load(path)
+        if not res or "results" not in res:
+            continue
+        rows: dict = {}
+        for entry in res["results"]:
+            m = entry.get("metrics") or {}
+            row = {k: v for k, v in m.items() if isinstance(v, (int, float, str, bool))}
+            sweep = m.get("eps_sweep")
+            if isinstance(sweep, dict) and sweep:
+                cos = [v.get("cosine_mean", v.get("cosine")) for v in sweep.values()]
+                err = [v.get("rel_error_mean") if "rel_error_mean" in v
+                       else statistics.median(v["rel_error"]) for v in sweep.values()
+                       if "rel_error_mean" in v or "rel_error" in v]
+                row["best_cosine"] = max(c for c in cos if c is not None)
+                row["best_rel_error"] = min(err) if err else None
+            sv = entry.get("sweep_value")
+            rows.setdefault(entry["solver"], {})[str(sv)] = row
+        out[key] = {
+            "file": str(path),
+            "params": res.get("params"),
+            "sweep": res.get("sweep"),
+            "by_solver": rows,
+            "solver_failures": res.get("_solver_failures"),
+            "timestamp": res.get("provenance", {}).get("run_meta", {}).get("timestamp"),
+        }
     return out
 
 

@@ -94,3 +94,26 @@ def test_the_schema_accepts_drag_opt_and_apply_returns_the_drag(ta):
     out = ta.apply(inputs)
     assert out["drag"].shape == (1,) and out["drag"][0] < 0
     assert out["result"].shape == (16, 16, 1, 2)
+
+
+def test_result_and_drag_cotangents_together_match_central_differences(ta):
+    # the tail path carries the result's cotangent back through the tail
+    # steps one at a time: <w, result> + drag, to v0 and to the profile
+    rng = np.random.default_rng(5)
+    raw = _drag_opt_inputs(profile=0.5 + 0.05 * rng.standard_normal(16))
+    raw["v0"] = raw["v0"] + 0.01 * rng.standard_normal(raw["v0"].shape)
+    w = rng.standard_normal((16, 16, 1, 2))
+    g = ta._vjp(raw, {"v0", "inflow_profile"}, {"result", "drag"},
+                {"result": w, "drag": np.array([1.0])})
+
+    def loss(r):
+        result, drag = ta._forward(r)
+        return float(np.sum(w[:, :, 0, :] * result)) + drag
+
+    h = 1e-5
+    for key, shape in (("v0", (16, 16, 1, 2)), ("inflow_profile", (16,))):
+        d = rng.standard_normal(shape)
+        fd = (loss(dict(raw, **{key: raw[key] + h * d}))
+              - loss(dict(raw, **{key: raw[key] - h * d}))) / (2 * h)
+        got = float(np.sum(np.reshape(g[key], shape) * d))
+        assert got == pytest.approx(fd, rel=1e-5, abs=1e-9)

@@ -345,7 +345,11 @@ class _Layout:
                 if uniform is not None:
                     self.q = np.full(n, uniform, DTYPE)
                 else:
-                    p = np.asarray(profile, np.float64).reshape(-1)
+                    p = np.asarray(profile, np.float64)
+                    if p.ndim != 1 or p.size == 0:
+                        raise ValueError(
+                            f"diffphys' adapter: inflow_profile has shape {p.shape}; it is "
+                            "u_x(y), one value or more along x_lo, shape (M,)")
                     self.resample = _resample(p.shape[0], n)
                     q = p if self.resample is None else self.resample @ p
                     self.q = np.asarray(q, DTYPE)

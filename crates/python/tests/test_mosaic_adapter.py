@@ -117,3 +117,9 @@ def test_result_and_drag_cotangents_together_match_central_differences(ta):
               - loss(dict(raw, **{key: raw[key] - h * d}))) / (2 * h)
         got = float(np.sum(np.reshape(g[key], shape) * d))
         assert got == pytest.approx(fd, rel=1e-5, abs=1e-9)
+
+
+@pytest.mark.parametrize("profile", [np.array([]), np.full((16, 2), 0.5)])
+def test_a_profile_that_is_not_one_row_of_values_is_refused(ta, profile):
+    with pytest.raises(ValueError, match="inflow_profile has shape"):
+        ta._forward(_drag_opt_inputs(profile=profile))

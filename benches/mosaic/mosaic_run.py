@@ -1,6 +1,8 @@
 """Mosaic's own experiment runner (``mosaic run``) on ns-grid, with diffphys'
 Tesseract and Mosaic's JAX-CFD entrant side by side, both in-process: no
-Docker, no image build.
+Docker, no image build. Needs the diffphys package and ``pip install
+mosaic-bench==0.2.0 jax-cfd==0.2.1 equinox==0.13.8`` (the last two for the
+JAX-CFD entrant).
 
     python benches/mosaic/mosaic_run.py run -e gradient/fd_check -o /tmp/mosaic_run [--debug]
     python benches/mosaic/mosaic_run.py run -e forward/baseline  -o /tmp/mosaic_run

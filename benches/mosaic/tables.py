@@ -5,10 +5,13 @@ output), one table per experiment, each row one solver, the columns the
 experiment's sweep values.
 
     python benches/mosaic/tables.py [--ours benches/mosaic/mosaic_run_results/summary_other_experiments.json]
-                                    [--published benches/mosaic/mosaic_published.json]
+                                    [--published benches/mosaic/mosaic_published.json] [--write]
 
 Prints the tables, then one JSON line with the headline figures (per
-experiment: ours, JAX-CFD here, the best published entrant and its value).
+experiment: ours, JAX-CFD here, and the published entrant whose worst value
+over the sweep is the lowest, with that value). ``--write`` also puts the
+tables into docs/results/mosaic.md between its ``tables.py: begin`` and
+``tables.py: end`` markers.
 """
 
 from __future__ import annotations
@@ -38,6 +41,8 @@ TABLES = [
 SVD = ["gradient/jacobian_svd", "gradient/jacobian_svd_steps20",
        "gradient/jacobian_svd_steps40", "gradient/jacobian_svd_nu01"]
 HERE_SOLVERS = ("diffphys", "jax-cfd")
+DOC = HERE.parents[1] / "docs" / "results" / "mosaic.md"
+BEGIN, END = "<!-- tables.py: begin", "<!-- tables.py: end -->"
 
 
 def _fmt(v) -> str:
@@ -111,6 +116,7 @@ def main() -> None:
     ap.add_argument("--ours", type=Path,
                     default=HERE / "mosaic_run_results" / "summary_other_experiments.json")
     ap.add_argument("--published", type=Path, default=HERE / "mosaic_published.json")
+    ap.add_argument("--write", action="store_true", help="update docs/results/mosaic.md")
     a = ap.parse_args()
     ours = json.loads(a.ours.read_text())
     pub = json.loads(a.published.read_text())
@@ -119,7 +125,14 @@ def main() -> None:
         md, head = table(exp, metric, label, lower, ours, pub)
         print(md)
         heads[f"{exp}:{metric}"] = head
-    print(svd_table(ours, pub))
+    svd = svd_table(ours, pub)
+    print(svd)
+    if a.write:
+        md = "\n".join(table(*t, ours, pub)[0] for t in TABLES) + "\n" + svd
+        doc = DOC.read_text()
+        begin = doc.index("\n", doc.index(BEGIN)) + 1
+        end = doc.index(END)
+        DOC.write_text(doc[:begin] + "\n" + md + "\n" + doc[end:])
     print(json.dumps(heads))
 
 

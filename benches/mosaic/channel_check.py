@@ -11,8 +11,8 @@ Configurations (from Mosaic 0.2.0's ns-grid experiment configs,
 * ``drag_opt_walls`` -- ``optimization/drag_opt``'s physics (N = 32,
   nu = 0.0025, dt = 0.02, domain 1, cylinder r = 0.05 at the centre, uniform
   flow U = 0.5) and its faces as Mosaic's ``make_inputs`` sets them (x
-  periodic, y no_slip), without the inflow profile (diffphys cannot put an
-  inflow on a periodic x_lo; see tesseract_api.py).
+  periodic, y no_slip), without the inflow profile (with it, x_lo becomes
+  the inflow and x_hi the outflow: ``inflow_channel``; see tesseract_api.py).
 * ``closed_box`` -- all four faces no_slip, a cylinder r = 0.1 at the
   centre, Mosaic's ``multimode`` initial condition (max speed 0.3),
   nu = 0.01, dt = 0.05, domain 2 pi: walls normal to both axes, with a
@@ -339,7 +339,7 @@ def fd_check_f64(mod, name: str, inp: dict, wrt: str, out_key: str, n_dirs: int,
 
     def loss(x):
         result, force = run(x)
-        return float(np.sum(result ** 2)) if out_key == "result" else float(force[0])
+        return float(np.sum(result ** 2)) if out_key == "result" else float(np.reshape(force, -1)[0])
 
     result, _ = run(base)
     ct = ({"result": 2.0 * result[:, :, None, :]} if out_key == "result"

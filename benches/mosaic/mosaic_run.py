@@ -1,10 +1,15 @@
 """Mosaic's own experiment runner (``mosaic run``) on ns-grid, with diffphys'
 Tesseract and Mosaic's JAX-CFD entrant side by side, both in-process: no
-Docker, no image build.
+Docker, no image build. Needs the diffphys package and ``pip install
+mosaic-bench==0.2.0 jax-cfd==0.2.1 equinox==0.13.8`` (the last two for the
+JAX-CFD entrant).
 
     python benches/mosaic/mosaic_run.py run -e gradient/fd_check -o /tmp/mosaic_run [--debug]
     python benches/mosaic/mosaic_run.py run -e forward/baseline  -o /tmp/mosaic_run
     python benches/mosaic/mosaic_run.py run -e cost/vjp_cost/by_N -o /tmp/mosaic_run
+    python benches/mosaic/mosaic_run.py run -e optimization/drag_opt -o /tmp/mosaic_run
+    python benches/mosaic/mosaic_run.py run -e gradient/fd_check_drag_opt -o /tmp/mosaic_run
+    python benches/mosaic/mosaic_run.py run -e optimization/drag_opt_1000it -o /tmp/mosaic_run_1000
     python benches/mosaic/mosaic_run.py status -p ns-grid -o /tmp/mosaic_run
     python benches/mosaic/mosaic_run.py summarize /tmp/mosaic_run [--debug] [--out FILE]
 
@@ -39,12 +44,24 @@ starts:
   machine without GPU, and its cost plots would label it "(GPU)").
 * ``mosaic_shared`` (the schemas the Tesseracts import as a top-level
   package; their images copy it beside them) is put on ``sys.path``.
+* Two experiments of ours are added to the registry, built from Mosaic's own
+  kernels with the settings Mosaic registered (read off its registry, not
+  copied; ``register_extra_experiments``): ``gradient/fd_check_drag_opt``,
+  Mosaic's ``fd_check`` (its eps sweep, 20 directions, status checks) on
+  ``optimization/drag_opt``'s inputs, perturbing ``inflow_profile`` with
+  ``drag`` as the output, i.e. the gradient drag_opt's optimiser follows;
+  and ``optimization/drag_opt_1000it``, drag_opt with 1,000 Adam iterations
+  instead of 250 (outside Mosaic's budget; run it into its own ``-o``
+  folder, the kernel writes its partial results under drag_opt's name).
+  Both exclude the solvers Mosaic excludes from drag_opt.
 
 ``summarize`` reads Mosaic's ``result.json`` files under the output folder
 and prints one JSON line with the figures (fd_check: best cosine over ε and
 best median relative error over ε, Mosaic's status-check definitions, plus
 every ε; forward/baseline: ``l2_error_rel`` per N; cost/vjp_cost/by_N and
-by_steps: mean and trials per N or per step count). Set
+by_steps: mean and trials per N or per step count; the two fd_checks alike;
+optimization/drag_opt and drag_opt_1000it: initial and final drag, drag
+reduction %, iterations, wall time per solver). Set
 ``DIFFPHYS_TESSERACT_DTYPE=float32`` to run our Tesseract in float32 (see
 tesseract_api.py).
 """
@@ -107,8 +124,61 @@ def register_inprocess_solvers() -> None:
     ns.problem = dataclasses.replace(prob, solvers=[jax_cfd, diffphys])
 
 
+def _registered(prob, key: str) -> tuple[dict, list]:
+    """The run dict (its ``ic``, ``physics``, ``fd``/``optim``...) and the
+    status checks Mosaic registered for experiment ``key``: read off the
+    registered closure (``Problem.add_experiment`` keeps the config only
+    there), so the added experiments below take Mosaic's own settings."""
+    import inspect
+
+    exp = prob.experiments[key]
+    kw = inspect.signature(exp.fn).parameters["_kw"].default
+    (run,) = kw["runs"]
+    return run, list(exp.params.get("status_check", []))
+
+
+def register_extra_experiments() -> None:
+    """Two experiments Mosaic 0.2.0 does not have, both ours, built from its
+    own kernels and settings (see the module docs):
+
+    * ``gradient/fd_check_drag_opt``: Mosaic's ``fd_check`` kernel, eps
+      sweep, directions and status checks (``gradient/fd_check``'s), on
+      ``optimization/drag_opt``'s inputs (its ``flat_inflow`` profile and
+      physics), perturbing ``inflow_profile`` and checking the gradient of
+      ``drag**2``: the gradient drag_opt's Adam steps follow.
+    * ``optimization/drag_opt_1000it``: ``optimization/drag_opt`` with
+      ``max_iters`` 1,000 instead of 250, everything else Mosaic's:
+      outside Mosaic's budget. Run it into its own output folder (``-o``):
+      the kernel writes its partial results under ``drag_opt``'s name.
+    """
+    from mosaic.benchmarks.problems.navier_stokes_grid import config as ns
+    from mosaic.benchmarks.problems.navier_stokes_grid.exclusions import _OBSTACLE_GATE
+    from mosaic.benchmarks.problems.navier_stokes_grid.optimization import drag_opt
+    from mosaic.benchmarks.problems.shared.gradient import fd_check
+
+    prob = ns.problem
+    drag, _ = _registered(prob, "optimization/drag_opt")
+    fd, fd_checks = _registered(prob, "gradient/fd_check")
+    prob.add_experiment(
+        "gradient/fd_check_drag_opt", fd_check,
+        plot_description="diffphys' addition: fd_check on drag_opt's inflow profile and drag.",
+        status_check=fd_checks,
+        ic=drag["ic"], physics=drag["physics"], fd=fd["fd"],
+        ic_key="inflow_profile", output_key="drag",
+    )
+    prob.exclude("gradient/fd_check_drag_opt", _OBSTACLE_GATE)
+    prob.add_experiment(
+        "optimization/drag_opt_1000it", drag_opt,
+        plot_description="diffphys' addition: drag_opt with 1,000 Adam iterations "
+                         "(outside Mosaic's budget of 250).",
+        ic=drag["ic"], physics=drag["physics"], optim={**drag["optim"], "max_iters": 1000},
+    )
+    prob.exclude("optimization/drag_opt_1000it", _OBSTACLE_GATE)
+
+
 def run_mosaic_cli(argv: list[str]) -> None:
     register_inprocess_solvers()
+    register_extra_experiments()
     if argv and argv[0] == "run":
         if "--no-build" not in argv:
             argv = [*argv, "--no-build"]
@@ -129,35 +199,67 @@ def _load(path: Path) -> dict | None:
         return None
 
 
+def _summarize_fd(out: dict, base: Path, exp: str, sfx: str) -> None:
+    fd = _load(base / "gradient" / f"{exp}{sfx}" / "result.json")
+    if fd is None:
+        return
+    rows = {}
+    for entry in fd["results"]:
+        m = entry.get("metrics") or {}
+        sweep = m.get("eps_sweep") or {}
+        per_eps = {
+            str(eps): {"cosine": st["cosine"],
+                       "median_rel_error": statistics.median(st["rel_error"])}
+            for eps, st in sweep.items()
+        }
+        rows[entry["solver"]] = {
+            "best_cosine": max((v["cosine"] for v in per_eps.values()), default=None),
+            "best_median_rel_error": min(
+                (v["median_rel_error"] for v in per_eps.values()), default=None),
+            "per_eps": per_eps,
+        }
+    out[f"gradient/{exp}"] = {
+        "file": str(base / "gradient" / f"{exp}{sfx}" / "result.json"),
+        "params": fd.get("params", {}).get("physics"),
+        "n_dirs": fd.get("params", {}).get("fd", {}).get("n_dirs"),
+        "thresholds": {"min_cosine": 0.99, "max_rel_err": 1e-3},
+        "by_solver": rows,
+        "solver_failures": fd.get("_solver_failures"),
+    }
+
+
 def summarize(root: Path, debug: bool) -> dict:
     sfx = "_debug" if debug else ""
     base = root / PROBLEM
     out: dict = {"results_dir": str(root), "debug": debug}
 
-    fd = _load(base / "gradient" / f"fd_check{sfx}" / "result.json")
-    if fd is not None:
+    for exp in ("fd_check", "fd_check_drag_opt"):
+        _summarize_fd(out, base, exp, sfx)
+
+    for exp in ("drag_opt", "drag_opt_1000it"):
+        path = base / "optimization" / f"{exp}{sfx}" / "result.json"
+        do = _load(path)
+        if do is None:
+            continue
         rows = {}
-        for entry in fd["results"]:
+        for entry in do["results"]:
             m = entry.get("metrics") or {}
-            sweep = m.get("eps_sweep") or {}
-            per_eps = {
-                str(eps): {"cosine": st["cosine"],
-                           "median_rel_error": statistics.median(st["rel_error"])}
-                for eps, st in sweep.items()
-            }
             rows[entry["solver"]] = {
-                "best_cosine": max((v["cosine"] for v in per_eps.values()), default=None),
-                "best_median_rel_error": min(
-                    (v["median_rel_error"] for v in per_eps.values()), default=None),
-                "per_eps": per_eps,
-            }
-        out["gradient/fd_check"] = {
-            "file": str(base / "gradient" / f"fd_check{sfx}" / "result.json"),
-            "params": fd.get("params", {}).get("physics"),
-            "n_dirs": fd.get("params", {}).get("fd", {}).get("n_dirs"),
-            "thresholds": {"min_cosine": 0.99, "max_rel_err": 1e-3},
+                k: m.get(k) for k in ("initial_drag", "final_drag", "drag_reduction_pct",
+                                      "n_iters", "converged", "error")
+                if m.get(k) is not None}
+            if m.get("drags"):
+                rows[entry["solver"]]["min_abs_drag"] = min(abs(x) for x in m["drags"])
+            if m.get("flow_rates"):
+                rows[entry["solver"]]["final_flow_rate"] = m["flow_rates"][-1]
+        prov = do.get("provenance", {})
+        out[f"optimization/{exp}"] = {
+            "file": str(path),
+            "params": do.get("params"),
             "by_solver": rows,
-            "solver_failures": fd.get("_solver_failures"),
+            "wall_time_s": prov.get("wall_time_s"),
+            "timestamp": prov.get("run_meta", {}).get("timestamp"),
+            "platform": prov.get("environment", {}).get("platform"),
         }
 
     bl = _load(base / "forward" / f"baseline{sfx}" / "result.json")
@@ -196,6 +298,41 @@ def summarize(root: Path, debug: bool) -> dict:
             "by_solver": rows,
             "hardware": vc.get("extras", {}).get("hardware"),
             "timestamp": vc.get("provenance", {}).get("run_meta", {}).get("timestamp"),
+        }
+    # every other experiment: its scalar metrics per solver and sweep value
+    # (for an eps sweep, the best cosine and relative error over eps)
+    done = {k for k in out if "/" in k}
+    for path in sorted(base.glob(f"*/**/result.json")):
+        rel = path.parent.relative_to(base).as_posix()
+        if sfx and not rel.endswith(sfx):
+            continue
+        key = rel[: len(rel) - len(sfx)] if sfx else rel
+        if key in done or (not sfx and rel.endswith("_debug")):
+            continue
+        res = _load(path)
+        if not res or "results" not in res:
+            continue
+        rows: dict = {}
+        for entry in res["results"]:
+            m = entry.get("metrics") or {}
+            row = {k: v for k, v in m.items() if isinstance(v, (int, float, str, bool))}
+            sweep = m.get("eps_sweep")
+            if isinstance(sweep, dict) and sweep:
+                cos = [v.get("cosine_mean", v.get("cosine")) for v in sweep.values()]
+                err = [v.get("rel_error_mean") if "rel_error_mean" in v
+                       else statistics.median(v["rel_error"]) for v in sweep.values()
+                       if "rel_error_mean" in v or "rel_error" in v]
+                row["best_cosine"] = max(c for c in cos if c is not None)
+                row["best_rel_error"] = min(err) if err else None
+            sv = entry.get("sweep_value")
+            rows.setdefault(entry["solver"], {})[str(sv)] = row
+        out[key] = {
+            "file": str(path),
+            "params": res.get("params"),
+            "sweep": res.get("sweep"),
+            "by_solver": rows,
+            "solver_failures": res.get("_solver_failures"),
+            "timestamp": res.get("provenance", {}).get("run_meta", {}).get("timestamp"),
         }
     return out
 

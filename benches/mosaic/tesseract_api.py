@@ -3,8 +3,13 @@
 
 Inputs and outputs are Mosaic's canonical schemas: ``v0`` is a collocated
 velocity ``(N, N, 1, 2)``, ``result`` the same after ``steps`` steps, ``drag``
-the x-force on the obstacle (``diffphys.FlowStep``'s ``force[0]``, unchanged
-from the periodic adapter). diffphys keeps the velocity on the faces of a MAC
+the x-force as Mosaic's entrants report it (PhiFlow, XLB and PICT alike): the
+mean over the last ``max(1, steps // 2)`` steps, with Mosaic's sign (the force
+on the fluid, negative for flow in +x), i.e. minus the mean of
+``diffphys.FlowStep``'s ``force[0]`` (the force of the flow on the obstacle,
+its surface integral of pressure and shear) over those steps; 0 without an
+obstacle. Its VJP runs those last steps one at a time (each seeds its own
+force) and the steps before them in one ``FlowStep.vjp``. diffphys keeps the velocity on the faces of a MAC
 grid, so ``apply`` moves the cell velocities onto the faces and the final
 face velocities back onto the cells (the face convention below); the VJP
 applies the transposes of both around diffphys' own VJP of the steps
@@ -36,7 +41,26 @@ Mosaic face                                        diffphys side
 ``inflow_profile`` (x_lo ``no_slip``/``dirichlet``)  ``"inflow"`` on the left,
                                                    ``u_x(y)`` the profile,
                                                    ``u_y = 0``
+``inflow_profile`` with x ``periodic`` (drag_opt)  ``"inflow"`` on the left
+                                                   (the profile), ``"outflow"``
+                                                   on the right
 =================================================  ===========================
+
+Mosaic's ``optimization/drag_opt`` gives the profile with x periodic (its
+``make_inputs``: x_lo, x_hi periodic, y no_slip, a cylinder). The schema says
+the profile "overrides the x_lo Dirichlet BC": x_lo becomes a Dirichlet
+inflow, u = (profile, 0), which ends the periodicity of x, so its partner
+x_hi becomes the open side the mass leaves by (zero-gradient velocity,
+``p = 0``): an inflow/outflow channel, as Mosaic's PICT entrant builds it.
+We chose it over the other reading (PhiFlow's entrant overwrites the x = 0
+face column inside the still periodic box, XLB's resets the x = 0
+populations) because it is what the schema's words describe (a Dirichlet
+condition on the x_lo face), it is the scene diffphys already has with its
+adjoint, and it keeps the flow upstream of the cylinder the prescribed
+profile: in the periodic box with a forced column the wake leaving through
+x_hi re-enters at x_lo around the forced column. The price: the flow the
+drag is measured in differs from PhiFlow's and XLB's, so the drags differ
+between entrants (Mosaic ranks the relative reduction).
 
 An ``inflow_profile`` whose length is not N is resampled linearly onto the N
 cells along x_lo (on ``linspace(0, 1)``, as Mosaic's JAX-CFD, PhiFlow and
@@ -68,11 +92,9 @@ Not supported (each raises a ValueError naming the face and kind): a
 inflow has no tangential velocity, its moving wall no normal one); a value
 that is not 2 components; ``periodic`` on one face of an axis only; more than
 one inflow face (a normal ``dirichlet`` value or the profile) or an inflow
-without a ``neumann`` (outflow) face for the mass to leave by; an
-``inflow_profile`` with ``x_lo`` ``periodic`` (Mosaic's
-``optimization/drag_opt`` builds exactly that: diffphys' inflow is a side of
-a non-periodic axis, it has no forced column of faces inside a periodic box as
-JAX-CFD's and PhiFlow's entrants impose) or ``neumann``; non-periodic ``z``
+without a ``neumann`` (outflow) face for the mass to leave by (x periodic
+with the profile gives itself one, above); an ``inflow_profile`` with
+``x_lo`` ``neumann``; non-periodic ``z``
 faces (the solver is 2-D); obstacles other than the cylinder; an obstacle
 that covers part of the inflow side (diffphys' scene check, re-raised as a
 ValueError). diffphys' free-slip side has no Mosaic face kind (``neumann`` is
@@ -171,13 +193,7 @@ def _plan_uncached(bc: dict, has_profile: bool):
             raise ValueError(
                 f"diffphys' adapter: {lo} is {_kind(bc[lo])!r} and {hi} is {_kind(bc[hi])!r}; "
                 "diffphys makes an axis periodic on both faces or on neither")
-    if all(_kind(bc[name]) == "periodic" for name, _, _ in _FACES):
-        if has_profile:
-            raise ValueError(
-                "diffphys' adapter: inflow_profile with x_lo 'periodic': diffphys' inflow is a "
-                "side of a non-periodic axis (it needs a neumann/outflow face for the mass to "
-                "leave by) and has no forced column of faces inside a periodic box; give x_lo "
-                "'dirichlet' or 'no_slip' and a 'neumann' face")
+    if not has_profile and all(_kind(bc[name]) == "periodic" for name, _, _ in _FACES):
         return None
     plan = []
     for name, side, axis in _FACES:
@@ -213,14 +229,17 @@ def _plan_uncached(bc: dict, has_profile: bool):
         else:
             raise ValueError(f"diffphys' adapter: {name} has the unknown kind {kind!r}")
         if name == "x_lo" and has_profile:
-            if kind in ("periodic", "neumann"):
+            if kind == "neumann":
                 raise ValueError(
-                    f"diffphys' adapter: inflow_profile with x_lo {kind!r}: the profile "
-                    "overrides the x_lo Dirichlet condition, so x_lo must be 'dirichlet' or "
-                    "'no_slip'" + (
-                        " (diffphys' inflow is a side of a non-periodic axis; it has no forced "
-                        "column of faces inside a periodic box)" if kind == "periodic" else ""))
+                    "diffphys' adapter: inflow_profile with x_lo 'neumann': the profile "
+                    "overrides the x_lo Dirichlet condition, so x_lo must be 'dirichlet', "
+                    "'no_slip' or 'periodic' (Mosaic's drag_opt: x_lo becomes the inflow, "
+                    "x_hi the outflow)")
             spec, uniform = "inflow", None
+        if name == "x_hi" and has_profile and kind == "periodic":
+            # the profile's Dirichlet x_lo ends the x axis's periodicity: its
+            # periodic partner x_hi becomes the open side the mass leaves by
+            spec = "outflow"
         plan.append((name, side, spec, uniform))
     inflows = [p[0] for p in plan if p[2] == "inflow"]
     if len(inflows) > 1:
@@ -326,7 +345,11 @@ class _Layout:
                 if uniform is not None:
                     self.q = np.full(n, uniform, DTYPE)
                 else:
-                    p = np.asarray(profile, np.float64).reshape(-1)
+                    p = np.asarray(profile, np.float64)
+                    if p.ndim != 1 or p.size == 0:
+                        raise ValueError(
+                            f"diffphys' adapter: inflow_profile has shape {p.shape}; it is "
+                            "u_x(y), one value or more along x_lo, shape (M,)")
                     self.resample = _resample(p.shape[0], n)
                     q = p if self.resample is None else self.resample @ p
                     self.q = np.asarray(q, DTYPE)
@@ -451,15 +474,44 @@ def _zero_solid(scene, lay: _Layout, ux, uy):
     return ux, uy
 
 
+def _tail(steps: int) -> int:
+    """The steps the drag is averaged over: the last ``steps // 2`` (at
+    least one), as Mosaic's PhiFlow, XLB and PICT entrants average it."""
+    return max(1, steps // 2)
+
+
+def _rollout(scene, ux, uy, steps: int, nu: float, kw: dict):
+    """``steps`` steps from the faces ``(ux, uy)`` (pressure zero): the end
+    faces, the states ``(ux, uy, P)`` entering each of the last
+    ``_tail(steps)`` steps (None without an obstacle), and the drag, Mosaic's
+    convention: minus the mean over those steps of diffphys' x-force of the
+    flow on the obstacle (the force on the fluid; negative for flow in +x;
+    0 without an obstacle)."""
+    if not scene.solid.any():
+        vx, vy, _, _ = scene.forward(ux, uy, steps=steps, viscosity=nu, **kw)
+        return vx, vy, None, 0.0
+    m = _tail(steps)
+    if steps > m:
+        vx, vy, p, _ = scene.forward(ux, uy, steps=steps - m, viscosity=nu, **kw)
+    else:
+        vx, vy, p = ux, uy, np.zeros(scene.shape, ux.dtype)
+    states, fx = [], 0.0
+    for _ in range(m):
+        states.append((vx, vy, p))
+        vx, vy, p, f = scene.forward(vx, vy, steps=1, pressure=p, viscosity=nu, **kw)
+        fx += float(f[0])
+    return vx, vy, states, -fx / m
+
+
 def _forward(raw: dict):
-    """The collocated result ``(N, N, 2)`` and ``[drag, lift]`` of the
-    (dumped) inputs ``raw``, in the solver's precision (``apply`` casts them
-    to float32; fd checks in float64 call this with float64 inputs)."""
+    """The collocated result ``(N, N, 2)`` and the drag (``_rollout``) of
+    the (dumped) inputs ``raw``, in the solver's precision (``apply`` casts
+    them to float32; fd checks in float64 call this with float64 inputs)."""
     scene, v0, nu, lay = _setup(raw)
     ux, uy = _zero_solid(scene, lay, *_to_faces(v0, lay))
     kw = {} if lay.q is None else {"inflow": lay.q}
-    vx, vy, _, force = scene.forward(ux, uy, steps=int(raw["steps"]), viscosity=nu, **kw)
-    return _to_cells(vx, vy, lay), force
+    vx, vy, _, drag = _rollout(scene, ux, uy, int(raw["steps"]), nu, kw)
+    return _to_cells(vx, vy, lay), drag
 
 
 # The scene whose FlowStep keeps its last VJP's buffers (the tape's memory,
@@ -476,6 +528,36 @@ def _keep_buffers_of(scene) -> None:
     _buffers_kept_by = scene
 
 
+def _vjp_tail_drag(scene, ux, uy, gx, gy, gd: float, steps: int, nu: float, kw: dict):
+    """``FlowStep.vjp``'s gradients ``(ux, uy, P, viscosity, wall_speed,
+    inflow)`` of ``<gx, ux'> + <gy, uy'> + gd * drag`` with the drag of
+    ``_rollout`` (minus the mean x-force over the last ``m`` steps): the
+    last ``m`` steps one at a time from their recorded states, each seeding
+    its own force with ``-gd / m``, then the first ``steps - m`` steps in one
+    VJP (every step kept on the tape)."""
+    _, _, states, _ = _rollout(scene, ux, uy, steps, nu, kw)
+    m = len(states)
+    seed = np.array([-gd / m, 0.0], ux.dtype)
+    if gx is None:
+        gx, gy = np.zeros(scene.shape_x, ux.dtype), np.zeros(scene.shape_y, ux.dtype)
+    gp = np.zeros(scene.shape, ux.dtype)
+    gnu, gq = 0.0, None
+    for vx, vy, p in reversed(states):
+        g = scene.vjp(vx, vy, gx, gy, gp, seed, steps=1, pressure=p, viscosity=nu,
+                      checkpoint_every=1, **kw)
+        gx, gy, gp = g[0], g[1], g[2]
+        gnu += g[3]
+        gq = g[5] if gq is None else gq + g[5]
+    if steps > m:
+        g = scene.vjp(ux, uy, gx, gy, gp, None, steps=steps - m, viscosity=nu,
+                      checkpoint_every=1, **kw)
+        gx, gy = g[0], g[1]
+        gnu += g[3]
+        gq = gq + g[5]
+    # the initial pressure is zero, not an input: its gradient is dropped
+    return gx, gy, None, gnu, None, gq
+
+
 def _vjp(raw: dict, vjp_inputs, vjp_outputs, cotangent_vector) -> dict:
     """The gradients of ``vector_jacobian_product`` in the solver's
     precision (``v0`` as ``(N, N, 2)``, ``viscosity`` a float,
@@ -486,17 +568,21 @@ def _vjp(raw: dict, vjp_inputs, vjp_outputs, cotangent_vector) -> dict:
     ux, uy = _zero_solid(scene, lay, *_to_faces(v0, lay))
     g_result = cotangent_vector.get("result") if "result" in vjp_outputs else None
     g_drag = cotangent_vector.get("drag") if "drag" in vjp_outputs else None
-    gx = gy = gf = None
+    gx = gy = None
     if g_result is not None:
         gx, gy = _to_cells_t(np.asarray(g_result, DTYPE)[:, :, 0, :], lay)
-    if g_drag is not None:
-        gf = np.array([float(np.asarray(g_drag).reshape(-1)[0]), 0.0], DTYPE)
     kw = {} if lay.q is None else {"inflow": lay.q}
     _keep_buffers_of(scene)
-    # every step kept on the tape, as JAX's scan keeps its residuals (100
-    # steps at 256² in f64: about 470 MB); no recomputation in the reverse sweep
-    g = scene.vjp(ux, uy, gx, gy, None, gf, steps=int(raw["steps"]), viscosity=nu,
-                  checkpoint_every=1, **kw)
+    steps = int(raw["steps"])
+    gd = 0.0 if g_drag is None else float(np.asarray(g_drag).reshape(-1)[0])
+    if gd == 0.0 or not scene.solid.any():
+        # every step kept on the tape, as JAX's scan keeps its residuals (100
+        # steps at 256² in f64: about 470 MB); no recomputation in the
+        # reverse sweep
+        g = scene.vjp(ux, uy, gx, gy, None, None, steps=steps, viscosity=nu,
+                      checkpoint_every=1, **kw)
+    else:
+        g = _vjp_tail_drag(scene, ux, uy, gx, gy, gd, steps, nu, kw)
     out = {}
     if "v0" in vjp_inputs:
         gux, guy = _zero_solid(scene, lay, g[0], g[1])
@@ -511,9 +597,9 @@ def _vjp(raw: dict, vjp_inputs, vjp_outputs, cotangent_vector) -> dict:
 
 def apply(inputs: InputSchema) -> dict:
     """Run ``steps`` diffphys flow steps from ``v0``."""
-    result, force = _forward(inputs.model_dump())
+    result, drag = _forward(inputs.model_dump())
     return {"result": result[:, :, None, :].astype(np.float32),
-            "drag": np.array([force[0]], np.float32)}
+            "drag": np.array([drag], np.float32)}
 
 
 def vector_jacobian_product(

@@ -1,0 +1,125 @@
+"""The Mosaic adapter (benches/mosaic/tesseract_api.py) on Mosaic's
+``optimization/drag_opt`` inputs: the inflow profile with x periodic, the
+tail-averaged drag and its gradient to the profile. Skipped where Mosaic
+(``mosaic-bench``, which the adapter imports its schemas from) is not
+installed."""
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mosaic")
+pytest.importorskip("tesseract_core")
+
+ADAPTER = Path(__file__).resolve().parents[3] / "benches" / "mosaic" / "tesseract_api.py"
+
+
+@pytest.fixture(scope="module")
+def ta():
+    spec = importlib.util.spec_from_file_location("diffphys_mosaic_adapter", ADAPTER)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _bc(x_lo, x_hi):
+    kinds = {"x_lo": x_lo, "x_hi": x_hi, "y_lo": "no_slip", "y_hi": "no_slip",
+             "z_lo": "periodic", "z_hi": "periodic"}
+    return {k: {"type": t, "value": None} for k, t in kinds.items()}
+
+
+def _drag_opt_inputs(n=16, steps=12, profile=None):
+    """drag_opt's inputs as Mosaic's make_inputs builds them (x periodic, y
+    no_slip, cylinder r = 0.05 at the centre, uniform v0 = (0.5, 0)), on a
+    smaller grid and horizon."""
+    v0 = np.zeros((n, n, 1, 2))
+    v0[..., 0] = 0.5
+    return {"v0": v0, "viscosity": [0.0025], "dt": [0.02], "steps": steps,
+            "domain_extent": 1.0,
+            "inflow_profile": np.full(n, 0.5) if profile is None else profile,
+            "obstacle": {"shape": "cylinder", "center": [0.5, 0.5], "radius": 0.1},
+            "boundary_conditions": _bc("periodic", "periodic")}
+
+
+def test_profile_with_periodic_x_is_an_inflow_outflow_channel(ta):
+    plan = ta._plan(_bc("periodic", "periodic"), True)
+    assert [(face, spec) for face, _, spec, _ in plan] == [
+        ("x_lo", "inflow"), ("x_hi", "outflow"), ("y_lo", "no_slip"), ("y_hi", "no_slip")]
+    # without the profile x stays periodic
+    plan = ta._plan(_bc("periodic", "periodic"), False)
+    assert [spec for _, _, spec, _ in plan][:2] == ["periodic", "periodic"]
+
+
+def test_profile_on_a_neumann_x_lo_is_refused(ta):
+    with pytest.raises(ValueError, match="x_lo 'neumann'"):
+        ta._plan(_bc("neumann", "neumann"), True)
+
+
+def test_drag_is_the_negative_tail_mean_of_the_force(ta):
+    raw = _drag_opt_inputs()
+    _, drag = ta._forward(raw)
+    scene, v0, nu, lay = ta._setup(raw)
+    ux, uy = ta._zero_solid(scene, lay, *ta._to_faces(v0, lay))
+    forces = []
+    for k in range(1, raw["steps"] + 1):
+        forces.append(scene.forward(ux, uy, steps=k, viscosity=nu, inflow=lay.q)[3][0])
+    tail = forces[-(raw["steps"] // 2):]
+    assert drag == pytest.approx(-np.mean(tail), rel=1e-12)
+    assert drag < 0  # Mosaic's sign: the force on the fluid, flow in +x
+
+
+def test_profile_gradient_of_the_drag_matches_central_differences(ta):
+    rng = np.random.default_rng(3)
+    q = 0.5 + 0.05 * rng.standard_normal(16)
+    raw = _drag_opt_inputs(profile=q)
+    g = ta._vjp(raw, {"inflow_profile", "viscosity"}, {"drag"}, {"drag": np.array([1.0])})
+    d = rng.standard_normal(16)
+    h = 1e-4
+    fd = (ta._forward(dict(raw, inflow_profile=q + h * d))[1]
+          - ta._forward(dict(raw, inflow_profile=q - h * d))[1]) / (2 * h)
+    assert g["inflow_profile"] @ d == pytest.approx(fd, rel=1e-5)
+    assert abs(fd) > 1e-4  # the drag does depend on the profile
+    nu = 0.0025
+    fd_nu = (ta._forward(dict(raw, viscosity=[nu * (1 + 1e-4)]))[1]
+             - ta._forward(dict(raw, viscosity=[nu * (1 - 1e-4)]))[1]) / (2e-4 * nu)
+    assert g["viscosity"] == pytest.approx(fd_nu, rel=1e-4)
+
+
+def test_the_schema_accepts_drag_opt_and_apply_returns_the_drag(ta):
+    inputs = ta.InputSchema.model_validate(_drag_opt_inputs())
+    out = ta.apply(inputs)
+    assert out["drag"].shape == (1,) and out["drag"][0] < 0
+    assert out["result"].shape == (16, 16, 1, 2)
+
+
+def test_result_and_drag_cotangents_together_match_central_differences(ta):
+    # the tail path carries the result's cotangent back through the tail
+    # steps one at a time: <w, result> + drag, to v0 and to the profile
+    rng = np.random.default_rng(5)
+    raw = _drag_opt_inputs(profile=0.5 + 0.05 * rng.standard_normal(16))
+    raw["v0"] = raw["v0"] + 0.01 * rng.standard_normal(raw["v0"].shape)
+    w = rng.standard_normal((16, 16, 1, 2))
+    g = ta._vjp(raw, {"v0", "inflow_profile"}, {"result", "drag"},
+                {"result": w, "drag": np.array([1.0])})
+
+    def loss(r):
+        result, drag = ta._forward(r)
+        return float(np.sum(w[:, :, 0, :] * result)) + drag
+
+    h = 1e-5
+    for key, shape in (("v0", (16, 16, 1, 2)), ("inflow_profile", (16,))):
+        d = rng.standard_normal(shape)
+        fd = (loss(dict(raw, **{key: raw[key] + h * d}))
+              - loss(dict(raw, **{key: raw[key] - h * d}))) / (2 * h)
+        got = float(np.sum(np.reshape(g[key], shape) * d))
+        assert got == pytest.approx(fd, rel=1e-5, abs=1e-9)
+
+
+@pytest.mark.parametrize("profile", [np.array([]), np.full((16, 2), 0.5)])
+def test_a_profile_that_is_not_one_row_of_values_is_refused(ta, profile):
+    with pytest.raises(ValueError, match="inflow_profile has shape"):
+        ta._forward(_drag_opt_inputs(profile=profile))

@@ -62,7 +62,8 @@ fn ledger_error(path: &Path, message: impl std::fmt::Display) -> LearnError {
     }
 }
 
-/// The held-out ledger of an output folder (see the [module docs](self)).
+/// The held-out ledger of an output folder: `held_out_ledger.json`, one
+/// entry per run and split, only ever appended to (see [`Ledger::record`]).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Ledger {
     path: PathBuf,

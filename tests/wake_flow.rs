@@ -435,3 +435,36 @@ fn evaluate_refuses_a_model_saved_for_another_scene() {
     );
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn the_deviation_and_vorticity_errors_measure_the_wake_not_the_free_stream() {
+    use wake_flow_scene::study::{deviation_error, vorticity_error};
+    let c = coarse();
+    let g = c.scene.grid();
+    // A reference: the free stream plus a cross-stream wave; a prediction:
+    // the free stream alone (it misses the whole wake).
+    let wave = Array2::from_shape_fn(g.shape_y(), |(i, j)| {
+        (0.3 * i as f64 + 0.7 * j as f64).sin()
+    });
+    let state = |uy: Array2<f64>| {
+        let s = FlowState::from_velocity(&c.scene, Array2::from_elem(g.shape_x(), 1.0), uy);
+        c.scene.pack(&s, viscosity(400.0)).unwrap().into_dyn()
+    };
+    let (r, p) = (state(0.1 * &wave), state(Array2::zeros(g.shape_y())));
+    assert_eq!(deviation_error(&c.scene, r.view(), r.view()), 0.0);
+    assert_eq!(vorticity_error(&c.scene, r.view(), r.view()), 0.0);
+    // Missing the whole deviation is an error of 1 (100 %), however small the
+    // wave is against the free stream; the state's relative error is not.
+    let missed = deviation_error(&c.scene, p.view(), r.view());
+    assert!((missed - 1.0).abs() < 1e-12, "{missed}");
+    let whole = diffphys::learn::relative_l2(
+        &p.clone().insert_axis(ndarray::Axis(0)),
+        &r.clone().insert_axis(ndarray::Axis(0)),
+    );
+    assert!(whole < 0.2 * missed, "{whole}");
+    assert!(vorticity_error(&c.scene, p.view(), r.view()) > 0.5);
+    // Not a packed state of the scene: NaN, which the rollout refuses.
+    let wrong = ndarray::ArrayD::<f64>::zeros(vec![2, 3, 3]);
+    assert!(deviation_error(&c.scene, wrong.view(), r.view()).is_nan());
+    assert!(vorticity_error(&c.scene, r.view(), wrong.view()).is_nan());
+}

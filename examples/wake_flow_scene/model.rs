@@ -41,7 +41,11 @@ pub fn card(sizes: &Sizes, size: NetSize, arithmetic: Arithmetic) -> ModelCard {
 pub fn per_re_json(run: &HeldOutRun) -> Value {
     run.per_re
         .iter()
-        .map(|r| (r.re.to_string(), json!({"mean": r.mean, "long": r.long})))
+        .map(|r| {
+            let errors = json!({"mean": r.mean, "long": r.long, "deviation": r.deviation,
+                                "vorticity": r.vorticity});
+            (r.re.to_string(), errors)
+        })
         .collect::<Map<String, Value>>()
         .into()
 }
@@ -154,6 +158,12 @@ pub fn evaluate(e: &Evaluation<'_>) -> Result<Value> {
             let bits = |k: &str| b.get(k).and_then(Value::as_f64).map(f64::to_bits);
             bits("mean") == Some(corrected.mean.to_bits())
                 && bits("long") == Some(corrected.long.to_bits())
+                && [
+                    ("deviation", corrected.deviation),
+                    ("vorticity", corrected.vorticity),
+                ]
+                .iter()
+                .all(|&(k, v)| b.get(k).is_none() || bits(k) == Some(v.to_bits()))
         });
         compared += usize::from(same.is_some());
         identical += usize::from(same == Some(true));
@@ -174,8 +184,12 @@ pub fn evaluate(e: &Evaluation<'_>) -> Result<Value> {
             json!({
                 "mean": corrected.mean,
                 "long": corrected.long,
+                "deviation": corrected.deviation,
+                "vorticity": corrected.vorticity,
                 "src_mean": src.mean,
                 "src_long": src.long,
+                "src_deviation": src.deviation,
+                "src_vorticity": src.vorticity,
                 "ratio_to_src": corrected.mean / src.mean,
                 "same_bits_as_training": same,
             }),

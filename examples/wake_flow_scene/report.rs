@@ -64,11 +64,12 @@ pub(crate) fn report(
                 .iter()
                 .map(|(name, runs)| {
                     let n = runs.len() as f64;
-                    let mean = runs.iter().map(|r| r.0).sum::<f64>() / n;
-                    let long = runs.iter().map(|r| r.1).sum::<f64>() / n;
-                    let min = runs.iter().map(|r| r.0).fold(f64::INFINITY, f64::min);
-                    let max = runs.iter().map(|r| r.0).fold(f64::NEG_INFINITY, f64::max);
-                    (name.clone(), json!({"mean": mean, "min": min, "max": max, "long_mean": long, "runs": runs.len()}))
+                    let avg = |f: fn(&ReErrors) -> f64| runs.iter().map(f).sum::<f64>() / n;
+                    let mean = avg(|r| r.mean);
+                    let min = runs.iter().map(|r| r.mean).fold(f64::INFINITY, f64::min);
+                    let max = runs.iter().map(|r| r.mean).fold(f64::NEG_INFINITY, f64::max);
+                    (name.clone(), json!({"mean": mean, "min": min, "max": max, "long_mean": avg(|r| r.long),
+                        "deviation_mean": avg(|r| r.deviation), "vorticity_mean": avg(|r| r.vorticity), "runs": runs.len()}))
                 })
                 .collect();
             (re.clone(), Value::Object(v))
@@ -183,6 +184,8 @@ pub(crate) fn report(
         .collect::<serde_json::Map<_, _>>()
         .into();
     line["held_out_evaluations"] = held_out_evaluations.into();
+    line["deviation_rel_error"] = summary(&results.deviation).into();
+    line["vorticity_rel_error"] = summary(&results.vorticity).into();
     line["saved_models"] = json!(args.out.join("models").display().to_string());
     // The floors are the full scene's (docs/11): `--small`'s budgets and grids
     // measure that the study runs, not what it reaches.
@@ -222,7 +225,7 @@ fn floors(options: &Options, results: &Results, capacity_runs: &[CapacityRun]) -
         let m = results.per_re.get(re)?;
         let mean = |k: &str| {
             m.get(k)
-                .map(|r| r.iter().map(|x| x.0).sum::<f64>() / r.len() as f64)
+                .map(|r| r.iter().map(|x| x.mean).sum::<f64>() / r.len() as f64)
         };
         Some(mean(a)? / mean(b)?)
     };
@@ -265,14 +268,29 @@ fn floors(options: &Options, results: &Results, capacity_runs: &[CapacityRun]) -
     (floors, capacity)
 }
 
-/// Per Reynolds number, per method: `(100-step error, long error)` of every run.
-type PerRe = BTreeMap<String, BTreeMap<String, Vec<(f64, f64)>>>;
+/// Per Reynolds number, per method, every run's errors.
+type PerRe = BTreeMap<String, BTreeMap<String, Vec<ReErrors>>>;
+
+/// One run's errors at one Reynolds number.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct ReErrors {
+    /// The relative L2 error of the state over the rollouts.
+    mean: f64,
+    /// The same over the long rollout.
+    long: f64,
+    /// The error of the velocity's deviation from the free stream.
+    deviation: f64,
+    /// The error of the vorticity.
+    vorticity: f64,
+}
 
 /// The held-out figures of every run.
 #[derive(Default)]
 pub(crate) struct Results {
     pub(crate) held_out: Report,
     pub(crate) long: Report,
+    pub(crate) deviation: Report,
+    pub(crate) vorticity: Report,
     pub(crate) per_re: PerRe,
     pub(crate) curves: BTreeMap<String, Vec<Vec<f64>>>,
     pub(crate) last: BTreeMap<String, Array3<f64>>,
@@ -282,13 +300,20 @@ impl Results {
     pub(crate) fn record(&mut self, name: &str, ds: u64, ts: Option<u64>, run: &HeldOutRun) {
         self.held_out.add(name, ds, ts, run.mean());
         self.long.add(name, ds, ts, run.long_mean());
+        self.deviation.add(name, ds, ts, run.deviation_mean());
+        self.vorticity.add(name, ds, ts, run.vorticity_mean());
         for r in &run.per_re {
             self.per_re
                 .entry(format!("{}", r.re))
                 .or_default()
                 .entry(name.to_string())
                 .or_default()
-                .push((r.mean, r.long));
+                .push(ReErrors {
+                    mean: r.mean,
+                    long: r.long,
+                    deviation: r.deviation,
+                    vorticity: r.vorticity,
+                });
         }
         self.curves
             .entry(name.to_string())

@@ -8,18 +8,20 @@ use std::time::Instant;
 
 use diffphys::flow::diagnostics::vorticity;
 use diffphys::flow::{restrict_velocity, FlowParams, FlowState, PressureSolver, Scene};
-use diffphys::learn::{relative_l2, rollout, Corrector, Hybrid, Simulator, Trajectory};
+use diffphys::learn::{
+    relative_l2, rollout, rollout_measured, Corrector, Hybrid, Simulator, Trajectory,
+};
 use diffphys::nn::Params;
 use diffphys::report::chart::{
     heatmap_panels_svg, line_chart_svg, HeatmapPanels, LineChart, Outline, Series,
 };
-use ndarray::{Array2, Array3, Axis};
+use ndarray::{Array2, Array3, ArrayViewD, Axis};
 use serde_json::{json, Value};
 
 use super::data::Reference;
 use super::{
-    uncorrected, viscosity, NetSize, Options, Result, Sizes, Variant, WakeError, CENTRE, DIAMETER,
-    FACTOR,
+    uncorrected, viscosity, Coarse, NetSize, Options, Result, Sizes, Variant, WakeError, CENTRE,
+    DIAMETER, FACTOR, U_IN,
 };
 
 /// One model's held-out rollouts at one Reynolds number.
@@ -29,6 +31,11 @@ pub struct ReRun {
     pub re: f64,
     /// The mean relative L2 error over the rollout's steps and its starts.
     pub mean: f64,
+    /// The same for the velocity's deviation from the free stream
+    /// ([`deviation_error`]).
+    pub deviation: f64,
+    /// The same for the vorticity ([`vorticity_error`]).
+    pub vorticity: f64,
     /// The error after each step, mean over the starts.
     pub curve: Vec<f64>,
     /// The mean relative L2 error of the long rollout.
@@ -53,6 +60,16 @@ impl HeldOutRun {
     /// The same for the long rollout.
     pub fn long_mean(&self) -> f64 {
         self.per_re.iter().map(|r| r.long).sum::<f64>() / self.per_re.len().max(1) as f64
+    }
+
+    /// The mean over the Reynolds numbers of the deviation's error.
+    pub fn deviation_mean(&self) -> f64 {
+        self.per_re.iter().map(|r| r.deviation).sum::<f64>() / self.per_re.len().max(1) as f64
+    }
+
+    /// The mean over the Reynolds numbers of the vorticity's error.
+    pub fn vorticity_mean(&self) -> f64 {
+        self.per_re.iter().map(|r| r.vorticity).sum::<f64>() / self.per_re.len().max(1) as f64
     }
 
     /// The per-step error, mean over the Reynolds numbers.
@@ -81,14 +98,61 @@ fn window(r: &Reference, start: usize, count: usize) -> Result<Trajectory> {
         .collect())
 }
 
+/// The packed samples `p` and `r` as velocities; `None` for another shape.
+fn velocities(
+    scene: &Scene,
+    p: ArrayViewD<'_, f64>,
+    r: ArrayViewD<'_, f64>,
+) -> Option<(FlowState<f64>, FlowState<f64>)> {
+    let unpack = |a: ArrayViewD<'_, f64>| {
+        let a = a.into_dimensionality().ok()?;
+        scene.unpack(a).ok().map(|(s, _)| s)
+    };
+    Some((unpack(p)?, unpack(r)?))
+}
+
+/// `sqrt(Σ a² / Σ b²)` over paired entries `(a, b)`.
+fn ratio(pairs: impl Iterator<Item = (f64, f64)>) -> f64 {
+    let (num, den) = pairs.fold((0.0, 0.0), |(n, d), (a, b)| (n + a * a, d + b * b));
+    (num / den).sqrt()
+}
+
+/// The relative L2 error of the velocity's deviation from the free stream,
+/// `‖u_p − u_r‖ / ‖u_r − U e_x‖` over the faces: the uniform inflow, which
+/// dominates the norm of the whole state, leaves the denominator (docs/11,
+/// "Metrics"). NaN for samples that are not packed states of `scene`.
+pub fn deviation_error(scene: &Scene, p: ArrayViewD<'_, f64>, r: ArrayViewD<'_, f64>) -> f64 {
+    let Some((p, r)) = velocities(scene, p, r) else {
+        return f64::NAN;
+    };
+    let x = p.ux.iter().zip(&r.ux).map(|(a, b)| (a - b, b - U_IN));
+    let y = p.uy.iter().zip(&r.uy).map(|(a, b)| (a - b, *b));
+    ratio(x.chain(y))
+}
+
+/// The relative L2 error of the vorticity over the cells,
+/// `‖ω_p − ω_r‖ / ‖ω_r‖`. NaN for samples that are not packed states of
+/// `scene`.
+pub fn vorticity_error(scene: &Scene, p: ArrayViewD<'_, f64>, r: ArrayViewD<'_, f64>) -> f64 {
+    let Some((p, r)) = velocities(scene, p, r) else {
+        return f64::NAN;
+    };
+    let w = |s: &FlowState<f64>| vorticity(scene, s.ux.view(), s.uy.view()).ok();
+    let (Some(wp), Some(wr)) = (w(&p), w(&r)) else {
+        return f64::NAN;
+    };
+    ratio(wp.iter().zip(&wr).map(|(a, b)| (a - b, *b)))
+}
+
 /// The rollouts of the hybrid (`params = None`: the coarse solver alone) on
-/// one held-out reference: `rollout` steps from each start, and the long
-/// rollout from step 0.
+/// one held-out reference: `rollout` steps from each start (measuring the
+/// relative error of the state, of the deviation from the free stream and of
+/// the vorticity), and the long rollout from step 0.
 ///
 /// # Errors
 /// Whatever the rollouts return.
-pub fn held_out_re<S: Simulator + 'static, C: Corrector + 'static>(
-    hybrid: &Hybrid<S, C>,
+pub fn held_out_re<C: Corrector + 'static>(
+    hybrid: &Hybrid<Coarse, C>,
     params: Option<&Params<f64>>,
     r: &Reference,
     sizes: &Sizes,
@@ -98,7 +162,16 @@ pub fn held_out_re<S: Simulator + 'static, C: Corrector + 'static>(
         .iter()
         .map(|&s| window(r, s, sizes.rollout + 1))
         .collect::<Result<Vec<_>>>()?;
-    let short = rollout(hybrid, params, &windows, sizes.rollout)?;
+    let scene = &hybrid.simulator().scene;
+    let deviation = |p: ArrayViewD<'_, f64>, r: ArrayViewD<'_, f64>| deviation_error(scene, p, r);
+    let vorticity = |p: ArrayViewD<'_, f64>, r: ArrayViewD<'_, f64>| vorticity_error(scene, p, r);
+    let short = rollout_measured(
+        hybrid,
+        params,
+        &windows,
+        sizes.rollout,
+        &[&deviation, &vorticity],
+    )?;
     let long = rollout(hybrid, params, &[window(r, 0, sizes.long + 1)?], sizes.long)?;
     let last = long
         .last
@@ -109,6 +182,8 @@ pub fn held_out_re<S: Simulator + 'static, C: Corrector + 'static>(
     Ok(ReRun {
         re: r.re,
         mean: short.mean(),
+        deviation: short.measured_mean(0).unwrap_or(f64::NAN),
+        vorticity: short.measured_mean(1).unwrap_or(f64::NAN),
         curve: short.per_step,
         long: long.mean(),
         last,

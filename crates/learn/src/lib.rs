@@ -118,7 +118,9 @@ pub use data::{
 pub use diffphys_tape::Schedule;
 pub use error::{LearnError, Result};
 pub use hybrid::{frozen, Corrector, Hybrid, Simulator};
-pub use metrics::{batch_of, relative_l2, rollout, states_at, Rollout, Trajectory};
+pub use metrics::{
+    batch_of, relative_l2, rollout, rollout_measured, states_at, Metric, Rollout, Trajectory,
+};
 pub use report::{Report, RunRecord, Summary};
 pub use saved::{ModelCard, SavedModel};
 pub use strategy::{standard_normal, Budget, LrSchedule, Strategy};

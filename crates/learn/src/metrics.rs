@@ -3,6 +3,7 @@
 
 use diffphys_nn::Params;
 use diffphys_tape::ArrayD;
+use ndarray::ArrayViewD;
 use ndarray::Axis;
 
 use crate::hybrid::{Corrector, Hybrid, Simulator};
@@ -57,11 +58,20 @@ pub fn relative_l2(a: &ArrayD<f64>, r: &ArrayD<f64>) -> f64 {
     per_sample.iter().sum::<f64>() / per_sample.len().max(1) as f64
 }
 
+/// An error of one predicted sample against its reference sample (each
+/// without the batch axis), for [`rollout_measured`]: a scene's own measure
+/// beside the relative L2 error of the whole state (the error of the velocity's
+/// deviation from the free stream, of the vorticity, …).
+pub type Metric<'a> = &'a (dyn Fn(ArrayViewD<'_, f64>, ArrayViewD<'_, f64>) -> f64 + Sync);
+
 /// The errors of one rollout against the reference.
 #[derive(Debug, Clone)]
 pub struct Rollout {
     /// The relative L2 error after steps `1..=n`, mean over the trajectories.
     pub per_step: Vec<f64>,
+    /// Per metric given to [`rollout_measured`], in order: its error after
+    /// steps `1..=n`, mean over the trajectories (empty for [`rollout`]).
+    pub measured: Vec<Vec<f64>>,
     /// The states after the last step, as a batch.
     pub last: ArrayD<f64>,
 }
@@ -69,8 +79,17 @@ pub struct Rollout {
 impl Rollout {
     /// The mean of the per-step errors: the rollout's score.
     pub fn mean(&self) -> f64 {
-        self.per_step.iter().sum::<f64>() / self.per_step.len().max(1) as f64
+        mean(&self.per_step)
     }
+
+    /// The mean over the steps of metric `i` of [`rollout_measured`].
+    pub fn measured_mean(&self, i: usize) -> Option<f64> {
+        self.measured.get(i).map(|m| mean(m))
+    }
+}
+
+fn mean(v: &[f64]) -> f64 {
+    v.iter().sum::<f64>() / v.len().max(1) as f64
 }
 
 /// Rolls the hybrid out for `steps` steps from the first state of every
@@ -87,6 +106,22 @@ pub fn rollout<S: Simulator + 'static, C: Corrector + 'static>(
     trajectories: &[Trajectory],
     steps: usize,
 ) -> Result<Rollout> {
+    rollout_measured(hybrid, params, trajectories, steps, &[])
+}
+
+/// [`rollout`], measuring every metric of `metrics` too at every step: each
+/// the mean over the trajectories of `metric(predicted, reference)`.
+///
+/// # Errors
+/// As [`rollout`]; [`LearnError::Invalid`] when a metric comes out NaN
+/// (a reference on which it is not defined, such as a zero norm).
+pub fn rollout_measured<S: Simulator + 'static, C: Corrector + 'static>(
+    hybrid: &Hybrid<S, C>,
+    params: Option<&Params<f64>>,
+    trajectories: &[Trajectory],
+    steps: usize,
+    metrics: &[Metric<'_>],
+) -> Result<Rollout> {
     if steps == 0 {
         return Err(LearnError::ZeroUnroll { what: "rollout" });
     }
@@ -95,11 +130,32 @@ pub fn rollout<S: Simulator + 'static, C: Corrector + 'static>(
     }
     let mut u = states_at(trajectories, 0)?;
     let mut per_step = Vec::with_capacity(steps);
+    let mut measured = vec![Vec::with_capacity(steps); metrics.len()];
     for t in 1..=steps {
         u = hybrid.step_plain(params, &u)?;
-        per_step.push(relative_l2(&u, &states_at(trajectories, t)?));
+        let reference = states_at(trajectories, t)?;
+        per_step.push(relative_l2(&u, &reference));
+        for (metric, errors) in metrics.iter().zip(&mut measured) {
+            let error = mean(
+                &u.outer_iter()
+                    .zip(reference.outer_iter())
+                    .map(|(p, r)| metric(p, r))
+                    .collect::<Vec<_>>(),
+            );
+            if error.is_nan() {
+                return Err(LearnError::invalid(
+                    "rollout metric",
+                    format!("metric {} is NaN after step {t}", errors.len()),
+                ));
+            }
+            errors.push(error);
+        }
     }
-    Ok(Rollout { per_step, last: u })
+    Ok(Rollout {
+        per_step,
+        measured,
+        last: u,
+    })
 }
 
 /// Whether a validation `score` should replace the `best` so far (none yet:

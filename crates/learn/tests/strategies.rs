@@ -530,3 +530,41 @@ fn noise_goes_through_the_simulators_perturbation() {
         assert_eq!(result.is_ok(), protect, "protect {protect}: {result:?}");
     }
 }
+
+#[test]
+fn a_rollout_measures_the_scene_metrics_beside_the_relative_error() {
+    let s = splits(4, [2, 2, 2], 6);
+    let (c, params) = net(3, 1);
+    let hybrid = Hybrid::new(Cubic, c);
+    let plain = rollout(&hybrid, Some(&params), &s.validation, 5).unwrap();
+    assert!(plain.measured.is_empty());
+    // The relative L2 error as a scene metric gives the same figures; the
+    // largest absolute deviation is another.
+    let same = |p: ndarray::ArrayViewD<'_, f64>, r: ndarray::ArrayViewD<'_, f64>| {
+        relative_l2(
+            &p.to_owned().insert_axis(ndarray::Axis(0)),
+            &r.to_owned().insert_axis(ndarray::Axis(0)),
+        )
+    };
+    let worst = |p: ndarray::ArrayViewD<'_, f64>, r: ndarray::ArrayViewD<'_, f64>| {
+        p.iter()
+            .zip(r.iter())
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max)
+    };
+    let measured =
+        rollout_measured(&hybrid, Some(&params), &s.validation, 5, &[&same, &worst]).unwrap();
+    assert_eq!(measured.per_step, plain.per_step);
+    assert_eq!(measured.last, plain.last);
+    assert_eq!(measured.measured.len(), 2);
+    for (a, b) in measured.measured[0].iter().zip(&plain.per_step) {
+        assert!((a - b).abs() <= 1e-15 * b.abs());
+    }
+    assert!(measured.measured[1].iter().all(|&w| w > 0.0));
+    assert_eq!(measured.measured_mean(0).map(|m| m > 0.0), Some(true));
+    assert_eq!(measured.measured_mean(2), None);
+    // A metric that is not defined on these states is refused, not averaged.
+    let undefined = |_: ndarray::ArrayViewD<'_, f64>, _: ndarray::ArrayViewD<'_, f64>| f64::NAN;
+    let refused = rollout_measured(&hybrid, Some(&params), &s.validation, 5, &[&undefined]);
+    assert!(matches!(refused, Err(LearnError::Invalid { .. })));
+}

@@ -22,7 +22,8 @@
 //! own in `wake_flow_scene::cli`). Every trained corrector is saved under
 //! `OUT/models/` with the settings that shaped it; `wake_flow evaluate
 //! --model DIR --held-out-re LIST` evaluates one at any Re in range without
-//! training. Tutorial: docs/11-wake-flow.md. Run:
+//! training; `wake_flow convergence` sets the reference against the same
+//! scheme one level finer. Tutorial: docs/11-wake-flow.md. Run:
 //! `cargo run --release --example wake_flow` (`-- --small` for CI).
 
 mod common;
@@ -51,7 +52,7 @@ use serde_json::{json, Value};
 use diffphys::learn::cache::Cache;
 use phases::{protocol, references, speed_study, untrained};
 use report::{report, Results};
-use wake_flow_scene::cli::{self, Cli, Command, EvaluateArgs};
+use wake_flow_scene::cli::{self, Cli, Command, ConvergenceArgs, EvaluateArgs};
 use wake_flow_scene::data::{self, base_state, reference, Bump, Reference};
 use wake_flow_scene::model;
 use wake_flow_scene::study::{self, HeldOutRun};
@@ -299,6 +300,23 @@ fn evaluate_command(e: EvaluateArgs) -> Result<(), BoxError> {
     Ok(())
 }
 
+/// `wake_flow convergence [--data-seed N]` with the scene's options.
+fn convergence_command(c: ConvergenceArgs) -> Result<(), BoxError> {
+    let run_start = Instant::now();
+    let options = c.scene.options()?;
+    let sizes = Sizes::of(&options, c.scene.small);
+    let result = wake_flow_scene::convergence::check(&options, &sizes, c.data_seed)?;
+    common::print_json_line(&json!({
+        "example": "wake_flow",
+        "command": "convergence",
+        "small": c.scene.small,
+        "convergence": result,
+        "peak_rss_bytes": common::peak_rss_bytes(),
+        "wall_s": run_start.elapsed().as_secs_f64(),
+    }));
+    Ok(())
+}
+
 /// What every phase of the study reads: the options, the scenes, the cache.
 struct Ctx {
     options: Options,
@@ -397,8 +415,10 @@ struct Record {
 fn main() -> Result<(), BoxError> {
     let run_start = Instant::now();
     let cli: Cli = common::parse_args("wake_flow")?;
-    if let Some(Command::Evaluate(e)) = cli.command {
-        return evaluate_command(e);
+    match cli.command {
+        Some(Command::Evaluate(e)) => return evaluate_command(e),
+        Some(Command::Convergence(c)) => return convergence_command(c),
+        None => {}
     }
     let ctx = Ctx::new(&cli)?;
     let mut rec = Record::default();

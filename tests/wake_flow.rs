@@ -73,8 +73,15 @@ fn an_unknown_flag_and_evaluate_without_a_model_are_usage_errors() {
                 wake_flow_scene::Body::Staircase
             );
         }
-        None => panic!("evaluate parses as the subcommand"),
+        _ => panic!("evaluate parses as the subcommand"),
     }
+    let c =
+        Cli::try_parse_from(["wake_flow", "convergence", "--small", "--data-seed", "4"]).unwrap();
+    match c.command {
+        Some(Command::Convergence(c)) => assert_eq!((c.data_seed, c.scene.small), (4, true)),
+        _ => panic!("convergence parses as the subcommand"),
+    }
+    assert!(Cli::try_parse_from(["wake_flow", "convergence", "--data-seed", "x"]).is_err());
 }
 
 #[test]

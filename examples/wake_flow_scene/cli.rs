@@ -18,7 +18,8 @@ use diffphys::learn::Split;
 #[derive(Debug, Parser)]
 #[command(name = "wake_flow", version, args_conflicts_with_subcommands = true)]
 pub struct Cli {
-    /// `evaluate`: a saved corrector at any Re; without one, train the study.
+    /// `evaluate`: a saved corrector at any Re; `convergence`: the reference
+    /// against one level finer; without one, train the study.
     #[command(subcommand)]
     pub command: Option<Command>,
     /// The study's options.
@@ -32,6 +33,21 @@ pub enum Command {
     /// Roll a saved corrector out at each Reynolds number of --held-out-re
     /// (reference generated or read from OUT/reference), without training.
     Evaluate(EvaluateArgs),
+    /// The reference against the same scheme one level finer, restricted to
+    /// the coarse grid, at every train, validation and held-out Re; each
+    /// level's drag, lift periods and Strouhal number.
+    Convergence(ConvergenceArgs),
+}
+
+/// `wake_flow convergence`.
+#[derive(Debug, Clone, Args)]
+pub struct ConvergenceArgs {
+    /// The data seed whose streams draw each split's start state.
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    pub data_seed: u64,
+    /// The scene.
+    #[command(flatten)]
+    pub scene: SceneArgs,
 }
 
 /// What the scene is: the same for training and evaluation.

@@ -112,7 +112,7 @@ impl Bump {
 }
 
 /// Uniform flow plus the bump, on `scene`'s grid.
-fn start_state(scene: &Scene, bump: Bump) -> FlowState<f64> {
+pub fn start_state(scene: &Scene, bump: Bump) -> FlowState<f64> {
     let g = scene.grid();
     let ux = Array2::from_elem(g.shape_x(), U_IN);
     let uy = Array2::from_shape_fn(g.shape_y(), |(a, b)| {
@@ -123,9 +123,23 @@ fn start_state(scene: &Scene, bump: Bump) -> FlowState<f64> {
     FlowState::from_velocity(scene, ux, uy)
 }
 
-/// `coarse_steps` coarse steps of the fine solver at `re`.
+/// `coarse_steps` coarse steps of the fine solver at `re` ([`FACTOR`] fine
+/// steps each).
 fn advance(
     fine: &Scene,
+    s: FlowState<f64>,
+    re: f64,
+    coarse_steps: usize,
+    tick: &(dyn Fn(u64) + Sync),
+) -> Result<FlowState<f64>> {
+    advance_by(fine, FACTOR, s, re, coarse_steps, tick)
+}
+
+/// `coarse_steps` coarse steps of a solver `factor` times finer than the
+/// coarse one at `re` (`factor` steps each).
+pub fn advance_by(
+    fine: &Scene,
+    factor: usize,
     mut s: FlowState<f64>,
     re: f64,
     coarse_steps: usize,
@@ -136,7 +150,7 @@ fn advance(
         ..fine.params()
     };
     for _ in 0..coarse_steps {
-        for _ in 0..FACTOR {
+        for _ in 0..factor {
             s = fine.forward(&s, &p)?.0;
         }
         tick(1);

@@ -23,6 +23,7 @@
 //! corner ([`diffphys::flow::packed`]), so one batch mixes Reynolds numbers.
 
 pub mod cli;
+pub mod convergence;
 pub mod data;
 pub mod model;
 mod net;
@@ -30,7 +31,9 @@ mod solvers;
 pub mod study;
 
 pub use net::{Net, NetSize, MAIN_SIZE, SIZES};
-pub use solvers::{free_faces, reference_scene, uncorrected, Body, Coarse, ReferenceScheme};
+pub use solvers::{
+    free_faces, reference_scene, reference_scene_at, uncorrected, Body, Coarse, ReferenceScheme,
+};
 
 use diffphys::flow::{Advection, FlowError};
 use diffphys::learn::{LearnError, Split};

@@ -174,6 +174,14 @@ pub fn uncorrected(sizes: &Sizes, level: usize, pressure: PressureSolver) -> Res
 /// The reference solver: [`FACTOR`]× finer, MacCormack with the limiter and
 /// incremental splitting (or the coarse scheme: [`ReferenceScheme`]).
 pub fn reference_scene(sizes: &Sizes) -> Result<Scene> {
+    reference_scene_at(sizes, FACTOR)
+}
+
+/// The reference's scheme at `factor`× the coarse resolution (`dt / factor`):
+/// [`reference_scene`] at [`FACTOR`], its convergence check at `2 FACTOR`.
+/// A body inscribed at the reference's resolution is the cylinder itself at
+/// any finer one.
+pub fn reference_scene_at(sizes: &Sizes, factor: usize) -> Result<Scene> {
     let scheme = match sizes.reference {
         ReferenceScheme::SecondOrder => (
             Advection::MacCormack { limiter: true },
@@ -181,13 +189,18 @@ pub fn reference_scene(sizes: &Sizes) -> Result<Scene> {
         ),
         ReferenceScheme::Coarse => (sizes.advection, Splitting::Plain),
     };
+    let body = if sizes.body == Body::Inscribed && factor > FACTOR {
+        Obstacle::cylinder(CENTRE, DIAMETER / 2.0)
+    } else {
+        obstacle(sizes, factor)?
+    };
     wake_scene(
-        FACTOR * sizes.nx,
-        FACTOR * sizes.ny,
-        sizes.dt / FACTOR as f64,
+        factor * sizes.nx,
+        factor * sizes.ny,
+        sizes.dt / factor as f64,
         scheme,
         PressureSolver::Cholesky,
-        obstacle(sizes, FACTOR)?,
+        body,
     )
 }
 

@@ -1,0 +1,220 @@
+//! `wake_flow convergence`: is the reference converged? The reference's
+//! scheme at its own resolution ([`FACTOR`]× the coarse one) against the same
+//! scheme one level finer (`2 FACTOR`×), both from the same analytic start of
+//! each split, both restricted to the coarse grid: the difference, per Re and
+//! per step of the recorded window, measured as the held-out errors are (the
+//! relative L2 error of the state and of the velocity's deviation from the
+//! free stream). Beside it, each level's forces on the body over the window:
+//! the mean drag coefficient, the lift's periods (has the shedding settled?)
+//! and the Strouhal number from them.
+
+use diffphys::flow::diagnostics::obstacle_force;
+use diffphys::flow::{restrict_velocity, FlowParams, FlowState, Scene};
+use diffphys::learn::study::run_jobs;
+use diffphys::learn::{relative_l2, DataSeed, Split};
+use diffphys::report::progress_bar;
+use ndarray::{Array3, Axis};
+use serde_json::{json, Value};
+
+use super::data::{advance_by, start_state, Bump};
+use super::study::deviation_error;
+use super::{
+    reference_scene_at, uncorrected, viscosity, Options, Result, Sizes, WakeError, DIAMETER,
+    FACTOR, U_IN,
+};
+use diffphys::flow::PressureSolver;
+
+/// One level's recorded window at one Re: the states restricted to the
+/// coarse grid and packed, and the force coefficients after each coarse step.
+struct Window {
+    states: Vec<Array3<f64>>,
+    /// `(c_D, c_L)` at each recorded state, `2 F / (U² D)`.
+    forces: Vec<[f64; 2]>,
+}
+
+/// The scenes of one level: its factor and its solver.
+struct Level {
+    factor: usize,
+    fine: Scene,
+}
+
+/// `record` coarse steps of `level` at `re` after `warm` from `base`.
+fn window(
+    sizes: &Sizes,
+    coarse: &Scene,
+    level: &Level,
+    base: &FlowState<f64>,
+    re: f64,
+    tick: &(dyn Fn(u64) + Sync),
+) -> Result<Window> {
+    let fine = &level.fine;
+    let mut s = advance_by(fine, level.factor, base.clone(), re, sizes.warm, tick)?;
+    let nu = viscosity(re);
+    let p = FlowParams {
+        viscosity: nu,
+        ..fine.params()
+    };
+    let scale = 2.0 / (U_IN * U_IN * DIAMETER);
+    let (mut states, mut forces) = (Vec::new(), Vec::new());
+    for t in 0..=sizes.record {
+        if t > 0 {
+            for _ in 0..level.factor {
+                s = fine.forward(&s, &p)?.0;
+            }
+            tick(1);
+        }
+        let (ux, uy) = restrict_velocity(coarse.grid(), level.factor, s.ux.view(), s.uy.view())?;
+        states.push(coarse.pack(&FlowState::from_velocity(coarse, ux, uy), nu)?);
+        let f = obstacle_force(
+            fine.force_weights(),
+            s.ux.view(),
+            s.uy.view(),
+            s.pressure.view(),
+            nu,
+        )?;
+        forces.push([scale * f[0], scale * f[1]]);
+    }
+    Ok(Window { states, forces })
+}
+
+/// The lift's periods (between up-crossings of its mean, interpolated
+/// linearly) over a window of coarse steps `dt` apart.
+fn lift_periods(forces: &[[f64; 2]], dt: f64) -> Vec<f64> {
+    let lift: Vec<f64> = forces.iter().map(|f| f[1]).collect();
+    let mean = lift.iter().sum::<f64>() / lift.len().max(1) as f64;
+    let crossings: Vec<f64> = lift
+        .windows(2)
+        .enumerate()
+        .filter(|(_, w)| w[0] < mean && w[1] >= mean)
+        .map(|(k, w)| (k as f64 + (mean - w[0]) / (w[1] - w[0])) * dt)
+        .collect();
+    crossings.windows(2).map(|c| c[1] - c[0]).collect()
+}
+
+/// A level's forces over the window: mean drag, lift amplitude, the lift's
+/// periods and the Strouhal number `D / (U T̄)` (null with fewer than two
+/// up-crossings).
+fn forces_json(w: &Window, dt: f64) -> Value {
+    let n = w.forces.len().max(1) as f64;
+    let cl = w.forces.iter().map(|f| f[1]);
+    let amplitude =
+        0.5 * (cl.clone().fold(f64::NEG_INFINITY, f64::max) - cl.fold(f64::INFINITY, f64::min));
+    let periods = lift_periods(&w.forces, dt);
+    let strouhal = (!periods.is_empty())
+        .then(|| DIAMETER / (U_IN * periods.iter().sum::<f64>() / periods.len() as f64));
+    json!({
+        "mean_cd": w.forces.iter().map(|f| f[0]).sum::<f64>() / n,
+        "cl_amplitude": amplitude,
+        "lift_periods": periods,
+        "strouhal": strouhal,
+    })
+}
+
+/// The convergence check of `options`' train, validation and held-out Re
+/// (data seed `data_seed`'s draws), on `options.threads` workers.
+///
+/// # Errors
+/// Whatever the scenes and the solvers return.
+pub fn check(options: &Options, sizes: &Sizes, data_seed: u64) -> Result<Value> {
+    let coarse = uncorrected(sizes, 1, PressureSolver::Cholesky)?;
+    let levels = [FACTOR, 2 * FACTOR]
+        .map(|factor| {
+            Ok(Level {
+                factor,
+                fine: reference_scene_at(sizes, factor)?,
+            })
+        })
+        .into_iter()
+        .collect::<Result<Vec<_>>>()?;
+    let splits = [
+        (Split::Train, &options.train_re),
+        (Split::Validation, &options.validation_re),
+        (Split::HeldOut, &options.held_out_re),
+    ];
+    let runs: usize = splits.iter().map(|(_, r)| r.len()).sum();
+    let bar = progress_bar(
+        levels.len() * (splits.len() * sizes.warm_base + runs * (sizes.warm + sizes.record)),
+        "reference convergence",
+    );
+    let tick = |n| bar.inc(n);
+    // Each split's base state at each level, from the split's own draw.
+    let bases: Vec<(Split, usize, Bump)> = splits
+        .iter()
+        .flat_map(|&(split, _)| {
+            let bump = Bump::draw(&mut DataSeed(data_seed).rng(split));
+            (0..levels.len()).map(move |l| (split, l, bump))
+        })
+        .collect();
+    let base_states = run_jobs(&bases, options.threads, |&(_, l, bump)| {
+        let fine = &levels[l].fine;
+        let start = start_state(fine, bump);
+        advance_by(
+            fine,
+            levels[l].factor,
+            start,
+            sizes.base_re,
+            sizes.warm_base,
+            &tick,
+        )
+    })?;
+    let n = levels.len();
+    let jobs: Vec<(usize, f64, usize)> = splits
+        .iter()
+        .enumerate()
+        .flat_map(|(i, (_, res))| {
+            res.iter()
+                .flat_map(move |&re| (0..n).map(move |l| (i, re, l)))
+        })
+        .collect();
+    let windows = run_jobs(&jobs, options.threads, |&(i, re, l)| {
+        let base = &base_states[i * levels.len() + l];
+        window(sizes, &coarse, &levels[l], base, re, &tick)
+    })?;
+    bar.finish_and_clear();
+    let mut per_re = Vec::new();
+    for (pair, level_windows) in jobs.chunks(levels.len()).zip(windows.chunks(levels.len())) {
+        let (i, re, _) = pair[0];
+        let (ours, finer) = (&level_windows[0], &level_windows[1]);
+        let steps = 1..ours.states.len();
+        let batch = |a: &Array3<f64>| a.clone().into_dyn().insert_axis(Axis(0));
+        let state: f64 = steps
+            .clone()
+            .map(|t| relative_l2(&batch(&ours.states[t]), &batch(&finer.states[t])))
+            .sum::<f64>()
+            / steps.len() as f64;
+        let deviation: f64 = steps
+            .clone()
+            .map(|t| {
+                let (p, r) = (
+                    ours.states[t].view().into_dyn(),
+                    finer.states[t].view().into_dyn(),
+                );
+                deviation_error(&coarse, p, r)
+            })
+            .sum::<f64>()
+            / steps.len() as f64;
+        if !(state.is_finite() && deviation.is_finite()) {
+            return Err(WakeError::Output(format!(
+                "the reference at Re {re} and one level finer differ by a non-finite amount"
+            )));
+        }
+        println!(
+            "  {:?} Re {re:>6}: reference against one level finer, state {state:.4}, deviation {deviation:.4}",
+            splits[i].0
+        );
+        per_re.push(json!({
+            "split": format!("{:?}", splits[i].0),
+            "re": re,
+            "state_difference": state,
+            "deviation_difference": deviation,
+            format!("forces_{}x", levels[0].factor): forces_json(ours, sizes.dt),
+            format!("forces_{}x", levels[1].factor): forces_json(finer, sizes.dt),
+        }));
+    }
+    Ok(json!({
+        "data_seed": data_seed,
+        "levels": levels.iter().map(|l| [l.fine.grid().ny, l.fine.grid().nx]).collect::<Vec<_>>(),
+        "recorded_steps": sizes.record,
+        "per_re": per_re,
+    }))
+}

@@ -42,7 +42,7 @@ use diffphys::learn::study::{
 };
 use diffphys::learn::{
     rollout, Budget, DataSeed, Hybrid, LrSchedule, Report, SavedModel, Schedule, Simulator, Split,
-    Splits, Strategy, TrainSeed, Trained, TrainedCorrector, Trainer, Trajectory,
+    Splits, Strategy, Summary, TrainSeed, Trained, TrainedCorrector, Trainer, Trajectory,
 };
 use diffphys::nn::{Arithmetic, Params};
 use diffphys::report::{progress_bar, Progress};
@@ -94,14 +94,6 @@ fn strategy(variant: Variant, sigma: f64) -> Option<Strategy> {
             },
         }),
     }
-}
-
-/// `count` states from `start` of a reference, as a trajectory.
-fn window(r: &Reference, start: usize, count: usize) -> Trajectory {
-    r.states[start..start + count]
-        .iter()
-        .map(|s| s.clone().into_dyn())
-        .collect()
 }
 
 /// The root mean square one-step error of the coarse solver over the free

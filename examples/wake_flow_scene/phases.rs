@@ -87,13 +87,13 @@ pub(crate) fn untrained(
     let train: Vec<Trajectory> = splits
         .train
         .iter()
-        .map(|r| window(r, 0, r.states.len()))
-        .collect();
+        .map(|r| study::window(r, 0, r.states.len()))
+        .collect::<Result<_, _>>()?;
     let validation: Vec<Trajectory> = splits
         .validation
         .iter()
-        .flat_map(|r| [0].into_iter().map(|s| window(r, s, sizes.rollout + 1)))
-        .collect();
+        .map(|r| study::window(r, 0, sizes.rollout + 1))
+        .collect::<Result<_, _>>()?;
     let sigma = one_step_rms(coarse, &train)?;
     // What no corrector can remove: the pinned faces' error (train and
     // validation Re; the body decides it, see `Body`).

@@ -41,14 +41,7 @@ pub(crate) fn report(
     // Report.
     let summary = |r: &Report| -> serde_json::Map<String, Value> {
         r.methods()
-            .filter_map(|m| {
-                r.summary(m).map(|s| {
-                    (
-                        m.to_string(),
-                        json!({"mean": s.mean, "min": s.min, "max": s.max, "runs": s.runs}),
-                    )
-                })
-            })
+            .filter_map(|m| r.summary(m).map(|s| (m.to_string(), json!(s))))
             .collect()
     };
     println!(
@@ -163,7 +156,7 @@ pub(crate) fn report(
             .map(|(v, per)| {
                 let stats: serde_json::Map<String, Value> = per
                     .iter()
-                    .map(|(re, e)| (re.clone(), study::stats(e)))
+                    .map(|(re, e)| (re.clone(), json!(Summary::of(e))))
                     .collect();
                 (v.clone(), Value::Object(stats))
             })

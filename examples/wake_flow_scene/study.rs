@@ -9,7 +9,7 @@ use std::time::Instant;
 use diffphys::flow::diagnostics::vorticity;
 use diffphys::flow::{restrict_velocity, FlowParams, FlowState, PressureSolver, Scene};
 use diffphys::learn::{
-    relative_l2, rollout, rollout_measured, Corrector, Hybrid, Simulator, Trajectory,
+    relative_l2, rollout, rollout_measured, Corrector, Hybrid, Simulator, Summary, Trajectory,
 };
 use diffphys::nn::Params;
 use diffphys::report::chart::{
@@ -82,7 +82,11 @@ impl HeldOutRun {
     }
 }
 
-fn window(r: &Reference, start: usize, count: usize) -> Result<Trajectory> {
+/// `count` states of a reference from step `start`, as a trajectory.
+///
+/// # Errors
+/// [`WakeError::Argument`] if the reference has fewer.
+pub fn window(r: &Reference, start: usize, count: usize) -> Result<Trajectory> {
     if start + count > r.states.len() {
         return Err(WakeError::Argument {
             option: "rollout".into(),
@@ -452,20 +456,6 @@ pub fn pinned_face_error<S: Simulator>(
     Ok(sum / trajectory.len().saturating_sub(1).max(1) as f64)
 }
 
-/// Mean, min, max and count of `v` (null if empty).
-pub fn stats(v: &[f64]) -> Value {
-    if v.is_empty() {
-        return Value::Null;
-    }
-    let n = v.len() as f64;
-    json!({
-        "mean": v.iter().sum::<f64>() / n,
-        "min": v.iter().copied().fold(f64::INFINITY, f64::min),
-        "max": v.iter().copied().fold(f64::NEG_INFINITY, f64::max),
-        "runs": v.len(),
-    })
-}
-
 /// The capacity table: per size, the parameter count and the held-out errors
 /// of `non` and the first SOL variant (mean, min, max over the runs).
 pub fn capacity_json(runs: &[CapacityRun], options: &Options) -> Value {
@@ -482,7 +472,7 @@ pub fn capacity_json(runs: &[CapacityRun], options: &Options) -> Value {
                     .filter(|r| r.0 == size && Some(r.1) == v)
                     .map(|r| if long { r.4 } else { r.3 })
                     .collect();
-                stats(&vals)
+                json!(Summary::of(&vals))
             };
             let params = runs.iter().find(|r| r.0 == size).map_or(0, |r| r.5);
             json!({

@@ -390,32 +390,12 @@ impl Tracer<'_> {
         if let (Advection::SemiLagrangian, Some(lean)) = (scheme, field.sampler.periodic()) {
             return self.periodic_step(field, lean, q, dt);
         }
+        if let Advection::MacCormack { limiter } = scheme {
+            return self.maccormack(field, q, dt, limiter);
+        }
         let vel = self.velocities(field, q.len());
-        let Advection::MacCormack { limiter } = scheme else {
-            let out = self.semi_lagrangian(field, q, &vel, dt);
-            give_back(vel);
-            return out;
-        };
-        let (qh, range) = self.first_pass(field, q, &vel, dt, limiter);
-        let qt = self.semi_lagrangian(field, &qh, &vel, -dt);
-        let mut out = qh.clone();
-        for_blocks(&mut out, |off, block| {
-            for (i, o) in block.iter_mut().enumerate() {
-                let k = off + i;
-                if !field.free(k) {
-                    continue;
-                }
-                let v = qh[k] + 0.5 * (q[k] - qt[k]);
-                *o = if limiter {
-                    v.clamp(range[k][0], range[k][1])
-                } else {
-                    v
-                };
-            }
-        });
+        let out = self.semi_lagrangian(field, q, &vel, dt);
         give_back(vel);
-        give_back(qh);
-        give_back(qt);
         out
     }
 

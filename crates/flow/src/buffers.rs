@@ -135,8 +135,12 @@ impl PerPrecision for FromWide {
 /// standard-layout `f64` array, converted otherwise.
 pub(crate) fn wide<T: Real>(a: ArrayView2<'_, T>) -> Cow<'_, [f64]> {
     let borrow = T::pick::<AsWide>(|_| None, |s| Some(s));
-    match a.to_slice().and_then(borrow) {
-        Some(s) => Cow::Borrowed(s),
+    match a.to_slice() {
+        Some(s) => match borrow(s) {
+            Some(s) => Cow::Borrowed(s),
+            // a slice's map collects in one vectorised pass
+            None => Cow::Owned(s.iter().map(|v| v.as_f64()).collect()),
+        },
         None => Cow::Owned(a.iter().map(|v| v.as_f64()).collect()),
     }
 }

@@ -25,6 +25,9 @@ pub(super) struct Field<'a> {
     pub(super) lattice: Lattice,
     pub(super) sampler: Sampler,
     pub(super) kinds: &'a [FaceKind],
+    /// The coordinates of its entries along x (by row `a`) and y (by `b`):
+    /// entry `(a, b)` is at `(position[0][a], position[1][b])`.
+    pub(super) position: [Vec<f64>; 2],
 }
 
 impl Field<'_> {
@@ -62,15 +65,17 @@ impl Tracer<'_> {
         mut f: impl FnMut(usize, [usize; 2], [f64; 2]),
     ) {
         let nb = field.sampler.nb;
-        let (oa, ob) = field.lattice.offsets();
-        let (dx, dy) = (self.grid.dx, self.grid.dy);
-        let (mut a, mut b) = (off / nb, off % nb);
-        for k in off..off + len {
-            f(k, [a, b], [(a as f64 + oa) * dx, (b as f64 + ob) * dy]);
-            b += 1;
-            if b == nb {
-                b = 0;
-                a += 1;
+        let [xs, ys] = &field.position;
+        let end = off + len;
+        let mut k = off;
+        // row by row: the row's coordinate once, the row's end without a test per entry
+        while k < end {
+            let (a, first) = (k / nb, k % nb);
+            let last = nb.min(first + end - k);
+            let x = xs[a];
+            for (b, &y) in ys.iter().enumerate().take(last).skip(first) {
+                f(k, [a, b], [x, y]);
+                k += 1;
             }
         }
     }
@@ -502,10 +507,16 @@ impl Grads {
 }
 
 pub(super) fn field_of<'a>(grid: &FlowGrid, faces: &'a Faces, lattice: Lattice) -> Field<'a> {
+    let [na, nb] = grid.shape(lattice);
+    let (oa, ob) = lattice.offsets();
     Field {
         lattice,
         sampler: Sampler::new(grid, lattice),
         kinds: faces.of(lattice),
+        position: [
+            (0..na).map(|a| (a as f64 + oa) * grid.dx).collect(),
+            (0..nb).map(|b| (b as f64 + ob) * grid.dy).collect(),
+        ],
     }
 }
 

@@ -13,7 +13,10 @@
 //! Two builds that print the same lines computed the same numbers.
 
 use diffphys_flow::validation::{Cavity, DfgChannel};
-use diffphys_flow::{Advection, FlowState, FlowVars, ParamVars, Scene, TaylorGreen};
+use diffphys_flow::{
+    Advection, Boundary, Buoyancy, FlowState, FlowVars, Obstacle, ParamVars, Scene, Sides,
+    Splitting, TaylorGreen,
+};
 use diffphys_tape::{Real, Tape};
 
 type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
@@ -89,7 +92,54 @@ fn gradient<T: Real>(scene: &Scene, s: &FlowState<T>, steps: usize) -> Result<u6
     Ok(fingerprint(&[&two(v0.ux)?, &two(v0.uy)?]))
 }
 
+/// The PBDL wake flow of `benches/flow_peers` at 32 x 64 cells, with a
+/// passive scalar that drives a buoyancy.
+fn wake(advection: Advection) -> Result<Scene> {
+    Ok(Scene::builder(32, 64, [100.0, 200.0])
+        .sides(Sides {
+            left: Boundary::NoSlip,
+            right: Boundary::NoSlip,
+            bottom: Boundary::Inflow,
+            top: Boundary::Outflow,
+        })
+        .obstacle(Obstacle::cylinder([50.0, 50.0], 10.0))
+        .uniform_inflow(1.0)
+        .viscosity(32.0 * 32.0 * 10.0 / (128.0 * 128.0) / 500.0)
+        .dt(1.0)
+        .advection(advection)
+        .splitting(Splitting::Plain)
+        .max_courant(8.0)
+        .scalars(1)
+        .buoyancy(Buoyancy {
+            beta: 0.01,
+            scalar: 0,
+        })
+        .build()?)
+}
+
+fn wake_start<T: Real>(scene: &Scene) -> FlowState<T> {
+    let g = scene.grid();
+    let mut s = FlowState::zeros(scene);
+    s.uy.fill(T::one());
+    s.scalars[0] = ndarray::Array2::from_shape_fn(g.cell_shape(), |(a, b)| {
+        T::from_f64(((a * 5 + b * 3) % 11) as f64 / 11.0)
+    });
+    s
+}
+
 fn fingerprints() -> Result<()> {
+    for (name, advection) in [
+        ("semi-lagrangian", Advection::SemiLagrangian),
+        ("maccormack", Advection::MacCormack { limiter: true }),
+    ] {
+        let scene = wake(advection)?;
+        let f32s = rollout(&scene, wake_start::<f32>(&scene), 100)?;
+        let f64s = rollout(&scene, wake_start::<f64>(&scene), 100)?;
+        println!("wake 32 {name} f32 100 steps: {:016x}", state_print(&f32s));
+        println!("wake 32 {name} f64 100 steps: {:016x}", state_print(&f64s));
+        let g = gradient(&scene, &f64s, 5)?;
+        println!("wake 32 {name} f64 gradient, 5 steps: {g:016x}");
+    }
     let mac = Advection::MacCormack { limiter: true };
     for (name, advection) in [
         ("maccormack", mac),

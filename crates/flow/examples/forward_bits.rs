@@ -4,6 +4,7 @@
 //! ```sh
 //! cargo run --release -p diffphys-flow --example forward_bits            # the fingerprints
 //! cargo run --release -p diffphys-flow --example forward_bits -- box 128 20  # 20 plain steps
+//! cargo run --release -p diffphys-flow --example forward_bits -- wake 128 20 # the wake, 128 x 256
 //! ```
 //!
 //! The fingerprints are FNV-1a hashes of the bits of the final state of
@@ -92,10 +93,10 @@ fn gradient<T: Real>(scene: &Scene, s: &FlowState<T>, steps: usize) -> Result<u6
     Ok(fingerprint(&[&two(v0.ux)?, &two(v0.uy)?]))
 }
 
-/// The PBDL wake flow of `benches/flow_peers` at 32 x 64 cells, with a
-/// passive scalar that drives a buoyancy.
-fn wake(advection: Advection) -> Result<Scene> {
-    Ok(Scene::builder(32, 64, [100.0, 200.0])
+/// The PBDL wake flow of `benches/flow_peers` at `res` x `2 res` cells,
+/// with a passive scalar that drives a buoyancy.
+fn wake(res: usize, advection: Advection) -> Result<Scene> {
+    Ok(Scene::builder(res, 2 * res, [100.0, 200.0])
         .sides(Sides {
             left: Boundary::NoSlip,
             right: Boundary::NoSlip,
@@ -108,7 +109,7 @@ fn wake(advection: Advection) -> Result<Scene> {
         .dt(1.0)
         .advection(advection)
         .splitting(Splitting::Plain)
-        .max_courant(8.0)
+        .max_courant(8.0f64.max(res as f64 / 16.0))
         .scalars(1)
         .buoyancy(Buoyancy {
             beta: 0.01,
@@ -132,7 +133,7 @@ fn fingerprints() -> Result<()> {
         ("semi-lagrangian", Advection::SemiLagrangian),
         ("maccormack", Advection::MacCormack { limiter: true }),
     ] {
-        let scene = wake(advection)?;
+        let scene = wake(32, advection)?;
         let f32s = rollout(&scene, wake_start::<f32>(&scene), 100)?;
         let f64s = rollout(&scene, wake_start::<f64>(&scene), 100)?;
         println!("wake 32 {name} f32 100 steps: {:016x}", state_print(&f32s));
@@ -196,6 +197,19 @@ fn main() -> Result<()> {
             );
             Ok(())
         }
-        _ => Err("usage: forward_bits [box N STEPS]".into()),
+        [scene, n, steps] if scene == "wake" => {
+            let scene = wake(n.parse()?, Advection::SemiLagrangian)?;
+            let steps: usize = steps.parse()?;
+            let s = rollout(&scene, wake_start::<f32>(&scene), 1)?;
+            let t = std::time::Instant::now();
+            let s = rollout(&scene, s, steps)?;
+            let ms = t.elapsed().as_secs_f64() * 1e3 / steps as f64;
+            println!(
+                "wake {n} f32: {ms:.3} ms per step ({:016x})",
+                state_print(&s)
+            );
+            Ok(())
+        }
+        _ => Err("usage: forward_bits [box|wake N STEPS]".into()),
     }
 }

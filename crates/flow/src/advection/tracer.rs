@@ -7,8 +7,9 @@ use super::sampling::{
 };
 use super::Advection;
 use crate::boundaries::{FaceKind, Faces};
-use crate::buffers::{give_back, in_blocks, scratch, zero_pairs, zeros};
+use crate::buffers::{give_back, in_block_pairs, in_blocks, scratch, zero_pairs, zeros};
 use crate::grid::{FlowGrid, Lattice};
+use diffphys_tape::pool;
 
 /// The velocity field a step traces with.
 pub(super) struct Tracer<'a> {
@@ -242,21 +243,25 @@ impl Tracer<'_> {
     }
 
     /// `at(stencil)` of the departure stencil over `dt` at every free entry of
-    /// `field` (traced by `vel`), `fixed(k)` at the fixed entries.
-    pub(super) fn at_departures<V: Send>(
+    /// `field` (traced by `vel`), `q[k]` at the fixed entries, into a buffer
+    /// from the pool.
+    pub(super) fn at_departures(
         &self,
         field: &Field<'_>,
+        q: &[f64],
         vel: &[[f64; 2]],
         dt: f64,
-        fixed: impl Fn(usize) -> V,
-        at: impl Fn(Stencil) -> V + Sync + Send,
-    ) -> Vec<V> {
-        let mut out: Vec<V> = (0..vel.len()).map(fixed).collect();
+        at: impl Fn(Stencil) -> f64 + Sync + Send,
+    ) -> Vec<f64> {
+        // every entry is written
+        let mut out = scratch(vel.len());
         for_blocks(&mut out, |off, block| {
             self.each_entry(field, off, block.len(), |k, _, p| {
-                if field.free(k) {
-                    block[k - off] = at(Self::departure(field, p, vel[k], dt));
-                }
+                block[k - off] = if field.free(k) {
+                    at(Self::departure(field, p, vel[k], dt))
+                } else {
+                    q[k]
+                };
             });
         });
         out
@@ -272,7 +277,7 @@ impl Tracer<'_> {
         dt: f64,
     ) -> Vec<f64> {
         let Some(lean) = field.sampler.periodic() else {
-            return self.at_departures(field, vel, dt, |k| q[k], |s| s.value(q, &self.walls));
+            return self.at_departures(field, q, vel, dt, |s| s.value(q, &self.walls));
         };
         // every entry is written
         let mut out = scratch(vel.len());
@@ -299,14 +304,28 @@ impl Tracer<'_> {
         vel: &[[f64; 2]],
         dt: f64,
     ) -> (Vec<f64>, Vec<[f64; 2]>) {
-        let out = self.at_departures(
-            field,
-            vel,
-            dt,
-            |k| (q[k], [q[k]; 2]),
-            |s| s.value_and_range(q, &self.walls),
+        let n = vel.len();
+        // every entry of both is written
+        let mut values = scratch(n);
+        let mut ranges = pool::take_or(n, [0.0; 2]);
+        let split = n >= PARALLEL_FROM && rayon::current_num_threads() > 1;
+        in_block_pairs(
+            &mut values,
+            &mut ranges,
+            BLOCK,
+            split,
+            |off, values, ranges| {
+                self.each_entry(field, off, values.len(), |k, _, p| {
+                    let i = k - off;
+                    (values[i], ranges[i]) = if field.free(k) {
+                        Self::departure(field, p, vel[k], dt).value_and_range(q, &self.walls)
+                    } else {
+                        (q[k], [q[k]; 2])
+                    };
+                });
+            },
         );
-        out.into_iter().unzip()
+        (values, ranges)
     }
 
     /// `q̂ = A q`, with the limiter's range where `limiter` is on (else empty).
@@ -468,6 +487,7 @@ impl Tracer<'_> {
         for v in [qh, qt, g_hat, g_tilde, inner.q, inner.ux, inner.uy] {
             give_back(v);
         }
+        give_back(range);
         give_back(vel);
         give_back(g_v);
     }
@@ -617,7 +637,7 @@ mod tests {
             let vel = tr.velocities(&field, n);
             for dt in [0.05, -0.4, 1.7] {
                 let fast = tr.semi_lagrangian(&field, &q, &vel, dt);
-                let slow = tr.at_departures(&field, &vel, dt, |k| q[k], |s| s.value(&q, &walls));
+                let slow = tr.at_departures(&field, &q, &vel, dt, |s| s.value(&q, &walls));
                 assert!(fast
                     .iter()
                     .zip(&slow)

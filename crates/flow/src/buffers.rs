@@ -97,6 +97,28 @@ pub(crate) fn in_blocks<V: Send>(
     }
 }
 
+/// Runs `f(offset, a_block, b_block)` on the blocks of `len` entries of `a`
+/// and the same entries of `b` (as long as `a`), on all cores where `split`.
+pub(crate) fn in_block_pairs<A: Send, B: Send>(
+    a: &mut [A],
+    b: &mut [B],
+    len: usize,
+    split: bool,
+    f: impl Fn(usize, &mut [A], &mut [B]) + Sync + Send,
+) {
+    if split {
+        a.par_chunks_mut(len)
+            .zip(b.par_chunks_mut(len))
+            .enumerate()
+            .for_each(|(c, (x, y))| f(c * len, x, y));
+    } else {
+        a.chunks_mut(len)
+            .zip(b.chunks_mut(len))
+            .enumerate()
+            .for_each(|(c, (x, y))| f(c * len, x, y));
+    }
+}
+
 /// `f64` values of a slice: the slice itself in `f64`, none in `f32`.
 struct AsWide;
 impl PerPrecision for AsWide {
@@ -113,8 +135,12 @@ impl PerPrecision for FromWide {
 /// standard-layout `f64` array, converted otherwise.
 pub(crate) fn wide<T: Real>(a: ArrayView2<'_, T>) -> Cow<'_, [f64]> {
     let borrow = T::pick::<AsWide>(|_| None, |s| Some(s));
-    match a.to_slice().and_then(borrow) {
-        Some(s) => Cow::Borrowed(s),
+    match a.to_slice() {
+        Some(s) => match borrow(s) {
+            Some(s) => Cow::Borrowed(s),
+            // a slice's map collects in one vectorised pass
+            None => Cow::Owned(s.iter().map(|v| v.as_f64()).collect()),
+        },
         None => Cow::Owned(a.iter().map(|v| v.as_f64()).collect()),
     }
 }

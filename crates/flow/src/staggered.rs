@@ -6,7 +6,7 @@
 //! each entry summed in the same order wherever it runs.
 
 use crate::boundaries::{FaceKind, Faces};
-use crate::buffers::{for_row_blocks, zeros};
+use crate::buffers::{for_row_blocks, scratch, zeros};
 use crate::grid::FlowGrid;
 
 /// The face kinds the kernels skip by: the grid's, or all free (where every
@@ -127,8 +127,12 @@ pub(crate) fn gradient_wide(g: &FlowGrid, free: Option<&Faces>, p: &[f64]) -> (V
     let [nfx, _] = g.shape_x();
     let [_, nfy] = g.shape_y();
     let (free_only, kinds) = FaceKinds::of(free, ny, nfy);
-    let mut gx = zeros(nfx * ny);
-    let mut gy = zeros(nx * nfy);
+    // every face is written, except the fixed ones when they are skipped
+    // (and all of them on a grid without a row)
+    let written = !free_only && ny > 0 && nfy > 0;
+    let fresh = |n: usize| if written { scratch(n) } else { zeros(n) };
+    let mut gx = fresh(nfx * ny);
+    let mut gy = fresh(nx * nfy);
     if ny == 0 || nfy == 0 {
         return (gx, gy);
     }

@@ -120,6 +120,16 @@ pub(super) fn bilinear(v: [[f64; 2]; 2], wx: [f64; 2], wy: [f64; 2]) -> f64 {
     wx[0] * (wy[0] * v[0][0] + wy[1] * v[0][1]) + wx[1] * (wy[0] * v[1][0] + wy[1] * v[1][1])
 }
 
+/// [`bilinear`] and the smallest and largest of the corner values `v` (the
+/// MacCormack limiter's range).
+#[inline(always)]
+pub(super) fn bilinear_and_range(v: [[f64; 2]; 2], wx: [f64; 2], wy: [f64; 2]) -> (f64, [f64; 2]) {
+    let value = bilinear(v, wx, wy);
+    let lo = v[0][0].min(v[0][1]).min(v[1][0]).min(v[1][1]);
+    let hi = v[0][0].max(v[0][1]).max(v[1][0]).max(v[1][1]);
+    (value, [lo, hi])
+}
+
 /// `∂ bilinear / ∂s` along x and along y, in lattice units.
 #[inline(always)]
 pub(super) fn bilinear_slopes(v: [[f64; 2]; 2], wx: [f64; 2], wy: [f64; 2]) -> (f64, f64) {
@@ -438,12 +448,8 @@ impl Stencil {
     /// largest of the four corner values (those of [`Stencil::extremes`]).
     #[inline(always)]
     pub(super) fn value_and_range(&self, u: &[f64], walls: &[f64; 4]) -> (f64, [f64; 2]) {
-        let v = self.corners(u, walls);
         let (wx, wy) = (Self::weights(&self.hx), Self::weights(&self.hy));
-        let value = bilinear(v, wx, wy);
-        let lo = v[0][0].min(v[0][1]).min(v[1][0]).min(v[1][1]);
-        let hi = v[0][0].max(v[0][1]).max(v[1][0]).max(v[1][1]);
-        (value, [lo, hi])
+        bilinear_and_range(self.corners(u, walls), wx, wy)
     }
 
     /// The corner holding the smallest and the largest value.

@@ -7,8 +7,9 @@ use super::sampling::{
 };
 use super::Advection;
 use crate::boundaries::{FaceKind, Faces};
-use crate::buffers::{give_back, in_blocks, scratch, zero_pairs, zeros};
+use crate::buffers::{give_back, in_block_pairs, in_blocks, scratch, zero_pairs, zeros};
 use crate::grid::{FlowGrid, Lattice};
+use diffphys_tape::pool;
 
 /// The velocity field a step traces with.
 pub(super) struct Tracer<'a> {
@@ -25,6 +26,9 @@ pub(super) struct Field<'a> {
     pub(super) lattice: Lattice,
     pub(super) sampler: Sampler,
     pub(super) kinds: &'a [FaceKind],
+    /// The coordinates of its entries along x (by row `a`) and y (by `b`):
+    /// entry `(a, b)` is at `(position[0][a], position[1][b])`.
+    pub(super) position: [Vec<f64>; 2],
 }
 
 impl Field<'_> {
@@ -62,15 +66,17 @@ impl Tracer<'_> {
         mut f: impl FnMut(usize, [usize; 2], [f64; 2]),
     ) {
         let nb = field.sampler.nb;
-        let (oa, ob) = field.lattice.offsets();
-        let (dx, dy) = (self.grid.dx, self.grid.dy);
-        let (mut a, mut b) = (off / nb, off % nb);
-        for k in off..off + len {
-            f(k, [a, b], [(a as f64 + oa) * dx, (b as f64 + ob) * dy]);
-            b += 1;
-            if b == nb {
-                b = 0;
-                a += 1;
+        let [xs, ys] = &field.position;
+        let end = off + len;
+        let mut k = off;
+        // row by row: the row's coordinate once, the row's end without a test per entry
+        while k < end {
+            let (a, first) = (k / nb, k % nb);
+            let last = nb.min(first + end - k);
+            let x = xs[a];
+            for (b, &y) in ys.iter().enumerate().take(last).skip(first) {
+                f(k, [a, b], [x, y]);
+                k += 1;
             }
         }
     }
@@ -237,21 +243,25 @@ impl Tracer<'_> {
     }
 
     /// `at(stencil)` of the departure stencil over `dt` at every free entry of
-    /// `field` (traced by `vel`), `fixed(k)` at the fixed entries.
-    pub(super) fn at_departures<V: Send>(
+    /// `field` (traced by `vel`), `q[k]` at the fixed entries, into a buffer
+    /// from the pool.
+    pub(super) fn at_departures(
         &self,
         field: &Field<'_>,
+        q: &[f64],
         vel: &[[f64; 2]],
         dt: f64,
-        fixed: impl Fn(usize) -> V,
-        at: impl Fn(Stencil) -> V + Sync + Send,
-    ) -> Vec<V> {
-        let mut out: Vec<V> = (0..vel.len()).map(fixed).collect();
+        at: impl Fn(Stencil) -> f64 + Sync + Send,
+    ) -> Vec<f64> {
+        // every entry is written
+        let mut out = scratch(vel.len());
         for_blocks(&mut out, |off, block| {
             self.each_entry(field, off, block.len(), |k, _, p| {
-                if field.free(k) {
-                    block[k - off] = at(Self::departure(field, p, vel[k], dt));
-                }
+                block[k - off] = if field.free(k) {
+                    at(Self::departure(field, p, vel[k], dt))
+                } else {
+                    q[k]
+                };
             });
         });
         out
@@ -267,7 +277,7 @@ impl Tracer<'_> {
         dt: f64,
     ) -> Vec<f64> {
         let Some(lean) = field.sampler.periodic() else {
-            return self.at_departures(field, vel, dt, |k| q[k], |s| s.value(q, &self.walls));
+            return self.at_departures(field, q, vel, dt, |s| s.value(q, &self.walls));
         };
         // every entry is written
         let mut out = scratch(vel.len());
@@ -294,14 +304,28 @@ impl Tracer<'_> {
         vel: &[[f64; 2]],
         dt: f64,
     ) -> (Vec<f64>, Vec<[f64; 2]>) {
-        let out = self.at_departures(
-            field,
-            vel,
-            dt,
-            |k| (q[k], [q[k]; 2]),
-            |s| s.value_and_range(q, &self.walls),
+        let n = vel.len();
+        // every entry of both is written
+        let mut values = scratch(n);
+        let mut ranges = pool::take_or(n, [0.0; 2]);
+        let split = n >= PARALLEL_FROM && rayon::current_num_threads() > 1;
+        in_block_pairs(
+            &mut values,
+            &mut ranges,
+            BLOCK,
+            split,
+            |off, values, ranges| {
+                self.each_entry(field, off, values.len(), |k, _, p| {
+                    let i = k - off;
+                    (values[i], ranges[i]) = if field.free(k) {
+                        Self::departure(field, p, vel[k], dt).value_and_range(q, &self.walls)
+                    } else {
+                        (q[k], [q[k]; 2])
+                    };
+                });
+            },
         );
-        out.into_iter().unzip()
+        (values, ranges)
     }
 
     /// `q̂ = A q`, with the limiter's range where `limiter` is on (else empty).
@@ -390,32 +414,12 @@ impl Tracer<'_> {
         if let (Advection::SemiLagrangian, Some(lean)) = (scheme, field.sampler.periodic()) {
             return self.periodic_step(field, lean, q, dt);
         }
+        if let Advection::MacCormack { limiter } = scheme {
+            return self.maccormack(field, q, dt, limiter);
+        }
         let vel = self.velocities(field, q.len());
-        let Advection::MacCormack { limiter } = scheme else {
-            let out = self.semi_lagrangian(field, q, &vel, dt);
-            give_back(vel);
-            return out;
-        };
-        let (qh, range) = self.first_pass(field, q, &vel, dt, limiter);
-        let qt = self.semi_lagrangian(field, &qh, &vel, -dt);
-        let mut out = qh.clone();
-        for_blocks(&mut out, |off, block| {
-            for (i, o) in block.iter_mut().enumerate() {
-                let k = off + i;
-                if !field.free(k) {
-                    continue;
-                }
-                let v = qh[k] + 0.5 * (q[k] - qt[k]);
-                *o = if limiter {
-                    v.clamp(range[k][0], range[k][1])
-                } else {
-                    v
-                };
-            }
-        });
+        let out = self.semi_lagrangian(field, q, &vel, dt);
         give_back(vel);
-        give_back(qh);
-        give_back(qt);
         out
     }
 
@@ -483,6 +487,7 @@ impl Tracer<'_> {
         for v in [qh, qt, g_hat, g_tilde, inner.q, inner.ux, inner.uy] {
             give_back(v);
         }
+        give_back(range);
         give_back(vel);
         give_back(g_v);
     }
@@ -522,10 +527,16 @@ impl Grads {
 }
 
 pub(super) fn field_of<'a>(grid: &FlowGrid, faces: &'a Faces, lattice: Lattice) -> Field<'a> {
+    let [na, nb] = grid.shape(lattice);
+    let (oa, ob) = lattice.offsets();
     Field {
         lattice,
         sampler: Sampler::new(grid, lattice),
         kinds: faces.of(lattice),
+        position: [
+            (0..na).map(|a| (a as f64 + oa) * grid.dx).collect(),
+            (0..nb).map(|b| (b as f64 + ob) * grid.dy).collect(),
+        ],
     }
 }
 
@@ -626,7 +637,7 @@ mod tests {
             let vel = tr.velocities(&field, n);
             for dt in [0.05, -0.4, 1.7] {
                 let fast = tr.semi_lagrangian(&field, &q, &vel, dt);
-                let slow = tr.at_departures(&field, &vel, dt, |k| q[k], |s| s.value(&q, &walls));
+                let slow = tr.at_departures(&field, &q, &vel, dt, |s| s.value(&q, &walls));
                 assert!(fast
                     .iter()
                     .zip(&slow)

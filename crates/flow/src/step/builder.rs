@@ -4,6 +4,7 @@
 use std::sync::Arc;
 
 use diffphys_ops::cg::CgParams;
+use diffphys_tape::pool::BufferPool;
 use ndarray::Array1;
 
 use super::{Scene, SceneInner};
@@ -414,6 +415,7 @@ impl SceneBuilder {
             forcing,
             scalars,
             settings,
+            buffers: BufferPool::new(),
         })))
     }
 }

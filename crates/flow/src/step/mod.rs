@@ -39,6 +39,7 @@
 use std::rc::Rc;
 use std::sync::Arc;
 
+use diffphys_tape::pool::BufferPool;
 use diffphys_tape::{
     checkpointed_steps, parallel, ArrayD, Real, Schedule, StepFn, Tape, TapeError,
 };
@@ -81,6 +82,8 @@ pub(super) struct SceneInner {
     pub(super) forcing: Option<Arc<dyn Forcing>>,
     pub(super) scalars: usize,
     pub(super) settings: Settings,
+    /// The plain forward's buffers, where its caller has no pool current.
+    pub(super) buffers: BufferPool,
 }
 
 /// A flow scene, built once by [`Scene::builder`]: the grid with its sides
@@ -356,6 +359,11 @@ impl Scene {
     /// across cores without handing work over at each call; the result is the
     /// same bits on any number of threads.
     ///
+    /// Its scratch arrays come from the buffer pool current on the calling
+    /// thread, or where none is, from the scene's own (which keeps, of each
+    /// length, as many buffers as one step had out at once, and is freed with
+    /// the scene): a rollout allocates almost nothing after its first step.
+    ///
     /// # Errors
     /// As [`Scene::step`].
     pub fn forward<T: Real>(
@@ -363,7 +371,8 @@ impl Scene {
         state: &FlowState<T>,
         params: &FlowParams<T>,
     ) -> Result<(FlowState<T>, StepInfo)> {
-        self.on_pool(|| self.forward_here(state, params))
+        let pool = BufferPool::current().unwrap_or_else(|| self.0.buffers.clone());
+        self.on_pool(|| pool.scope(|| self.forward_here(state, params)))
     }
 
     /// Whether the step's kernels split across threads: its advection does

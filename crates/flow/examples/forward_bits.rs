@@ -129,6 +129,11 @@ fn wake_start<T: Real>(scene: &Scene) -> FlowState<T> {
 }
 
 fn fingerprints() -> Result<()> {
+    let mut all: Vec<(String, u64)> = Vec::new();
+    let mut put = |label: String, hash: u64| {
+        println!("{label}: {hash:016x}");
+        all.push((label, hash));
+    };
     for (name, advection) in [
         ("semi-lagrangian", Advection::SemiLagrangian),
         ("maccormack", Advection::MacCormack { limiter: true }),
@@ -136,10 +141,10 @@ fn fingerprints() -> Result<()> {
         let scene = wake(32, advection)?;
         let f32s = rollout(&scene, wake_start::<f32>(&scene), 100)?;
         let f64s = rollout(&scene, wake_start::<f64>(&scene), 100)?;
-        println!("wake 32 {name} f32 100 steps: {:016x}", state_print(&f32s));
-        println!("wake 32 {name} f64 100 steps: {:016x}", state_print(&f64s));
+        put(format!("wake 32 {name} f32 100 steps"), state_print(&f32s));
+        put(format!("wake 32 {name} f64 100 steps"), state_print(&f64s));
         let g = gradient(&scene, &f64s, 5)?;
-        println!("wake 32 {name} f64 gradient, 5 steps: {g:016x}");
+        put(format!("wake 32 {name} f64 gradient, 5 steps"), g);
     }
     let mac = Advection::MacCormack { limiter: true };
     for (name, advection) in [
@@ -153,24 +158,40 @@ fn fingerprints() -> Result<()> {
         let scene = taylor_green_box(128, advection)?;
         let f32s = rollout(&scene, start::<f32>(&scene), 200)?;
         let f64s = rollout(&scene, start::<f64>(&scene), 200)?;
-        println!("box 128 {name} f32 200 steps: {:016x}", state_print(&f32s));
-        println!("box 128 {name} f64 200 steps: {:016x}", state_print(&f64s));
+        put(format!("box 128 {name} f32 200 steps"), state_print(&f32s));
+        put(format!("box 128 {name} f64 200 steps"), state_print(&f64s));
         let small = taylor_green_box(32, advection)?;
         let g = gradient(&small, &start::<f64>(&small), 10)?;
-        println!("box 32 {name} f64 gradient, 10 steps: {g:016x}");
+        put(format!("box 32 {name} f64 gradient, 10 steps"), g);
     }
     let channel = DfgChannel::new(8)?;
     let scene = channel.scene(1.5)?;
     let s = rollout(&scene, DfgChannel::start(&scene), 300)?;
-    println!("cylinder cpd 8, 300 steps: {:016x}", state_print(&s));
+    put("cylinder cpd 8, 300 steps".to_string(), state_print(&s));
     let g = gradient(&scene, &DfgChannel::start(&scene), 5)?;
-    println!("cylinder cpd 8 gradient, 5 steps: {g:016x}");
+    put("cylinder cpd 8 gradient, 5 steps".to_string(), g);
     let scene = Cavity::new(100, 48)?.scene()?;
     let s = rollout(&scene, FlowState::<f64>::zeros(&scene), 300)?;
-    println!("cavity Re 100 48^2, 300 steps: {:016x}", state_print(&s));
+    put("cavity Re 100 48^2, 300 steps".to_string(), state_print(&s));
     let g = gradient(&scene, &s, 5)?;
-    println!("cavity Re 100 48^2 gradient, 5 steps: {g:016x}");
+    put("cavity Re 100 48^2 gradient, 5 steps".to_string(), g);
+    let entries: Vec<String> = all
+        .iter()
+        .map(|(label, hash)| format!("\"{label}\":\"{hash:016x}\""))
+        .collect();
+    println!(
+        "{{\"example\":\"forward_bits\",\"fingerprints\":{{{}}}}}",
+        entries.join(",")
+    );
     Ok(())
+}
+
+/// The timing's figures, then its JSON line.
+fn timing_line(scene: &str, n: usize, ms: f64, hash: u64) {
+    println!("{scene} {n} f32: {ms:.3} ms per step ({hash:016x})");
+    println!(
+        "{{\"example\":\"forward_bits\",\"scene\":\"{scene}\",\"n\":{n},\"ms_per_step\":{ms},\"fingerprint\":\"{hash:016x}\"}}"
+    );
 }
 
 fn main() -> Result<()> {
@@ -191,23 +212,18 @@ fn main() -> Result<()> {
             let t = std::time::Instant::now();
             let s = rollout(&scene, s, steps)?;
             let ms = t.elapsed().as_secs_f64() * 1e3 / steps as f64;
-            println!(
-                "box {n} f32: {ms:.3} ms per step ({:016x})",
-                state_print(&s)
-            );
+            timing_line("box", n, ms, state_print(&s));
             Ok(())
         }
         [scene, n, steps] if scene == "wake" => {
-            let scene = wake(n.parse()?, Advection::SemiLagrangian)?;
+            let n: usize = n.parse()?;
+            let scene = wake(n, Advection::SemiLagrangian)?;
             let steps: usize = steps.parse()?;
             let s = rollout(&scene, wake_start::<f32>(&scene), 1)?;
             let t = std::time::Instant::now();
             let s = rollout(&scene, s, steps)?;
             let ms = t.elapsed().as_secs_f64() * 1e3 / steps as f64;
-            println!(
-                "wake {n} f32: {ms:.3} ms per step ({:016x})",
-                state_print(&s)
-            );
+            timing_line("wake", n, ms, state_print(&s));
             Ok(())
         }
         _ => Err("usage: forward_bits [box|wake N STEPS]".into()),

@@ -1,4 +1,4 @@
-"""The Mosaic adapter (benches/mosaic/tesseract_api.py) on Mosaic's
+"""The Mosaic adapter (benches/mosaic/entry/navier-stokes-grid/diffphys/tesseract_api.py) on Mosaic's
 ``optimization/drag_opt`` inputs: the inflow profile with x periodic, the
 tail-averaged drag and its gradient to the profile. Skipped where Mosaic
 (``mosaic-bench``, which the adapter imports its schemas from) is not
@@ -14,7 +14,8 @@ import pytest
 pytest.importorskip("mosaic")
 pytest.importorskip("tesseract_core")
 
-ADAPTER = Path(__file__).resolve().parents[3] / "benches" / "mosaic" / "tesseract_api.py"
+ADAPTER = (Path(__file__).resolve().parents[3] / "benches" / "mosaic" / "entry"
+           / "navier-stokes-grid" / "diffphys" / "tesseract_api.py")
 
 
 @pytest.fixture(scope="module")

@@ -24,7 +24,7 @@ from mosaic.benchmarks.core.utils import l2_error_rel  # noqa: E402
 from mosaic.benchmarks.problems.navier_stokes_grid.ics import _tgv, _tgv_analytic  # noqa: E402
 from tesseract_core import Tesseract  # noqa: E402
 
-API = Path(__file__).resolve().parent / "tesseract_api.py"
+API = Path(__file__).resolve().parent / "entry" / "navier-stokes-grid" / "diffphys" / "tesseract_api.py"
 NU, DT, STEPS = 0.05, 0.01, 1
 
 

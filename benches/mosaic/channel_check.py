@@ -1,4 +1,4 @@
-"""diffphys' Mosaic Tesseract (benches/mosaic/tesseract_api.py) on
+"""diffphys' Mosaic Tesseract (benches/mosaic/entry/navier-stokes-grid/diffphys/tesseract_api.py) on
 non-periodic faces, in-process (no Docker): forward runs beside Mosaic's
 JAX-CFD entrant on the same inputs, and the VJP against central differences
 (Mosaic's fd_check definitions and thresholds).
@@ -75,7 +75,7 @@ sys.path.insert(0, str(_Path(mosaic.__file__).parent))
 from tesseract_core import Tesseract  # noqa: E402
 
 HERE = _Path(__file__).resolve().parent
-OURS = HERE / "tesseract_api.py"
+OURS = HERE / "entry" / "navier-stokes-grid" / "diffphys" / "tesseract_api.py"
 JAX_CFD = _Path(mosaic.__file__).parent / "tesseracts" / "navier-stokes-grid" / "jax-cfd" / "tesseract_api.py"
 OUT = HERE / "channel_check.json"
 

@@ -1,4 +1,4 @@
-"""A first check of benches/mosaic/tesseract_api.py through tesseract-core,
+"""A first check of benches/mosaic/entry/navier-stokes-grid/diffphys/tesseract_api.py through tesseract-core,
 in-process (no Docker): apply on Mosaic's default vortex initial condition,
 and the VJP against central differences along random directions (Mosaic's
 fd_check criteria: cosine >= 0.99 and median relative error <= 1e-3).
@@ -42,7 +42,7 @@ sys.path.insert(0, str(_Path(mosaic.__file__).parent))
 from mosaic_shared.problems.navier_stokes_grid.schemas import make_vortex_ic
 from tesseract_core import Tesseract
 
-API = _Path(__file__).resolve().parent / "tesseract_api.py"
+API = _Path(__file__).resolve().parent / "entry" / "navier-stokes-grid" / "diffphys" / "tesseract_api.py"
 
 
 def main():

@@ -4,7 +4,7 @@ Docker, no image build. Needs the diffphys package and ``pip install
 mosaic-bench==0.2.0 jax-cfd==0.2.1 equinox==0.13.8`` (the last two for the
 JAX-CFD entrant).
 
-    python benches/mosaic/mosaic_run.py run -e gradient/fd_check -o /tmp/mosaic_run [--debug]
+    python benches/mosaic/mosaic_run.py run -e gradient/fd_check -o /tmp/mosaic_run [--debug] [--entry DIR]
     python benches/mosaic/mosaic_run.py run -e forward/baseline  -o /tmp/mosaic_run
     python benches/mosaic/mosaic_run.py run -e cost/vjp_cost/by_N -o /tmp/mosaic_run
     python benches/mosaic/mosaic_run.py run -e optimization/drag_opt -o /tmp/mosaic_run
@@ -25,16 +25,20 @@ starts:
   ``mosaic/benchmarks/core/config.py``) and gives each the Docker tag
   ``<name>:latest``. There is no config file, entry point, environment
   variable or registration call that adds a solver from elsewhere, so this
-  script adds a ``SolverSpec`` for diffphys to the ns-grid ``Problem``
-  object at run time (``mosaic.benchmarks.problems.navier_stokes_grid.config
-  .problem``, replaced by a copy with the extra solver; nothing on disk in
-  Mosaic is touched).
+  script runs that same ``discover_solvers`` on the folder holding our entry
+  (``benches/mosaic/entry/navier-stokes-grid/diffphys/``, the folder that goes
+  upstream; ``--entry DIR`` takes another) and adds the ``SolverSpec`` it
+  builds from the entry's ``tesseract_config.yaml`` (its ``metadata.mosaic``
+  block) to the ns-grid ``Problem`` object at run time
+  (``mosaic.benchmarks.problems.navier_stokes_grid.config.problem``, replaced
+  by a copy with the extra solver; nothing on disk in Mosaic is touched),
+  with our plot style (upstream it goes into Mosaic's ``SOLVER_STYLES``).
 * The runner opens a solver in-process, without Docker, when its tag starts
   with ``inprocess:`` (``_tracked_tesseract`` in
   ``mosaic/benchmarks/core/runner.py``, documented there as a hook for
   Mosaic's own framework tests). ``mosaic run --no-build`` takes the tag
   from ``SolverSpec.image_tag`` (``image_tags_no_build``), so both solvers
-  here get ``inprocess:<path to tesseract_api.py>``: ours, and the
+  here get ``inprocess:<path to tesseract_api.py>``: the entry's, and the
   ``tesseract_api.py`` of the JAX-CFD entrant shipped inside the package.
   ``--no-build`` is therefore always passed (a build runs
   ``tesseract build``, i.e. Docker).
@@ -82,13 +86,40 @@ MOSAIC_DIR = Path(mosaic.__file__).resolve().parent
 sys.path.insert(0, str(MOSAIC_DIR))
 
 HERE = Path(__file__).resolve().parent
-OURS = HERE / "tesseract_api.py"
+# Our entry: the folder that goes upstream as
+# mosaic/tesseracts/navier-stokes-grid/diffphys/ (entry/.../README.md).
+ENTRY = HERE / "entry" / "navier-stokes-grid" / "diffphys"
 PROBLEM = "ns-grid"
+# Plot style of our solver (upstream it goes into Mosaic's SOLVER_STYLES,
+# mosaic/benchmarks/problems/shared/plots/solver_styles.py; Mosaic reads no
+# style from the YAML).
+STYLE = {"color": "#000000", "linestyle": "-", "marker": "*"}
 
 
-def register_inprocess_solvers() -> None:
-    """Give ns-grid's Problem the two in-process solvers (see module docs)."""
-    from mosaic.benchmarks.core.config import AdStrategy, SolverSpec
+def load_entry(entry: Path):
+    """Our solver's ``SolverSpec`` as Mosaic builds it for an entrant:
+    Mosaic's own ``discover_solvers`` on the folder holding ``entry``, which
+    reads ``entry/tesseract_config.yaml``'s ``metadata.mosaic`` block (name,
+    backend, scheme, AD strategy, dtype...) and its top-level description.
+    Raises ValueError, naming the folder, if ``entry`` is not an entry."""
+    from mosaic.benchmarks.core.config import discover_solvers
+
+    entry = Path(entry).resolve()
+    for f in ("tesseract_api.py", "tesseract_config.yaml"):
+        if not (entry / f).is_file():
+            raise ValueError(f"--entry {entry}: no {f} in it (a Mosaic entry holds "
+                             "tesseract_api.py and tesseract_config.yaml)")
+    found = {s.dir: s for s in discover_solvers(entry.parent).values()}
+    if entry.name not in found:
+        raise ValueError(f"--entry {entry}: Mosaic's discover_solvers does not take it "
+                         "(its tesseract_config.yaml needs a metadata.mosaic block with a name)")
+    return found[entry.name]
+
+
+def register_inprocess_solvers(entry: Path = ENTRY) -> None:
+    """Give ns-grid's Problem the two in-process solvers (see module docs):
+    ours as Mosaic discovers it from ``entry`` (``load_entry``), run from
+    ``entry/tesseract_api.py``."""
     from mosaic.benchmarks.problems.navier_stokes_grid import config as ns
 
     prob = ns.problem
@@ -98,26 +129,13 @@ def register_inprocess_solvers() -> None:
         image_tag="inprocess:" + str(prob.tesseract_dir / jax_cfd.dir / "tesseract_api.py"),
         uses_gpu=False,
     )
-    diffphys = SolverSpec(
-        dir="diffphys",
-        name="diffphys",
-        color="#000000",
-        linestyle="-",
-        marker="*",
-        scheme="MAC FD + projection",
-        backend="rust",
-        family="projection",
-        description=(
-            "diffphys' flow step (Rust): MAC grid, semi-Lagrangian advection, FFT "
-            "pressure projection on the periodic box; hand-written adjoints over a "
-            "recorded tape."
-        ),
-        doc_url="",
-        differentiable=True,
-        ad_strategy=AdStrategy.ADJOINT,
-        uses_gpu=False,
-        internal_dtype=os.environ.get("DIFFPHYS_TESSERACT_DTYPE", "float64"),
-        image_tag="inprocess:" + str(OURS),
+    spec = load_entry(entry)
+    dtype = os.environ.get("DIFFPHYS_TESSERACT_DTYPE")
+    diffphys = dataclasses.replace(
+        spec,
+        **STYLE,
+        **({"internal_dtype": dtype} if dtype else {}),
+        image_tag="inprocess:" + str(Path(entry).resolve() / "tesseract_api.py"),
     )
     # dataclasses.replace re-runs Problem.__post_init__, which rebuilds the
     # name -> spec table make_inputs looks solvers up in.
@@ -177,7 +195,18 @@ def register_extra_experiments() -> None:
 
 
 def run_mosaic_cli(argv: list[str]) -> None:
-    register_inprocess_solvers()
+    entry = ENTRY
+    if "--entry" in argv:
+        i = argv.index("--entry")
+        if i + 1 >= len(argv):
+            raise SystemExit("--entry needs a folder (holding tesseract_api.py and "
+                             "tesseract_config.yaml)")
+        entry = Path(argv[i + 1])
+        argv = argv[:i] + argv[i + 2:]
+    try:
+        register_inprocess_solvers(entry)
+    except ValueError as e:
+        raise SystemExit(str(e)) from None
     register_extra_experiments()
     if argv and argv[0] == "run":
         if "--no-build" not in argv:

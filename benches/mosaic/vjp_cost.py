@@ -27,7 +27,7 @@ sys.path.insert(0, str(Path(mosaic.__file__).parent))
 from mosaic_shared.problems.navier_stokes_grid.schemas import make_vortex_ic  # noqa: E402
 from tesseract_core import Tesseract  # noqa: E402
 
-OURS = Path(__file__).resolve().parent / "tesseract_api.py"
+OURS = Path(__file__).resolve().parent / "entry" / "navier-stokes-grid" / "diffphys" / "tesseract_api.py"
 JAX_CFD = Path(mosaic.__file__).parent / "tesseracts/navier-stokes-grid/jax-cfd/tesseract_api.py"
 EXTRA = {"jax_cfd": {"density": np.array([1.0], np.float32), "inner_steps": 1}, "diffphys": {}}
 

@@ -1,4 +1,4 @@
-"""The Mosaic adapter (benches/mosaic/tesseract_api.py) on Mosaic's
+"""The Mosaic adapter (benches/mosaic/entry/navier-stokes-grid/diffphys/tesseract_api.py) on Mosaic's
 ``optimization/drag_opt`` inputs: the inflow profile with x periodic, the
 tail-averaged drag and its gradient to the profile. Skipped where Mosaic
 (``mosaic-bench``, which the adapter imports its schemas from) is not
@@ -14,7 +14,8 @@ import pytest
 pytest.importorskip("mosaic")
 pytest.importorskip("tesseract_core")
 
-ADAPTER = Path(__file__).resolve().parents[3] / "benches" / "mosaic" / "tesseract_api.py"
+ADAPTER = (Path(__file__).resolve().parents[3] / "benches" / "mosaic" / "entry"
+           / "navier-stokes-grid" / "diffphys" / "tesseract_api.py")
 
 
 @pytest.fixture(scope="module")
@@ -123,3 +124,24 @@ def test_result_and_drag_cotangents_together_match_central_differences(ta):
 def test_a_profile_that_is_not_one_row_of_values_is_refused(ta, profile):
     with pytest.raises(ValueError, match="inflow_profile has shape"):
         ta._forward(_drag_opt_inputs(profile=profile))
+
+
+def test_entry_folder_is_what_mosaic_discovers():
+    """The entry folder holds the three files Mosaic's tutorial asks for, and
+    Mosaic's own discover_solvers builds our SolverSpec from its
+    tesseract_config.yaml (the metadata.mosaic block; the checks Mosaic's CI
+    validator makes on it), as our runner does."""
+    pytest.importorskip("yaml")
+    from mosaic.benchmarks.core.config import discover_solvers
+
+    entry = ADAPTER.parent
+    for f in ("tesseract_api.py", "tesseract_config.yaml", "tesseract_requirements.txt"):
+        assert (entry / f).is_file(), f
+    spec = {s.dir: s for s in discover_solvers(entry.parent).values()}["diffphys"]
+    assert spec.name == "diffphys" and spec.backend == "rust"
+    assert spec.image_tag == "diffphys_navier_stokes_grid:latest"
+    assert spec.ad_strategy.value == "adjoint" and spec.differentiable is True
+    assert spec.uses_gpu is False and spec.internal_dtype == "float64"
+    assert spec.description and spec.scheme
+    reqs = (entry / "tesseract_requirements.txt").read_text()
+    assert "../../../mosaic_shared" in reqs and "./diffphys-" in reqs

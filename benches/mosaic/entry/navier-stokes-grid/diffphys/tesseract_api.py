@@ -1,5 +1,8 @@
-"""diffphys' flow step as a Mosaic navier-stokes-grid Tesseract (in-process:
-``Tesseract.from_tesseract_api("benches/mosaic/tesseract_api.py")``).
+"""diffphys' flow step as a Mosaic navier-stokes-grid Tesseract: our entry
+to Mosaic (this folder is what goes to ``mosaic/tesseracts/navier-stokes-grid/
+diffphys/`` upstream, see README.md beside it), and the adapter our own runner
+loads in-process (``Tesseract.from_tesseract_api`` on this file,
+benches/mosaic/mosaic_run.py).
 
 Inputs and outputs are Mosaic's canonical schemas: ``v0`` is a collocated
 velocity ``(N, N, 1, 2)``, ``result`` the same after ``steps`` steps, ``drag``
@@ -126,16 +129,21 @@ from __future__ import annotations
 import functools
 from typing import Any
 
-import sys
-from pathlib import Path as _Path
-
-import mosaic
 import numpy as np
 
-# Mosaic's Tesseracts import its shared schemas as the top-level package
-# mosaic_shared (their images copy it beside them); in-process it sits inside
-# the installed mosaic package.
-sys.path.insert(0, str(_Path(mosaic.__file__).parent))
+try:
+    # In the Tesseract image mosaic_shared is an installed package
+    # (tesseract_requirements.txt: ../../../mosaic_shared, as every entrant).
+    import mosaic_shared  # noqa: F401
+except ImportError:
+    # In-process (benches/mosaic/mosaic_run.py) it sits inside the installed
+    # mosaic-bench package, as a top-level folder of it.
+    import sys
+    from pathlib import Path as _Path
+
+    import mosaic
+
+    sys.path.insert(0, str(_Path(mosaic.__file__).parent))
 
 from mosaic_shared.problems.navier_stokes_grid import InputSchema as _Base
 from mosaic_shared.problems.navier_stokes_grid import OutputSchema as _BaseOut

@@ -17,31 +17,11 @@ use serde_json::{json, Value};
 
 type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
 
-/// The PBDL book's wake flow as PhiFlow runs it (benches/flow_peers), in our
-/// terms: a 100 × 200 domain of `res × 2 res` cells, uniform inflow 1 at the
-/// bottom, outflow at the top, no-slip walls left and right, a cylinder of
-/// radius 10 at (50, 50), explicit viscosity 1.25e-3 (the book's Re = 500 at
-/// its resolution factor 32), semi-Lagrangian advection, plain splitting,
-/// dt = 1; `pressure` overrides the scene's default solver.
+/// The PBDL book's wake flow as PhiFlow runs it
+/// ([`diffphys::flow::validation::pbdl_wake`]); `pressure` overrides the
+/// scene's default solver.
 pub fn wake_scene(res: usize, pressure: Option<PressureSolver>) -> Result<Scene> {
-    let mut b = Scene::builder(res, 2 * res, [100.0, 200.0])
-        .sides(Sides {
-            left: Boundary::NoSlip,
-            right: Boundary::NoSlip,
-            bottom: Boundary::Inflow,
-            top: Boundary::Outflow,
-        })
-        .obstacle(Obstacle::cylinder([50.0, 50.0], 10.0))
-        .uniform_inflow(1.0)
-        // PhiFlow's diffusivity dt · 32² / (Re / (10 / 128²)) at Re = 500, dt = 1
-        .viscosity(32.0 * 32.0 * 10.0 / (128.0 * 128.0) / 500.0)
-        .dt(1.0)
-        .advection(Advection::SemiLagrangian)
-        .splitting(Splitting::Plain)
-        // semi-Lagrangian is stable at any Courant number; PhiFlow takes dt = 1
-        // at every resolution (Courant ≈ 2 at 128 x 256, 12 at 512 x 1024 where
-        // the flow passes the cylinder), so the guard grows with the grid
-        .max_courant(8.0f64.max(res as f64 / 16.0));
+    let mut b = diffphys::flow::validation::pbdl_wake(res);
     if let Some(p) = pressure {
         b = b.pressure_solver(p);
     }

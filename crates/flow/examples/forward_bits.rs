@@ -13,11 +13,8 @@
 //! cavity) and of the gradients of `½|u_end|²` through short taped rollouts.
 //! Two builds that print the same lines computed the same numbers.
 
-use diffphys_flow::validation::{Cavity, DfgChannel};
-use diffphys_flow::{
-    Advection, Boundary, Buoyancy, FlowState, FlowVars, Obstacle, ParamVars, Scene, Sides,
-    Splitting, TaylorGreen,
-};
+use diffphys_flow::validation::{pbdl_wake, Cavity, DfgChannel};
+use diffphys_flow::{Advection, Buoyancy, FlowState, FlowVars, ParamVars, Scene, TaylorGreen};
 use diffphys_tape::{Real, Tape};
 
 type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
@@ -93,23 +90,11 @@ fn gradient<T: Real>(scene: &Scene, s: &FlowState<T>, steps: usize) -> Result<u6
     Ok(fingerprint(&[&two(v0.ux)?, &two(v0.uy)?]))
 }
 
-/// The PBDL wake flow of `benches/flow_peers` at `res` x `2 res` cells,
-/// with a passive scalar that drives a buoyancy.
+/// The PBDL wake flow of `benches/flow_peers` at `res` x `2 res` cells
+/// ([`pbdl_wake`]), with a passive scalar that drives a buoyancy.
 fn wake(res: usize, advection: Advection) -> Result<Scene> {
-    Ok(Scene::builder(res, 2 * res, [100.0, 200.0])
-        .sides(Sides {
-            left: Boundary::NoSlip,
-            right: Boundary::NoSlip,
-            bottom: Boundary::Inflow,
-            top: Boundary::Outflow,
-        })
-        .obstacle(Obstacle::cylinder([50.0, 50.0], 10.0))
-        .uniform_inflow(1.0)
-        .viscosity(32.0 * 32.0 * 10.0 / (128.0 * 128.0) / 500.0)
-        .dt(1.0)
+    Ok(pbdl_wake(res)
         .advection(advection)
-        .splitting(Splitting::Plain)
-        .max_courant(8.0f64.max(res as f64 / 16.0))
         .scalars(1)
         .buoyancy(Buoyancy {
             beta: 0.01,

@@ -30,6 +30,7 @@
 mod cavity;
 mod control_volume;
 mod cylinder;
+mod pbdl_wake;
 mod taylor_green;
 
 pub use cavity::{Cavity, CavityResult, GhiaTable, SuspectPoint, GHIA_1982, GHIA_X, GHIA_Y};
@@ -41,6 +42,7 @@ pub use cylinder::{
     DFG_2D1, DFG_2D1_HIGH_ACCURACY, DFG_2D2, DFG_CENTRE, DFG_DIAMETER, DFG_HEIGHT, DFG_LENGTH,
     DFG_NU,
 };
+pub use pbdl_wake::pbdl_wake;
 pub use taylor_green::{OrderStudy, TaylorGreen};
 
 use ndarray::Array2;

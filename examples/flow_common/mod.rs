@@ -8,8 +8,7 @@ use std::time::Instant;
 
 use diffphys::flow::validation::{all_met, FloorCheck};
 use diffphys::flow::{
-    Advection, Boundary, FlowState, FlowVars, Obstacle, ParamVars, PressureSolver, Scene, Sides,
-    Splitting, TaylorGreen,
+    Advection, FlowState, FlowVars, ParamVars, PressureSolver, Scene, TaylorGreen,
 };
 use diffphys::tape::{Real, Tape};
 use ndarray::Array2;

@@ -110,7 +110,7 @@ fn main() -> Result<(), BoxError> {
             // The coarse step's hand-written adjoint against central differences.
             let check = check_gradient(
                 |_, v| solver.step_tape(v[0]),
-                &[states_at(&splits.train[..2], 8)?],
+                &[states_at(&splits.train[..2], 8)?.fields.remove(0)],
                 GradCheckOptions::for_type::<f64>(),
             )?;
             println!(

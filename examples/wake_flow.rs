@@ -42,7 +42,7 @@ use diffphys::learn::study::{
 };
 use diffphys::learn::{
     rollout, Budget, DataSeed, Hybrid, LrSchedule, Report, SavedModel, Schedule, Simulator, Split,
-    Splits, Strategy, Summary, TrainSeed, Trained, TrainedCorrector, Trainer, Trajectory,
+    Splits, State, Strategy, Summary, TrainSeed, Trained, TrainedCorrector, Trainer, Trajectory,
 };
 use diffphys::nn::{Arithmetic, Params};
 use diffphys::report::{progress_bar, Progress};
@@ -103,9 +103,8 @@ fn one_step_rms(coarse: &Coarse, train: &[Trajectory]) -> Result<f64, BoxError> 
     let (mut sum, mut count) = (0.0, 0.0);
     for tr in train {
         for t in (0..tr.len() - 1).step_by(10) {
-            let batch = tr[t].clone().insert_axis(ndarray::Axis(0));
-            let next = coarse.step_plain(&batch)?;
-            let d = (&next.index_axis(ndarray::Axis(0), 0) - &tr[t + 1]) * &free;
+            let next = coarse.step_plain(&State::stack(&[&tr[t]])?)?.remove(0);
+            let d = (&next.index_axis(ndarray::Axis(0), 0) - &tr[t + 1].fields[0]) * &free;
             sum += d.mapv(|e| e * e).sum();
             count += free.sum();
         }

@@ -11,7 +11,7 @@ mod wake_flow_scene;
 
 use clap::Parser;
 use diffphys::flow::{FlowState, PressureSolver};
-use diffphys::learn::{Hybrid, LearnError, Simulator, Split, TrainSeed};
+use diffphys::learn::{Hybrid, LearnError, Simulator, Split, State, TrainSeed};
 use diffphys::nn::Arithmetic;
 use ndarray::Array2;
 use wake_flow_scene::cli::{seeds, Cli, Command};
@@ -162,8 +162,13 @@ fn a_corrector_of_the_wrong_shape_is_refused() {
     )
     .unwrap();
     let hybrid = Hybrid::new(c.clone(), net);
-    match hybrid.check_shapes(&params, &probe(&c)) {
-        Err(LearnError::CorrectorShape { state, correction }) => {
+    match hybrid.check_shapes(&params, &State::from(probe(&c))) {
+        Err(LearnError::CorrectorShape {
+            field,
+            state,
+            correction,
+        }) => {
+            assert_eq!(field, 0);
             assert_eq!(state[1], 2);
             assert_eq!(correction[1], 3);
         }
@@ -177,7 +182,7 @@ fn a_corrector_of_the_wrong_shape_is_refused() {
     )
     .unwrap();
     Hybrid::new(c.clone(), net)
-        .check_shapes(&params, &probe(&c))
+        .check_shapes(&params, &State::from(probe(&c)))
         .unwrap();
 }
 
@@ -185,8 +190,9 @@ fn a_corrector_of_the_wrong_shape_is_refused() {
 fn noise_leaves_the_viscosity_and_the_fixed_faces_alone() {
     let c = coarse();
     let clean = probe(&c);
-    let mut noisy = clean.clone();
+    let mut noisy = State::from(clean.clone());
     c.perturb(&mut noisy, 0.1, &mut TrainSeed(2).sampling_rng());
+    let noisy = noisy.fields.remove(0);
     let free = free_faces(&c.scene);
     let [_, a, b] = c.scene.packed_shape();
     assert_eq!(free[[1, a - 1, b - 1]], 0.0);
@@ -321,6 +327,7 @@ fn pinned_after_one_reference_step(body: wake_flow_scene::Body) -> f64 {
         .unwrap()
         .into_dyn();
     let free = free_faces(&coarse.scene);
+    let state = State::from(state);
     study::pinned_face_error(&coarse, &free, &vec![state.clone(), state]).unwrap()
 }
 

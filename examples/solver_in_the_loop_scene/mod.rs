@@ -26,7 +26,7 @@
 
 use std::sync::Arc;
 
-use diffphys::learn::{Corrector, Simulator, TrainSeed, Trajectory};
+use diffphys::learn::{Corrector, Simulator, State, StateVars, TrainSeed, Trajectory};
 use diffphys::nn::{Activation, Bound, Layer, Padding, Params, UNet, UNetConfig};
 use diffphys::ops::advection::{upwind1, upwind1_vjp, AdvectionParams, Wants};
 use diffphys::prelude::*;
@@ -137,8 +137,8 @@ impl Solver {
 
 /// The coarse solver as the library's simulator: one upwind step of a batch.
 impl Simulator for Solver {
-    fn step<'t>(&self, u: Var<'t, f64>) -> TapeResult<Var<'t, f64>> {
-        self.step_tape(u)
+    fn step<'t>(&self, u: &StateVars<'t>) -> TapeResult<Vec<Var<'t, f64>>> {
+        Ok(vec![self.step_tape(u.only()?)?])
     }
 }
 
@@ -265,7 +265,7 @@ pub fn trajectories(
         .map(|tr| {
             tr.rows()
                 .into_iter()
-                .map(|r| r.to_owned().insert_axis(Axis(0)).into_dyn())
+                .map(|r| State::from(r.to_owned().insert_axis(Axis(0)).into_dyn()))
                 .collect()
         })
         .collect())
@@ -276,8 +276,10 @@ pub fn trajectories(
 pub fn one_step_rms(solver: &Solver, set: &[Trajectory]) -> Result<f64, BoxError> {
     let mut sum = 0.0;
     for tr in set {
-        let u = solver.step(tr[0].slice(s![0, ..]))?;
-        sum += (&u - &tr[1].slice(s![0, ..])).mapv(|e| e * e).sum();
+        let u = solver.step(tr[0].fields[0].slice(s![0, ..]))?;
+        sum += (&u - &tr[1].fields[0].slice(s![0, ..]))
+            .mapv(|e| e * e)
+            .sum();
     }
     Ok((sum / (set.len() * COARSE) as f64).sqrt())
 }
@@ -293,10 +295,11 @@ impl Corrector for Net {
     fn correction<'t>(
         &self,
         p: &Bound<'t, f64>,
-        v: Var<'t, f64>,
-    ) -> diffphys::tape::Result<Var<'t, f64>> {
+        v: &StateVars<'t>,
+    ) -> diffphys::tape::Result<Vec<Var<'t, f64>>> {
+        let v = v.only()?;
         let c = v.tape().constant(self.solver.velocity_batch(v.shape()[0]));
-        self.unet.forward(p, Var::concat(&[v, c], 1)?)
+        Ok(vec![self.unet.forward(p, Var::concat(&[v, c], 1)?)?])
     }
 }
 

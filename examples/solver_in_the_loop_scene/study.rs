@@ -35,8 +35,8 @@ pub fn checkpointing<S: Simulator + 'static, C: Corrector + 'static>(
     let long = probe[0].len() - 1;
     let targets = Rc::new(
         (1..=long)
-            .map(|t| states_at(probe, t))
-            .collect::<Result<Vec<_>, _>>()?,
+            .map(|t| Ok(states_at(probe, t)?.fields))
+            .collect::<Result<Vec<_>, diffphys::learn::LearnError>>()?,
     );
     let s0 = states_at(probe, 0)?;
     let mut schedules = vec![(Schedule::Full, "full tape".to_string())];

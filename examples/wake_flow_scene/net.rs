@@ -1,7 +1,7 @@
 //! The corrector: its size and the network.
 
 use diffphys::flow::Scene;
-use diffphys::learn::Corrector;
+use diffphys::learn::{Corrector, StateVars};
 use diffphys::nn::{Arithmetic, Bound, Conv2, ConvConfig, Init, Layer, Padding, Params};
 use diffphys::tape::{ArrayD, TapeError, Var};
 use rand::Rng;
@@ -145,8 +145,9 @@ impl Corrector for Net {
     fn correction<'t>(
         &self,
         p: &Bound<'t, f64>,
-        state: Var<'t, f64>,
-    ) -> diffphys::tape::Result<Var<'t, f64>> {
+        state: &StateVars<'t>,
+    ) -> diffphys::tape::Result<Vec<Var<'t, f64>>> {
+        let state = state.only()?;
         let tape = state.tape();
         let shape = state.shape();
         let (n, a, b) = (shape[0], shape[2], shape[3]);
@@ -173,9 +174,9 @@ impl Corrector for Net {
         }
         let out = self.head.forward(p, h)?;
         if self.c_out != 2 {
-            return Ok(out);
+            return Ok(vec![out]);
         }
-        out.mul(free)
+        Ok(vec![out.mul(free)?])
     }
 }
 

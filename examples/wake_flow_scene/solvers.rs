@@ -3,7 +3,7 @@
 //! learning library's simulator.
 
 use diffphys::flow::{Advection, Boundary, Obstacle, PressureSolver, Scene, Sides, Splitting};
-use diffphys::learn::{standard_normal, Simulator};
+use diffphys::learn::{standard_normal, Simulator, State, StateVars};
 use diffphys::tape::{ArrayD, Var};
 use ndarray::Array2;
 use rand::rngs::StdRng;
@@ -223,16 +223,16 @@ impl Coarse {
 }
 
 impl Simulator for Coarse {
-    fn step<'t>(&self, state: Var<'t, f64>) -> diffphys::tape::Result<Var<'t, f64>> {
-        Ok(self.scene.step_packed(state)?)
+    fn step<'t>(&self, state: &StateVars<'t>) -> diffphys::tape::Result<Vec<Var<'t, f64>>> {
+        Ok(vec![self.scene.step_packed(state.only()?)?])
     }
 
-    fn step_plain(&self, state: &ArrayD<f64>) -> diffphys::tape::Result<ArrayD<f64>> {
-        Ok(self.scene.forward_packed(state.view())?)
+    fn step_plain(&self, state: &State) -> diffphys::tape::Result<Vec<ArrayD<f64>>> {
+        Ok(vec![self.scene.forward_packed(state.fields[0].view())?])
     }
 
-    fn perturb(&self, state: &mut ArrayD<f64>, sigma: f64, rng: &mut StdRng) {
-        for mut sample in state.outer_iter_mut() {
+    fn perturb(&self, state: &mut State, sigma: f64, rng: &mut StdRng) {
+        for mut sample in state.fields[0].outer_iter_mut() {
             for (x, &m) in sample.iter_mut().zip(self.free.iter()) {
                 let noise = sigma * standard_normal(rng);
                 *x += m * noise;

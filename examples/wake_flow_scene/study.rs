@@ -9,7 +9,8 @@ use std::time::Instant;
 use diffphys::flow::diagnostics::vorticity;
 use diffphys::flow::{restrict_velocity, FlowParams, FlowState, PressureSolver, Scene};
 use diffphys::learn::{
-    relative_l2, rollout, rollout_measured, Corrector, Hybrid, Simulator, Summary, Trajectory,
+    relative_l2, rollout, rollout_measured, Corrector, Hybrid, Simulator, State, Summary,
+    Trajectory,
 };
 use diffphys::nn::Params;
 use diffphys::report::chart::{
@@ -98,9 +99,12 @@ pub fn window(r: &Reference, start: usize, count: usize) -> Result<Trajectory> {
     }
     Ok(r.states[start..start + count]
         .iter()
-        .map(|s| s.clone().into_dyn())
+        .map(|s| State::from(s.clone().into_dyn()))
         .collect())
 }
+
+/// One sample's fields, as a metric of a rollout reads them.
+type Fields<'a, 'b> = &'a [ArrayViewD<'b, f64>];
 
 /// The packed samples `p` and `r` as velocities; `None` for another shape.
 fn velocities(
@@ -167,8 +171,10 @@ pub fn held_out_re<C: Corrector + 'static>(
         .map(|&s| window(r, s, sizes.rollout + 1))
         .collect::<Result<Vec<_>>>()?;
     let scene = &hybrid.simulator().scene;
-    let deviation = |p: ArrayViewD<'_, f64>, r: ArrayViewD<'_, f64>| deviation_error(scene, p, r);
-    let vorticity = |p: ArrayViewD<'_, f64>, r: ArrayViewD<'_, f64>| vorticity_error(scene, p, r);
+    let deviation =
+        |p: Fields<'_, '_>, r: Fields<'_, '_>| deviation_error(scene, p[0].view(), r[0].view());
+    let vorticity =
+        |p: Fields<'_, '_>, r: Fields<'_, '_>| vorticity_error(scene, p[0].view(), r[0].view());
     let short = rollout_measured(
         hybrid,
         params,
@@ -177,8 +183,7 @@ pub fn held_out_re<C: Corrector + 'static>(
         &[&deviation, &vorticity],
     )?;
     let long = rollout(hybrid, params, &[window(r, 0, sizes.long + 1)?], sizes.long)?;
-    let last = long
-        .last
+    let last = long.last.fields[0]
         .index_axis(Axis(0), 0)
         .to_owned()
         .into_dimensionality()
@@ -251,13 +256,13 @@ fn coarse_rollout<S: Simulator + 'static, C: Corrector + 'static>(
     let (mut err, mut seconds, mut samples) = (0.0, 0.0, 0.0);
     for r in refs {
         for &start in &sizes.speed_starts {
-            let mut u = r.states[start].clone().insert_axis(Axis(0)).into_dyn();
+            let mut u = State::from(r.states[start].clone().insert_axis(Axis(0)).into_dyn());
             for t in 1..=sizes.rollout {
                 let t0 = Instant::now();
                 u = hybrid.step_plain(params, &u)?;
                 seconds += t0.elapsed().as_secs_f64();
                 let b = r.states[start + t].clone().insert_axis(Axis(0)).into_dyn();
-                err += relative_l2(&u, &b);
+                err += relative_l2(&u.fields[0], &b);
                 samples += 1.0;
             }
         }
@@ -442,15 +447,15 @@ pub fn pinned_face_error<S: Simulator>(
 ) -> Result<f64> {
     let mut sum = 0.0;
     for pair in trajectory.windows(2) {
-        let next = coarse.step_plain(&pair[0].clone().insert_axis(Axis(0)))?;
-        let residual: f64 = next
-            .index_axis(Axis(0), 0)
+        let next = coarse.step_plain(&State::stack(&[&pair[0]])?)?.remove(0);
+        let (now, then) = (next.index_axis(Axis(0), 0), &pair[1].fields[0]);
+        let residual: f64 = now
             .iter()
-            .zip(pair[1].iter())
+            .zip(then.iter())
             .zip(free.iter())
             .map(|((a, b), m)| if *m == 0.0 { (a - b).powi(2) } else { 0.0 })
             .sum();
-        let norm: f64 = pair[1].iter().map(|b| b * b).sum();
+        let norm: f64 = then.iter().map(|b| b * b).sum();
         sum += (residual / norm).sqrt();
     }
     Ok(sum / trajectory.len().saturating_sub(1).max(1) as f64)

@@ -46,13 +46,25 @@ pub enum LearnError {
         /// Where it was needed.
         context: String,
     },
-    /// The corrector's output does not have the state's shape.
-    #[error("the corrector's output has shape {correction:?} but the state has shape {state:?}")]
+    /// The corrector's output does not have the state's shape: one correction
+    /// per physical field, each of its field's shape.
+    #[error("the corrector's output for field {field} has shape {correction:?} but the field has shape {state:?}")]
     CorrectorShape {
-        /// The state's shape.
+        /// The field.
+        field: usize,
+        /// The field's shape.
         state: Vec<usize>,
         /// The correction's shape.
         correction: Vec<usize>,
+    },
+    /// The corrector gave another number of corrections than the state has
+    /// physical fields.
+    #[error("the corrector gave {got} corrections for a state of {expected} physical fields")]
+    CorrectorFields {
+        /// The physical fields.
+        expected: usize,
+        /// The corrections.
+        got: usize,
     },
     /// A budget that cannot be shared equally (an unroll longer than the network
     /// evaluations per iteration, or not dividing them).

@@ -4,8 +4,10 @@
 //! solver-in-the-loop scene otherwise writes by hand.
 //!
 //! - A [`Simulator`] is a differentiable step `state → state` on the tape (plus a
-//!   plain forward); a [`Corrector`] is a network; their [`Hybrid`] step is the
-//!   solver step, then the correction.
+//!   plain forward) of a [`State`]: several fields of their own shapes and
+//!   per-sample parameters (a viscosity per sample); a [`Corrector`] is a
+//!   network; their [`Hybrid`] step is the solver step, then the correction of
+//!   the physical fields.
 //! - Training strategies are values ([`Strategy::NonInteracting`],
 //!   [`Strategy::Noise`], [`Strategy::SolverInTheLoop`] with a checkpoint
 //!   [`Schedule`]); the [`Trainer`] gives each the same [`Budget`] of network
@@ -47,14 +49,15 @@
 //! /// `u ↦ 0.9 u`: a solver that loses 10% per step too much.
 //! struct Decay;
 //! impl Simulator for Decay {
-//!     fn step<'t>(&self, u: Var<'t, f64>) -> diffphys_tape::Result<Var<'t, f64>> {
-//!         u.mul_scalar(0.9)
+//!     fn step<'t>(&self, u: &StateVars<'t>) -> diffphys_tape::Result<Vec<Var<'t, f64>>> {
+//!         Ok(vec![u.only()?.mul_scalar(0.9)?])
 //!     }
 //! }
 //! struct Net(UNet);
 //! impl Corrector for Net {
-//!     fn correction<'t>(&self, p: &Bound<'t, f64>, u: Var<'t, f64>) -> diffphys_tape::Result<Var<'t, f64>> {
-//!         self.0.forward(p, u)
+//!     fn correction<'t>(&self, p: &Bound<'t, f64>, u: &StateVars<'t>)
+//!         -> diffphys_tape::Result<Vec<Var<'t, f64>>> {
+//!         Ok(vec![self.0.forward(p, u.only()?)?])
 //!     }
 //! }
 //! let config = UNetConfig { dims: 1, c_in: 1, c_out: 1, widths: vec![4], kernel: 3,
@@ -68,7 +71,7 @@
 //! let splits = Splits::generate(DataSeed(1), [4, 2, 2], |_, n, rng| {
 //!     Ok((0..n).map(|_| {
 //!         let u = ArrayD::from_shape_fn(vec![1, 8], |_| rng.random_range(0.5..1.5));
-//!         vec![u; 9]
+//!         vec![State::from(u); 9]
 //!     }).collect::<Vec<Trajectory>>())
 //! })?;
 //! let (net, _) = make(TrainSeed(0))?;
@@ -106,6 +109,7 @@ pub mod metrics;
 pub mod report;
 pub mod saved;
 mod split;
+pub mod state;
 pub mod strategy;
 pub mod study;
 pub mod supervised;
@@ -117,12 +121,14 @@ pub use data::{
 };
 pub use diffphys_tape::Schedule;
 pub use error::{LearnError, Result};
-pub use hybrid::{frozen, Corrector, Hybrid, Simulator};
+pub use hybrid::{frozen, physical_fields, Corrector, Hybrid, Simulator};
 pub use metrics::{
-    batch_of, relative_l2, rollout, rollout_measured, states_at, Metric, Rollout, Trajectory,
+    batch_of, relative_l2, relative_l2_fields, rollout, rollout_measured, states_at, Metric,
+    Rollout, Trajectory,
 };
 pub use report::{Report, RunRecord, Summary};
 pub use saved::{ModelCard, SavedModel};
+pub use state::{State, StateVars};
 pub use strategy::{standard_normal, Budget, LrSchedule, Strategy};
 pub use supervised::{mean_squared_error, Pair, PairSource, SupervisedTrainer, TrainedNet};
 pub use train::{Batch, TrainedCorrector, Trainer};

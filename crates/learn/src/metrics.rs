@@ -6,12 +6,13 @@ use diffphys_tape::ArrayD;
 use ndarray::ArrayViewD;
 use ndarray::Axis;
 
-use crate::hybrid::{Corrector, Hybrid, Simulator};
+use crate::hybrid::{physical_fields, Corrector, Hybrid, Simulator};
+use crate::state::State;
 use crate::{LearnError, Result};
 
-/// A reference trajectory of one sample: its states at steps `0, 1, …`, each of
-/// the sample's shape (without the batch axis).
-pub type Trajectory = Vec<ArrayD<f64>>;
+/// A reference trajectory of one sample: its states at steps `0, 1, …`, each a
+/// sample (no batch axis).
+pub type Trajectory = Vec<State>;
 
 /// Stacks same-shaped samples into a batch along a new axis 0.
 ///
@@ -28,8 +29,8 @@ pub fn batch_of(samples: &[&ArrayD<f64>]) -> Result<ArrayD<f64>> {
 /// States at step `t` of every trajectory, as a batch.
 ///
 /// # Errors
-/// As [`batch_of`], and [`LearnError::Invalid`] if a trajectory is shorter.
-pub fn states_at(trajectories: &[Trajectory], t: usize) -> Result<ArrayD<f64>> {
+/// As [`State::stack`], and [`LearnError::Invalid`] if a trajectory is shorter.
+pub fn states_at(trajectories: &[Trajectory], t: usize) -> Result<State> {
     let rows = trajectories
         .iter()
         .map(|tr| {
@@ -41,39 +42,56 @@ pub fn states_at(trajectories: &[Trajectory], t: usize) -> Result<ArrayD<f64>> {
             })
         })
         .collect::<Result<Vec<_>>>()?;
-    batch_of(&rows)
+    State::stack(&rows)
 }
 
 /// The mean over the batch (axis 0) of `‖a_b − r_b‖ / ‖r_b‖`.
 pub fn relative_l2(a: &ArrayD<f64>, r: &ArrayD<f64>) -> f64 {
-    let per_sample: Vec<f64> = a
-        .outer_iter()
-        .zip(r.outer_iter())
-        .map(|(x, y)| {
-            let diff: f64 = x.iter().zip(y.iter()).map(|(p, q)| (p - q).powi(2)).sum();
-            let norm: f64 = y.iter().map(|q| q * q).sum();
+    relative_l2_fields(std::slice::from_ref(a), std::slice::from_ref(r))
+}
+
+/// [`relative_l2`] over several fields of a batch taken together: the mean
+/// over the batch of `‖a_b − r_b‖ / ‖r_b‖`, the norms over every entry of
+/// every field of sample `b`.
+pub fn relative_l2_fields(a: &[ArrayD<f64>], r: &[ArrayD<f64>]) -> f64 {
+    let batch = r
+        .first()
+        .map_or(0, |f| f.shape().first().copied().unwrap_or(0));
+    let per_sample: Vec<f64> = (0..batch)
+        .map(|b| {
+            let (mut diff, mut norm) = (0.0, 0.0);
+            for (x, y) in a.iter().zip(r) {
+                let (x, y) = (x.index_axis(Axis(0), b), y.index_axis(Axis(0), b));
+                diff += x
+                    .iter()
+                    .zip(y.iter())
+                    .map(|(p, q)| (p - q).powi(2))
+                    .sum::<f64>();
+                norm += y.iter().map(|q| q * q).sum::<f64>();
+            }
             (diff / norm).sqrt()
         })
         .collect();
     per_sample.iter().sum::<f64>() / per_sample.len().max(1) as f64
 }
 
-/// An error of one predicted sample against its reference sample (each
-/// without the batch axis), for [`rollout_measured`]: a scene's own measure
-/// beside the relative L2 error of the whole state (the error of the velocity's
-/// deviation from the free stream, of the vorticity, …).
-pub type Metric<'a> = &'a (dyn Fn(ArrayViewD<'_, f64>, ArrayViewD<'_, f64>) -> f64 + Sync);
+/// An error of one predicted sample against its reference sample, each given
+/// as its fields (without the batch axis), for [`rollout_measured`]: a scene's
+/// own measure beside the relative L2 error of the physical fields (the error
+/// of the velocity's deviation from the free stream, of the vorticity, …).
+pub type Metric<'a> = &'a (dyn Fn(&[ArrayViewD<'_, f64>], &[ArrayViewD<'_, f64>]) -> f64 + Sync);
 
 /// The errors of one rollout against the reference.
 #[derive(Debug, Clone)]
 pub struct Rollout {
-    /// The relative L2 error after steps `1..=n`, mean over the trajectories.
+    /// The relative L2 error of the physical fields after steps `1..=n`, mean
+    /// over the trajectories.
     pub per_step: Vec<f64>,
     /// Per metric given to [`rollout_measured`], in order: its error after
     /// steps `1..=n`, mean over the trajectories (empty for [`rollout`]).
     pub measured: Vec<Vec<f64>>,
     /// The states after the last step, as a batch.
-    pub last: ArrayD<f64>,
+    pub last: State,
 }
 
 impl Rollout {
@@ -86,6 +104,11 @@ impl Rollout {
     pub fn measured_mean(&self, i: usize) -> Option<f64> {
         self.measured.get(i).map(|m| mean(m))
     }
+}
+
+/// The fields of sample `b` of the batch `s`, as views.
+fn sample(s: &State, b: usize) -> Vec<ArrayViewD<'_, f64>> {
+    s.fields.iter().map(|f| f.index_axis(Axis(0), b)).collect()
 }
 
 fn mean(v: &[f64]) -> f64 {
@@ -129,17 +152,20 @@ pub fn rollout_measured<S: Simulator + 'static, C: Corrector + 'static>(
         return Err(LearnError::invalid("rollout", "no trajectories"));
     }
     let mut u = states_at(trajectories, 0)?;
+    let physical = physical_fields(hybrid.simulator(), u.fields.len());
     let mut per_step = Vec::with_capacity(steps);
     let mut measured = vec![Vec::with_capacity(steps); metrics.len()];
     for t in 1..=steps {
         u = hybrid.step_plain(params, &u)?;
         let reference = states_at(trajectories, t)?;
-        per_step.push(relative_l2(&u, &reference));
+        per_step.push(relative_l2_fields(
+            &u.fields[..physical],
+            &reference.fields[..physical],
+        ));
         for (metric, errors) in metrics.iter().zip(&mut measured) {
             let error = mean(
-                &u.outer_iter()
-                    .zip(reference.outer_iter())
-                    .map(|(p, r)| metric(p, r))
+                &(0..u.batch_len())
+                    .map(|b| metric(&sample(&u, b), &sample(&reference, b)))
                     .collect::<Vec<_>>(),
             );
             if error.is_nan() {

@@ -10,19 +10,21 @@ use rand::Rng;
 
 use crate::data::{Split, TrainSeed, Trained};
 use crate::fit::{Fit, Validation};
-use crate::hybrid::{Corrector, Hybrid, Simulator};
-use crate::metrics::{batch_of, rollout, Trajectory};
-use crate::strategy::{standard_normal, Budget, LrSchedule, Strategy};
+use crate::hybrid::{physical_fields, Corrector, Hybrid, Simulator};
+use crate::metrics::{rollout, Trajectory};
+use crate::state::State;
+use crate::strategy::{Budget, LrSchedule, Strategy};
 use crate::{LearnError, Result};
 
 /// One training batch: the (possibly perturbed) start states and the reference
 /// states after each of the unroll's steps.
 #[derive(Debug, Clone)]
 pub struct Batch {
-    /// `[windows, …]`: the start states.
-    pub start: ArrayD<f64>,
-    /// `targets[j]`: the reference after step `j + 1`, `[windows, …]`.
-    pub targets: Rc<Vec<ArrayD<f64>>>,
+    /// The start states, a batch of `windows`.
+    pub start: State,
+    /// `targets[j]`: the reference's physical fields after step `j + 1`, each
+    /// `[windows, …]`.
+    pub targets: Rc<Vec<Vec<ArrayD<f64>>>>,
 }
 
 /// What one training produced.
@@ -68,33 +70,21 @@ pub struct Trainer {
 }
 
 impl Trainer {
-    /// Draws one batch for `strategy` from `train` (windows uniform over
-    /// trajectories and start steps; for [`Strategy::Noise`], `sigma · N(0, 1)`
-    /// added to every entry of the start states, as the default
-    /// [`Simulator::perturb`]; [`Trainer::train`] uses its simulator's).
+    /// Draws one batch for `strategy` from `train` for `simulator` (windows
+    /// uniform over trajectories and start steps; for [`Strategy::Noise`], the
+    /// start states perturbed by [`Simulator::perturb`]; the targets are the
+    /// physical fields).
     ///
     /// # Errors
     /// As [`Budget::windows`]; [`LearnError::EmptySplit`] without training
     /// trajectories; [`LearnError::Invalid`] for trajectories shorter than the
-    /// unroll.
-    pub fn draw_batch(
+    /// unroll or samples that do not stack.
+    pub fn draw_batch<S: Simulator + ?Sized>(
         &self,
+        simulator: &S,
         strategy: &Strategy,
         train: &[Trajectory],
         rng: &mut StdRng,
-    ) -> Result<Batch> {
-        self.draw(strategy, train, rng, &|start, sigma, rng| {
-            start.mapv_inplace(|x| x + sigma * standard_normal(rng));
-        })
-    }
-
-    /// [`Trainer::draw_batch`] with the noise added by `perturb`.
-    fn draw(
-        &self,
-        strategy: &Strategy,
-        train: &[Trajectory],
-        rng: &mut StdRng,
-        perturb: &dyn Fn(&mut ArrayD<f64>, f64, &mut StdRng),
     ) -> Result<Batch> {
         let windows = self.budget.windows(strategy)?;
         if train.is_empty() {
@@ -119,14 +109,21 @@ impl Trainer {
             .collect();
         let at = |j: usize| {
             let rows: Vec<_> = picks.iter().map(|&(i, t)| &train[i][t + j]).collect();
-            batch_of(&rows)
+            State::stack(&rows)
         };
         let mut start = at(0)?;
         let sigma = strategy.sigma();
         if sigma > 0.0 {
-            perturb(&mut start, sigma, rng);
+            simulator.perturb(&mut start, sigma, rng);
         }
-        let targets = (1..=k).map(at).collect::<Result<Vec<_>>>()?;
+        let physical = physical_fields(simulator, start.fields.len());
+        let targets = (1..=k)
+            .map(|j| {
+                let mut fields = at(j)?.fields;
+                fields.truncate(physical);
+                Ok(fields)
+            })
+            .collect::<Result<Vec<_>>>()?;
         Ok(Batch {
             start,
             targets: Rc::new(targets),
@@ -145,11 +142,11 @@ impl Trainer {
         strategy: &Strategy,
         batch: &Batch,
     ) -> diffphys_tape::Result<Var<'t, f64>> {
-        let s0 = tape.constant(batch.start.clone());
+        let s0 = batch.start.constants(tape);
         hybrid.unrolled_loss(
             tape,
             params,
-            s0,
+            &s0,
             Rc::clone(&batch.targets),
             strategy.schedule(),
         )
@@ -192,10 +189,7 @@ impl Trainer {
         }
         let mut rng = seed.sampling_rng();
         let simulator = hybrid.simulator();
-        let perturb = |start: &mut ArrayD<f64>, sigma: f64, rng: &mut StdRng| {
-            simulator.perturb(start, sigma, rng);
-        };
-        let probe = self.draw(&strategy, train, &mut rng.clone(), &perturb)?;
+        let probe = self.draw_batch(simulator, &strategy, train, &mut rng.clone())?;
         hybrid.check_shapes(&params, &probe.start)?;
 
         let fit = Fit {
@@ -209,7 +203,7 @@ impl Trainer {
             "trainer",
             params,
             |_, tape, p| {
-                let batch = self.draw(&strategy, train, &mut rng, &perturb)?;
+                let batch = self.draw_batch(simulator, &strategy, train, &mut rng)?;
                 Ok(Self::batch_loss(hybrid, tape, p, &strategy, &batch)?)
             },
             |params| validation_score(hybrid, params, validation, self.validation_steps),

@@ -13,8 +13,11 @@ const CELLS: usize = 8;
 struct Cubic;
 
 impl Simulator for Cubic {
-    fn step<'t>(&self, u: Var<'t, f64>) -> diffphys_tape::Result<Var<'t, f64>> {
-        u.mul_scalar(0.9)?.sub(u.powi(3)?.mul_scalar(0.05)?)
+    fn step<'t>(&self, u: &StateVars<'t>) -> diffphys_tape::Result<Vec<Var<'t, f64>>> {
+        let u = u.only()?;
+        Ok(vec![u
+            .mul_scalar(0.9)?
+            .sub(u.powi(3)?.mul_scalar(0.05)?)?])
     }
 }
 
@@ -29,9 +32,9 @@ impl Corrector for Net {
     fn correction<'t>(
         &self,
         p: &Bound<'t, f64>,
-        u: Var<'t, f64>,
-    ) -> diffphys_tape::Result<Var<'t, f64>> {
-        self.0.forward(p, u)
+        u: &StateVars<'t>,
+    ) -> diffphys_tape::Result<Vec<Var<'t, f64>>> {
+        Ok(vec![self.0.forward(p, u.only()?)?])
     }
 }
 
@@ -71,10 +74,10 @@ fn splits(seed: u64, sizes: [usize; 3], steps: usize) -> Splits<Vec<Trajectory>>
         Ok((0..n)
             .map(|_| {
                 let mut u = ArrayD::from_shape_fn(vec![1, CELLS], |_| rng.random_range(-1.0..1.0));
-                let mut tr = vec![u.clone()];
+                let mut tr = vec![State::from(u.clone())];
                 for _ in 0..steps {
                     u = reference_step(&u);
-                    tr.push(u.clone());
+                    tr.push(State::from(u.clone()));
                 }
                 tr
             })
@@ -125,9 +128,14 @@ fn every_strategy_gradient_matches_finite_differences() {
     let t = trainer(1, 12);
     for strategy in strategies() {
         let batch = t
-            .draw_batch(&strategy, &data.train, &mut TrainSeed(3).sampling_rng())
+            .draw_batch(
+                &Cubic,
+                &strategy,
+                &data.train,
+                &mut TrainSeed(3).sampling_rng(),
+            )
             .unwrap();
-        assert_eq!(batch.start.shape()[0], 12 / strategy.unroll());
+        assert_eq!(batch.start.batch_len(), 12 / strategy.unroll());
         let report = check_gradient(
             |tape, vars| {
                 let p = Bound::from_vars(vars.to_vec());
@@ -175,6 +183,7 @@ fn checkpointed_and_stored_unrolls_give_the_same_gradient() {
     };
     let batch = t
         .draw_batch(
+            &Cubic,
             &sol(Schedule::Full),
             &data.train,
             &mut TrainSeed(6).sampling_rng(),
@@ -266,11 +275,11 @@ fn early_stopping_keeps_the_untrained_model_when_training_only_hurts() {
         .train
         .iter()
         .map(|tr| {
-            let mut u = tr[0].clone();
-            let mut out = vec![u.clone()];
+            let mut u = tr[0].fields[0].clone();
+            let mut out = vec![State::from(u.clone())];
             for _ in 1..tr.len() {
                 u = u.mapv(|x| 0.6 * x);
-                out.push(u.clone());
+                out.push(State::from(u.clone()));
             }
             out
         })
@@ -375,7 +384,12 @@ fn bad_input_is_a_typed_error() {
         &|| {},
     );
     match result {
-        Err(LearnError::CorrectorShape { state, correction }) => {
+        Err(LearnError::CorrectorShape {
+            field,
+            state,
+            correction,
+        }) => {
+            assert_eq!(field, 0);
             assert_eq!(state, vec![8, 1, CELLS]);
             assert_eq!(correction, vec![8, 2, CELLS]);
         }
@@ -449,7 +463,8 @@ struct Pinned {
 }
 
 impl Simulator for Pinned {
-    fn step<'t>(&self, u: Var<'t, f64>) -> diffphys_tape::Result<Var<'t, f64>> {
+    fn step<'t>(&self, u: &StateVars<'t>) -> diffphys_tape::Result<Vec<Var<'t, f64>>> {
+        let u = u.only()?;
         let values = u.to_array();
         if values.iter().step_by(CELLS).any(|&p| p != 1.0) {
             return Err(diffphys_tape::TapeError::invalid(
@@ -457,11 +472,11 @@ impl Simulator for Pinned {
                 "the parameter entry was perturbed",
             ));
         }
-        u.mul(u.tape().constant(pin_mask(&u.shape(), 0.9)))
+        Ok(vec![u.mul(u.tape().constant(pin_mask(&u.shape(), 0.9)))?])
     }
 
-    fn perturb(&self, state: &mut ArrayD<f64>, sigma: f64, rng: &mut rand::rngs::StdRng) {
-        for (i, x) in state.iter_mut().enumerate() {
+    fn perturb(&self, state: &mut State, sigma: f64, rng: &mut rand::rngs::StdRng) {
+        for (i, x) in state.fields[0].iter_mut().enumerate() {
             let noise = sigma * standard_normal(rng);
             if !self.protect || i % CELLS != 0 {
                 *x += noise;
@@ -483,11 +498,12 @@ impl Corrector for PinnedNet {
     fn correction<'t>(
         &self,
         p: &Bound<'t, f64>,
-        u: Var<'t, f64>,
-    ) -> diffphys_tape::Result<Var<'t, f64>> {
-        let mask = pin_mask(&u.shape(), 1.0) - pin_mask(&u.shape(), 0.0);
-        let mask = u.tape().constant(mask);
-        self.0.correction(p, u)?.mul(mask)
+        u: &StateVars<'t>,
+    ) -> diffphys_tape::Result<Vec<Var<'t, f64>>> {
+        let shape = u.only()?.shape();
+        let mask = pin_mask(&shape, 1.0) - pin_mask(&shape, 0.0);
+        let mask = u.only()?.tape().constant(mask);
+        Ok(vec![self.0.correction(p, u)?[0].mul(mask)?])
     }
 }
 
@@ -503,10 +519,10 @@ fn noise_goes_through_the_simulators_perturbation() {
                         rng.random_range(-1.0..1.0)
                     }
                 });
-                let mut tr = vec![u.clone()];
+                let mut tr = vec![State::from(u.clone())];
                 for _ in 0..8 {
                     u = &u * &pin_mask(&[1, CELLS], 0.92);
-                    tr.push(u.clone());
+                    tr.push(State::from(u.clone()));
                 }
                 tr
             })
@@ -540,15 +556,16 @@ fn a_rollout_measures_the_scene_metrics_beside_the_relative_error() {
     assert!(plain.measured.is_empty());
     // The relative L2 error as a scene metric gives the same figures; the
     // largest absolute deviation is another.
-    let same = |p: ndarray::ArrayViewD<'_, f64>, r: ndarray::ArrayViewD<'_, f64>| {
+    type Fields<'a, 'b> = &'a [ndarray::ArrayViewD<'b, f64>];
+    let same = |p: Fields<'_, '_>, r: Fields<'_, '_>| {
         relative_l2(
-            &p.to_owned().insert_axis(ndarray::Axis(0)),
-            &r.to_owned().insert_axis(ndarray::Axis(0)),
+            &p[0].to_owned().insert_axis(ndarray::Axis(0)),
+            &r[0].to_owned().insert_axis(ndarray::Axis(0)),
         )
     };
-    let worst = |p: ndarray::ArrayViewD<'_, f64>, r: ndarray::ArrayViewD<'_, f64>| {
-        p.iter()
-            .zip(r.iter())
+    let worst = |p: Fields<'_, '_>, r: Fields<'_, '_>| {
+        p[0].iter()
+            .zip(r[0].iter())
             .map(|(a, b)| (a - b).abs())
             .fold(0.0, f64::max)
     };
@@ -564,7 +581,7 @@ fn a_rollout_measures_the_scene_metrics_beside_the_relative_error() {
     assert_eq!(measured.measured_mean(0).map(|m| m > 0.0), Some(true));
     assert_eq!(measured.measured_mean(2), None);
     // A metric that is not defined on these states is refused, not averaged.
-    let undefined = |_: ndarray::ArrayViewD<'_, f64>, _: ndarray::ArrayViewD<'_, f64>| f64::NAN;
+    let undefined = |_: Fields<'_, '_>, _: Fields<'_, '_>| f64::NAN;
     let refused = rollout_measured(&hybrid, Some(&params), &s.validation, 5, &[&undefined]);
     assert!(matches!(refused, Err(LearnError::Invalid { .. })));
 }

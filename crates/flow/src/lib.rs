@@ -16,6 +16,7 @@
 //! | [`forcing`] | Boussinesq buoyancy |
 //! | [`diagnostics`] | divergence, vorticity, drag and lift |
 //! | [`step`] | the [`Scene`] and the step composed of the above |
+//! | [`batch`] | batches of states as fields `[batch, …]`, a viscosity per sample (a learning library's state) |
 //! | [`packed`] | batches of states as one array, restriction by face averages |
 //! | [`validation`] | the validation flows against their references: Taylor–Green, the cavity (Ghia 1982), the DFG cylinder (Schäfer–Turek 1996) |
 //!
@@ -61,6 +62,7 @@
 #![warn(missing_docs)]
 
 pub mod advection;
+pub mod batch;
 pub mod boundaries;
 mod buffers;
 pub mod diagnostics;

@@ -36,6 +36,7 @@ mod wake_flow_scene;
 use std::collections::BTreeMap;
 use std::time::Instant;
 
+use diffphys::flow::FlowState;
 use diffphys::flow::PressureSolver;
 use diffphys::learn::study::{
     self as learn_study, pilot_learning_rates, run_jobs, Ledger, Plan, Protocol,
@@ -46,7 +47,6 @@ use diffphys::learn::{
 };
 use diffphys::nn::{Arithmetic, Params};
 use diffphys::report::{progress_bar, Progress};
-use ndarray::Array3;
 use serde_json::{json, Value};
 
 use diffphys::learn::cache::Cache;
@@ -103,9 +103,14 @@ fn one_step_rms(coarse: &Coarse, train: &[Trajectory]) -> Result<f64, BoxError> 
     let (mut sum, mut count) = (0.0, 0.0);
     for tr in train {
         for t in (0..tr.len() - 1).step_by(10) {
-            let next = coarse.step_plain(&State::stack(&[&tr[t]])?)?.remove(0);
-            let d = (&next.index_axis(ndarray::Axis(0), 0) - &tr[t + 1].fields[0]) * &free;
-            sum += d.mapv(|e| e * e).sum();
+            let next = coarse.step_plain(&State::stack(&[&tr[t]])?)?;
+            // u_x and u_y, each on its block of the free-face lattice.
+            for (c, (now, then)) in next.iter().zip(&tr[t + 1].fields).take(2).enumerate() {
+                let (a, b) = (then.shape()[0], then.shape()[1]);
+                let mask = free.slice(ndarray::s![c, ..a, ..b]);
+                let d = (&now.index_axis(ndarray::Axis(0), 0) - then) * mask;
+                sum += d.mapv(|e| e * e).sum();
+            }
             count += free.sum();
         }
     }

@@ -16,7 +16,8 @@ use diffphys::nn::Arithmetic;
 use ndarray::Array2;
 use wake_flow_scene::cli::{seeds, Cli, Command};
 use wake_flow_scene::{
-    free_faces, uncorrected, viscosity, Coarse, Net, NetSize, Options, Sizes, Variant, WakeError,
+    free_faces, sample, uncorrected, viscosity, Coarse, Net, NetSize, Options, Sizes, Variant,
+    WakeError,
 };
 
 /// The command line `wake_flow --small ARGS`, parsed by clap (which must
@@ -128,22 +129,24 @@ fn an_empty_split_is_refused() {
     }
 }
 
+/// Views of a sample's fields.
+fn views(fields: &[ndarray::ArrayD<f64>]) -> Vec<ndarray::ArrayViewD<'_, f64>> {
+    fields.iter().map(|a| a.view()).collect()
+}
+
 fn coarse() -> Coarse {
     Coarse::new(uncorrected(&Sizes::small(), 1, PressureSolver::Cholesky).unwrap())
 }
 
-fn probe(c: &Coarse) -> ndarray::ArrayD<f64> {
+/// A batch of one uniform flow at Re 400.
+fn probe(c: &Coarse) -> State {
     let g = c.scene.grid();
     let s = FlowState::from_velocity(
         &c.scene,
         Array2::from_elem(g.shape_x(), 1.0),
         Array2::zeros(g.shape_y()),
     );
-    c.scene
-        .pack(&s, viscosity(400.0))
-        .unwrap()
-        .insert_axis(ndarray::Axis(0))
-        .into_dyn()
+    State::stack(&[&sample(&c.scene, &s, viscosity(400.0))]).unwrap()
 }
 
 #[test]
@@ -162,17 +165,11 @@ fn a_corrector_of_the_wrong_shape_is_refused() {
     )
     .unwrap();
     let hybrid = Hybrid::new(c.clone(), net);
-    match hybrid.check_shapes(&params, &State::from(probe(&c))) {
-        Err(LearnError::CorrectorShape {
-            field,
-            state,
-            correction,
-        }) => {
-            assert_eq!(field, 0);
-            assert_eq!(state[1], 2);
-            assert_eq!(correction[1], 3);
+    match hybrid.check_shapes(&params, &probe(&c)) {
+        Err(LearnError::CorrectorFields { expected, got }) => {
+            assert_eq!((expected, got), (2, 3));
         }
-        other => panic!("expected a corrector shape error, got {other:?}"),
+        other => panic!("expected a corrector-fields error, got {other:?}"),
     }
     let (net, params) = Net::new(
         &c.scene,
@@ -182,7 +179,7 @@ fn a_corrector_of_the_wrong_shape_is_refused() {
     )
     .unwrap();
     Hybrid::new(c.clone(), net)
-        .check_shapes(&params, &State::from(probe(&c)))
+        .check_shapes(&params, &probe(&c))
         .unwrap();
 }
 
@@ -190,24 +187,23 @@ fn a_corrector_of_the_wrong_shape_is_refused() {
 fn noise_leaves_the_viscosity_and_the_fixed_faces_alone() {
     let c = coarse();
     let clean = probe(&c);
-    let mut noisy = State::from(clean.clone());
+    let mut noisy = clean.clone();
     c.perturb(&mut noisy, 0.1, &mut TrainSeed(2).sampling_rng());
-    let noisy = noisy.fields.remove(0);
+    assert_eq!(noisy.params, clean.params, "the viscosity moved");
     let free = free_faces(&c.scene);
-    let [_, a, b] = c.scene.packed_shape();
-    assert_eq!(free[[1, a - 1, b - 1]], 0.0);
-    assert_eq!(noisy[[0, 1, a - 1, b - 1]], viscosity(400.0));
     let mut moved = 0;
-    for ((i, &x), &m) in noisy.indexed_iter().zip(clean.iter()) {
-        let f = free[[i[1], i[2], i[3]]];
-        if f == 0.0 {
-            assert_eq!(x, m, "fixed entry {i:?} moved");
-        } else if x != m {
-            moved += 1;
+    for (channel, (n, m)) in noisy.fields.iter().zip(&clean.fields).enumerate() {
+        for ((i, &x), &y) in n.indexed_iter().zip(m.iter()) {
+            if free[[channel, i[1], i[2]]] == 0.0 {
+                assert_eq!(x, y, "fixed face {channel} {i:?} moved");
+            } else if x != y {
+                moved += 1;
+            }
         }
     }
     assert!(moved as f64 > 0.9 * free.sum());
     // The inflow face and the padding are fixed.
+    let b = free.shape()[2];
     assert_eq!(free[[0, 0, 3]], 0.0);
     assert_eq!(free[[0, 3, b - 1]], 0.0);
 }
@@ -318,16 +314,12 @@ fn pinned_after_one_reference_step(body: wake_flow_scene::Body) -> f64 {
         after.uy.view(),
     )
     .unwrap();
-    let state = coarse
-        .scene
-        .pack(
-            &FlowState::from_velocity(&coarse.scene, ux, uy),
-            fine.params().viscosity,
-        )
-        .unwrap()
-        .into_dyn();
     let free = free_faces(&coarse.scene);
-    let state = State::from(state);
+    let state = sample(
+        &coarse.scene,
+        &FlowState::from_velocity(&coarse.scene, ux, uy),
+        fine.params().viscosity,
+    );
     study::pinned_face_error(&coarse, &free, &vec![state.clone(), state]).unwrap()
 }
 
@@ -462,23 +454,27 @@ fn the_deviation_and_vorticity_errors_measure_the_wake_not_the_free_stream() {
     });
     let state = |uy: Array2<f64>| {
         let s = FlowState::from_velocity(&c.scene, Array2::from_elem(g.shape_x(), 1.0), uy);
-        c.scene.pack(&s, viscosity(400.0)).unwrap().into_dyn()
+        c.scene.sample_of(&s)
     };
     let (r, p) = (state(0.1 * &wave), state(Array2::zeros(g.shape_y())));
-    assert_eq!(deviation_error(&c.scene, r.view(), r.view()), 0.0);
-    assert_eq!(vorticity_error(&c.scene, r.view(), r.view()), 0.0);
+    let (rv, pv) = (views(&r), views(&p));
+    assert_eq!(deviation_error(&c.scene, &rv, &rv), 0.0);
+    assert_eq!(vorticity_error(&c.scene, &rv, &rv), 0.0);
     // Missing the whole deviation is an error of 1 (100 %), however small the
     // wave is against the free stream; the state's relative error is not.
-    let missed = deviation_error(&c.scene, p.view(), r.view());
+    let missed = deviation_error(&c.scene, &pv, &rv);
     assert!((missed - 1.0).abs() < 1e-12, "{missed}");
-    let whole = diffphys::learn::relative_l2(
-        &p.clone().insert_axis(ndarray::Axis(0)),
-        &r.clone().insert_axis(ndarray::Axis(0)),
-    );
+    let batch = |f: &[ndarray::ArrayD<f64>]| {
+        f.iter()
+            .map(|a| a.clone().insert_axis(ndarray::Axis(0)))
+            .collect::<Vec<_>>()
+    };
+    let whole = diffphys::learn::relative_l2_fields(&batch(&p), &batch(&r));
     assert!(whole < 0.2 * missed, "{whole}");
-    assert!(vorticity_error(&c.scene, p.view(), r.view()) > 0.5);
-    // Not a packed state of the scene: NaN, which the rollout refuses.
-    let wrong = ndarray::ArrayD::<f64>::zeros(vec![2, 3, 3]);
-    assert!(deviation_error(&c.scene, wrong.view(), r.view()).is_nan());
-    assert!(vorticity_error(&c.scene, r.view(), wrong.view()).is_nan());
+    assert!(vorticity_error(&c.scene, &pv, &rv) > 0.5);
+    // Not a state of the scene: NaN, which the rollout refuses.
+    let wrong = ndarray::ArrayD::<f64>::zeros(vec![3, 3]);
+    let wrong = [wrong.view(), wrong.view()];
+    assert!(deviation_error(&c.scene, &wrong, &rv).is_nan());
+    assert!(vorticity_error(&c.scene, &rv, &wrong).is_nan());
 }

@@ -11,25 +11,29 @@
 use diffphys::flow::diagnostics::obstacle_force;
 use diffphys::flow::{restrict_velocity, FlowParams, FlowState, Scene};
 use diffphys::learn::study::run_jobs;
-use diffphys::learn::{relative_l2, DataSeed, Split};
+use diffphys::learn::{DataSeed, Split};
 use diffphys::report::progress_bar;
-use ndarray::{Array3, Axis};
 use serde_json::{json, Value};
 
 use super::data::{advance_by, start_state, Bump};
-use super::study::deviation_error;
+use super::study::{deviation_error, velocity_error};
 use super::{
     reference_scene_at, uncorrected, viscosity, Options, Result, Sizes, WakeError, DIAMETER,
     FACTOR, U_IN,
 };
 use diffphys::flow::PressureSolver;
 
-/// One level's recorded window at one Re: the states restricted to the
-/// coarse grid and packed, and the force coefficients after each coarse step.
+/// One level's recorded window at one Re: the velocities restricted to the
+/// coarse grid, and the force coefficients after each coarse step.
 struct Window {
-    states: Vec<Array3<f64>>,
+    states: Vec<FlowState<f64>>,
     /// `(c_D, c_L)` at each recorded state, `2 F / (U² D)`.
     forces: Vec<[f64; 2]>,
+}
+
+/// Views of a sample's fields.
+fn views(fields: &[ndarray::ArrayD<f64>]) -> Vec<ndarray::ArrayViewD<'_, f64>> {
+    fields.iter().map(|a| a.view()).collect()
 }
 
 /// The scenes of one level: its factor and its solver.
@@ -64,7 +68,7 @@ fn window(
             tick(1);
         }
         let (ux, uy) = restrict_velocity(coarse.grid(), level.factor, s.ux.view(), s.uy.view())?;
-        states.push(coarse.pack(&FlowState::from_velocity(coarse, ux, uy), nu)?);
+        states.push(FlowState::from_velocity(coarse, ux, uy));
         let f = obstacle_force(
             fine.force_weights(),
             s.ux.view(),
@@ -176,20 +180,22 @@ pub fn check(options: &Options, sizes: &Sizes, data_seed: u64) -> Result<Value> 
         let (i, re, _) = pair[0];
         let (ours, finer) = (&level_windows[0], &level_windows[1]);
         let steps = 1..ours.states.len();
-        let batch = |a: &Array3<f64>| a.clone().into_dyn().insert_axis(Axis(0));
         let state: f64 = steps
             .clone()
-            .map(|t| relative_l2(&batch(&ours.states[t]), &batch(&finer.states[t])))
+            .map(|t| {
+                let s = &ours.states[t];
+                velocity_error((&s.ux, &s.uy), &finer.states[t])
+            })
             .sum::<f64>()
             / steps.len() as f64;
         let deviation: f64 = steps
             .clone()
             .map(|t| {
                 let (p, r) = (
-                    ours.states[t].view().into_dyn(),
-                    finer.states[t].view().into_dyn(),
+                    coarse.sample_of(&ours.states[t]),
+                    coarse.sample_of(&finer.states[t]),
                 );
-                deviation_error(&coarse, p, r)
+                deviation_error(&coarse, &views(&p), &views(&r))
             })
             .sum::<f64>()
             / steps.len() as f64;

@@ -7,28 +7,29 @@
 //! sign drawn from the split's stream of the data seed) the reference runs
 //! `warm_base` coarse steps at `base_re`. Per Reynolds number, from its split's
 //! base state: `warm` coarse steps at that Re (the skipped transient), then
-//! `record` coarse steps, each restricted and packed, plus the fine velocity
-//! at the rollout starts (the finer uncorrected solvers start from it).
+//! `record` coarse steps, each restricted (velocity by face averages, pressure
+//! by cell averages), plus the fine velocity at the rollout starts (the finer
+//! uncorrected solvers start from it).
 
 use std::path::Path;
 
-use diffphys::flow::{restrict_velocity, FlowParams, FlowState, Scene};
+use diffphys::flow::{restrict_pressure, restrict_velocity, FlowParams, FlowState, Scene};
 use diffphys::learn::cache::{self, Arrays};
-use ndarray::{Array2, Array3, ArrayD, Axis, Ix2, Ix3};
+use ndarray::{Array2, ArrayD, Axis, Ix2, Ix3};
 use rand::Rng;
 
 use super::{viscosity, Body, ReferenceScheme, Result, Sizes, WakeError, CENTRE, FACTOR, U_IN};
 
 /// Bump this when the generation changes in a way the settings do not show.
-const VERSION: u32 = 1;
+const VERSION: u32 = 2;
 
 /// The reference of one Reynolds number.
 #[derive(Debug, Clone)]
 pub struct Reference {
     /// The Reynolds number.
     pub re: f64,
-    /// `record + 1` packed coarse states (`[2, nx + 1, ny + 1]`).
-    pub states: Vec<Array3<f64>>,
+    /// `record + 1` coarse states (velocity and pressure, restricted).
+    pub states: Vec<FlowState<f64>>,
     /// The fine velocity `(u_x, u_y)` at each rollout start of `Sizes::starts`.
     pub fine_starts: Vec<(Array2<f64>, Array2<f64>)>,
 }
@@ -217,13 +218,22 @@ pub fn reference(
                 tick(1);
             }
             let (ux, uy) = restrict_velocity(coarse.grid(), FACTOR, s.ux.view(), s.uy.view())?;
-            states.push(coarse.pack(&FlowState::from_velocity(coarse, ux, uy), nu)?);
+            let pressure = restrict_pressure(coarse.grid(), FACTOR, s.pressure.view())?;
+            states.push(FlowState {
+                pressure,
+                ..FlowState::from_velocity(coarse, ux, uy)
+            });
             if sizes.starts.contains(&t) {
                 fine_starts.push((s.ux.clone(), s.uy.clone()));
             }
         }
         Ok::<_, WakeError>(vec![
-            ("states".into(), stacked(states.iter())?),
+            ("ux".into(), stacked(states.iter().map(|s| &s.ux))?),
+            ("uy".into(), stacked(states.iter().map(|s| &s.uy))?),
+            (
+                "pressure".into(),
+                stacked(states.iter().map(|s| &s.pressure))?,
+            ),
             ("fine_ux".into(), stacked(fine_starts.iter().map(|f| &f.0))?),
             ("fine_uy".into(), stacked(fine_starts.iter().map(|f| &f.1))?),
         ])
@@ -233,12 +243,22 @@ pub fn reference(
     if hit {
         tick((sizes.warm + sizes.record) as u64);
     }
-    let states = take::<ndarray::Ix4>(&mut arrays, "states")?;
+    let ux = take::<Ix3>(&mut arrays, "ux")?;
+    let uy = take::<Ix3>(&mut arrays, "uy")?;
+    let pressure = take::<Ix3>(&mut arrays, "pressure")?;
     let fine_ux = take::<Ix3>(&mut arrays, "fine_ux")?;
     let fine_uy = take::<Ix3>(&mut arrays, "fine_uy")?;
     Ok(Reference {
         re,
-        states: states.outer_iter().map(|s| s.to_owned()).collect(),
+        states: ux
+            .outer_iter()
+            .zip(uy.outer_iter())
+            .zip(pressure.outer_iter())
+            .map(|((ux, uy), p)| FlowState {
+                pressure: p.to_owned(),
+                ..FlowState::from_velocity(coarse, ux.to_owned(), uy.to_owned())
+            })
+            .collect(),
         fine_starts: fine_ux
             .outer_iter()
             .zip(fine_uy.outer_iter())

@@ -19,8 +19,9 @@
 //! - uncorrected finer solvers for the speed study: the coarse scheme at 2×
 //!   and 4× the resolution (`dt / 2`, `dt / 4`).
 //!
-//! A coarse state is packed as `[2, nx + 1, ny + 1]` with its viscosity in a
-//! corner ([`diffphys::flow::packed`]), so one batch mixes Reynolds numbers.
+//! A coarse state is its fields (`u_x`, `u_y`) with its viscosity as the
+//! sample's parameter ([`diffphys::flow::batch`]), so one batch mixes
+//! Reynolds numbers.
 
 pub mod cli;
 pub mod convergence;
@@ -32,7 +33,8 @@ pub mod study;
 
 pub use net::{Net, NetSize, MAIN_SIZE, SIZES};
 pub use solvers::{
-    free_faces, reference_scene, reference_scene_at, uncorrected, Body, Coarse, ReferenceScheme,
+    free_faces, reference_scene, reference_scene_at, sample, uncorrected, Body, Coarse,
+    ReferenceScheme,
 };
 
 use diffphys::flow::{Advection, FlowError};

@@ -52,7 +52,8 @@ impl std::fmt::Display for NetSize {
     }
 }
 
-/// The corrector: a ResNet on (`u_x`, `u_y`, Re code) over the packed lattice,
+/// The corrector: a ResNet on (`u_x`, `u_y`, Re code) over the lattice
+/// `[nx + 1, ny + 1]` ([`free_faces`]),
 /// ReLU, its last layer starting at zero (the hybrid starts as the coarse
 /// solver); its output is masked to the [`free_faces`].
 pub struct Net {
@@ -142,41 +143,69 @@ fn repeat(a: &ArrayD<f64>, n: usize) -> ArrayD<f64> {
 }
 
 impl Corrector for Net {
+    /// The velocity on the lattice (`u_x` and `u_y` zero-padded to
+    /// `[nx + 1, ny + 1]` as two channels, masked to the free faces) and the
+    /// Re code of each sample's viscosity in, one correction per velocity
+    /// component out (masked to its free faces).
     fn correction<'t>(
         &self,
         p: &Bound<'t, f64>,
         state: &StateVars<'t>,
     ) -> diffphys::tape::Result<Vec<Var<'t, f64>>> {
-        let state = state.only()?;
-        let tape = state.tape();
-        let shape = state.shape();
-        let (n, a, b) = (shape[0], shape[2], shape[3]);
-        if shape[1..] != self.free.shape()[..] {
-            return Err(TapeError::shape(
-                "wake corrector input",
-                self.free.shape(),
-                &shape[1..],
+        let (Some(&ux), Some(&uy), Some(&nu)) = (
+            state.fields.first(),
+            state.fields.get(1),
+            state.params.first(),
+        ) else {
+            return Err(TapeError::invalid(
+                "wake corrector",
+                "a state of u_x, u_y and a viscosity per sample",
             ));
+        };
+        let tape = ux.tape();
+        let (a, b) = (self.free.shape()[1], self.free.shape()[2]);
+        let n = ux.shape()[0];
+        for (name, v, shape) in [("u_x", ux, [n, a, b - 1]), ("u_y", uy, [n, a - 1, b])] {
+            if v.shape() != shape {
+                return Err(TapeError::shape(name, &shape, &v.shape()));
+            }
         }
+        let lattice = Var::concat(
+            &[
+                ux.reshape(&[n, 1, a, b - 1])?.pad(3, 0, 1)?,
+                uy.reshape(&[n, 1, a - 1, b])?.pad(2, 0, 1)?,
+            ],
+            1,
+        )?;
         let free = tape.constant(repeat(&self.free, n));
-        // The Re channel is data: read from each sample's viscosity corner.
-        let values = state.to_array();
+        // The Re channel is data: read from each sample's viscosity.
+        let values = nu.to_array();
         let mut code = ArrayD::zeros(vec![n, 1, a, b]);
-        for k in 0..n {
-            let c = re_code(values[[k, 1, a - 1, b - 1]]);
-            code.index_axis_mut(ndarray::Axis(0), k).fill(c);
+        for (k, &v) in values.iter().enumerate() {
+            code.index_axis_mut(ndarray::Axis(0), k).fill(re_code(v));
         }
-        let x = Var::concat(&[state.mul(free)?, tape.constant(code)], 1)?;
+        let x = Var::concat(&[lattice.mul(free)?, tape.constant(code)], 1)?;
         let mut h = self.stem.forward(p, x)?.relu()?;
         for (c1, c2) in &self.blocks {
             let r = c1.forward(p, h)?.relu()?;
             h = h.add(c2.forward(p, r)?)?.relu()?;
         }
-        let out = self.head.forward(p, h)?;
-        if self.c_out != 2 {
-            return Ok(vec![out]);
+        let mut out = self.head.forward(p, h)?;
+        if self.c_out == 2 {
+            out = out.mul(free)?;
         }
-        Ok(vec![out.mul(free)?])
+        // Channel 0 back to u_x's faces, channel 1 to u_y's; any further
+        // channel (a wrong head) comes back whole, for the library to refuse.
+        (0..self.c_out)
+            .map(|c| {
+                let ch = out.slice(1, c, c + 1)?;
+                match c {
+                    0 => ch.slice(3, 0, b - 1)?.reshape(&[n, a, b - 1]),
+                    1 => ch.slice(2, 0, a - 1)?.reshape(&[n, a - 1, b]),
+                    _ => ch.reshape(&[n, a, b]),
+                }
+            })
+            .collect()
     }
 }
 

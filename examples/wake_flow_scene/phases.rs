@@ -87,12 +87,12 @@ pub(crate) fn untrained(
     let train: Vec<Trajectory> = splits
         .train
         .iter()
-        .map(|r| study::window(r, 0, r.states.len()))
+        .map(|r| study::window(&coarse.scene, r, 0, r.states.len()))
         .collect::<Result<_, _>>()?;
     let validation: Vec<Trajectory> = splits
         .validation
         .iter()
-        .map(|r| study::window(r, 0, sizes.rollout + 1))
+        .map(|r| study::window(&coarse.scene, r, 0, sizes.rollout + 1))
         .collect::<Result<_, _>>()?;
     let sigma = one_step_rms(coarse, &train)?;
     // What no corrector can remove: the pinned faces' error (train and
@@ -397,7 +397,7 @@ fn baselines(
     ctx: &Ctx,
     splits: &Splits<Vec<Reference>>,
     bar: &(dyn Progress + Sync),
-) -> Result<(HeldOutRun, Array3<f64>), BoxError> {
+) -> Result<(HeldOutRun, FlowState<f64>), BoxError> {
     let invalid = |e: BoxError| diffphys::learn::LearnError::Invalid {
         what: "held-out",
         message: e.to_string(),

@@ -82,7 +82,12 @@ pub(crate) fn report(
     let npy: Vec<(String, ndarray::ArrayViewD<'_, f64>)> = results
         .last
         .iter()
-        .map(|(name, a)| (format!("last_{name}"), a.view().into_dyn()))
+        .flat_map(|(name, s)| {
+            [
+                (format!("last_{name}_ux"), s.ux.view().into_dyn()),
+                (format!("last_{name}_uy"), s.uy.view().into_dyn()),
+            ]
+        })
         .collect();
     args.write_npy(
         &npy.iter()
@@ -90,7 +95,7 @@ pub(crate) fn report(
                 (
                     n.as_str(),
                     a.view(),
-                    "packed [2, nx + 1, ny + 1] velocity (u_x, u_y; viscosity in the corner) after the long rollout at the first held-out Re",
+                    "velocity component (u_x [nx + 1, ny] or u_y [nx, ny + 1]) after the long rollout at the first held-out Re",
                 )
             })
             .collect::<Vec<_>>(),
@@ -286,7 +291,7 @@ pub(crate) struct Results {
     pub(crate) vorticity: Report,
     pub(crate) per_re: PerRe,
     pub(crate) curves: BTreeMap<String, Vec<Vec<f64>>>,
-    pub(crate) last: BTreeMap<String, Array3<f64>>,
+    pub(crate) last: BTreeMap<String, FlowState<f64>>,
 }
 
 impl Results {

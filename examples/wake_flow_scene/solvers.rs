@@ -2,7 +2,9 @@
 //! coarse, reference and finer uncorrected scenes, and the coarse solver as the
 //! learning library's simulator.
 
-use diffphys::flow::{Advection, Boundary, Obstacle, PressureSolver, Scene, Sides, Splitting};
+use diffphys::flow::{
+    Advection, Boundary, FlowState, Obstacle, PressureSolver, Scene, Sides, Splitting,
+};
 use diffphys::learn::{standard_normal, Simulator, State, StateVars};
 use diffphys::tape::{ArrayD, Var};
 use ndarray::Array2;
@@ -158,8 +160,7 @@ pub fn wake_scene(
 }
 
 /// The coarse solver's scheme at `level` times the coarse resolution
-/// (`dt / level`): the advection of `sizes`, plain splitting (a packed state
-/// carries no pressure).
+/// (`dt / level`): the advection of `sizes`, plain splitting.
 pub fn uncorrected(sizes: &Sizes, level: usize, pressure: PressureSolver) -> Result<Scene> {
     wake_scene(
         level * sizes.nx,
@@ -204,8 +205,10 @@ pub fn reference_scene_at(sizes: &Sizes, factor: usize) -> Result<Scene> {
     )
 }
 
-/// The coarse solver as the learning library's simulator: one packed step of
-/// a batch `[batch, 2, nx + 1, ny + 1]`; input noise only on the
+/// The coarse solver as the learning library's simulator: one step of a batch
+/// of states as fields (`u_x`, `u_y`, and the pressure when the scheme
+/// carries it, an auxiliary: [`diffphys::flow::batch`]), each sample at its
+/// own viscosity (the state's parameter, `[batch]`); input noise only on the
 /// [`free_faces`].
 #[derive(Debug, Clone)]
 pub struct Coarse {
@@ -222,28 +225,65 @@ impl Coarse {
     }
 }
 
+/// The viscosities of a batch: its one parameter.
+fn viscosities<T>(params: &[T]) -> diffphys::tape::Result<&T> {
+    params.first().ok_or_else(|| {
+        diffphys::tape::TapeError::invalid("wake state", "no viscosity among the parameters")
+    })
+}
+
 impl Simulator for Coarse {
+    fn auxiliary_fields(&self) -> usize {
+        self.scene.batch_fields() - 2
+    }
+
     fn step<'t>(&self, state: &StateVars<'t>) -> diffphys::tape::Result<Vec<Var<'t, f64>>> {
-        Ok(vec![self.scene.step_packed(state.only()?)?])
+        Ok(self
+            .scene
+            .step_batch(&state.fields, *viscosities(&state.params)?)?)
     }
 
     fn step_plain(&self, state: &State) -> diffphys::tape::Result<Vec<ArrayD<f64>>> {
-        Ok(vec![self.scene.forward_packed(state.fields[0].view())?])
+        let fields: Vec<_> = state.fields.iter().map(|f| f.view()).collect();
+        Ok(self
+            .scene
+            .forward_batch(&fields, viscosities(&state.params)?.view())?)
     }
 
+    /// The noise is drawn on the corrector's lattice (`[2, nx + 1, ny + 1]`,
+    /// [`free_faces`]), one normal number per lattice entry in order, and
+    /// added where the lattice holds a free face.
     fn perturb(&self, state: &mut State, sigma: f64, rng: &mut StdRng) {
-        for mut sample in state.fields[0].outer_iter_mut() {
-            for (x, &m) in sample.iter_mut().zip(self.free.iter()) {
-                let noise = sigma * standard_normal(rng);
-                *x += m * noise;
+        let (a, b) = (self.free.shape()[1], self.free.shape()[2]);
+        let (ux, rest) = state.fields.split_at_mut(1);
+        let (ux, uy) = (&mut ux[0], &mut rest[0]);
+        for n in 0..ux.shape()[0] {
+            for (c, field) in [&mut *ux, &mut *uy].into_iter().enumerate() {
+                let shape = [field.shape()[1], field.shape()[2]];
+                for i in 0..a {
+                    for j in 0..b {
+                        let noise = sigma * standard_normal(rng);
+                        if i < shape[0] && j < shape[1] {
+                            field[[n, i, j]] += self.free[[c, i, j]] * noise;
+                        }
+                    }
+                }
             }
         }
     }
 }
 
-/// The faces a correction may change, packed (`[2, nx + 1, ny + 1]`): not the
-/// padding, not the inflow face, not the side walls' normal faces, not the
-/// faces of solid cells, not the viscosity corner.
+/// One sample of the coarse solver's state: the fields `scene` carries of
+/// `state` and its viscosity `nu`.
+pub fn sample(scene: &Scene, state: &FlowState<f64>, nu: f64) -> State {
+    State::new(scene.sample_of(state), vec![ndarray::arr0(nu).into_dyn()])
+}
+
+/// The faces a correction may change, on the corrector's lattice
+/// (`[2, nx + 1, ny + 1]`: `u_x` in the top-left `[nx + 1, ny]` of channel 0,
+/// `u_y` in the top-left `[nx, ny + 1]` of channel 1): not the padding, not
+/// the inflow face, not the side walls' normal faces, not the faces of solid
+/// cells.
 pub fn free_faces(scene: &Scene) -> ArrayD<f64> {
     let g = scene.grid();
     let solid = scene.solid();

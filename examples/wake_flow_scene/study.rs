@@ -9,20 +9,20 @@ use std::time::Instant;
 use diffphys::flow::diagnostics::vorticity;
 use diffphys::flow::{restrict_velocity, FlowParams, FlowState, PressureSolver, Scene};
 use diffphys::learn::{
-    relative_l2, rollout, rollout_measured, Corrector, Hybrid, Simulator, State, Summary,
+    relative_l2_fields, rollout, rollout_measured, Corrector, Hybrid, Simulator, State, Summary,
     Trajectory,
 };
 use diffphys::nn::Params;
 use diffphys::report::chart::{
     heatmap_panels_svg, line_chart_svg, HeatmapPanels, LineChart, Outline, Series,
 };
-use ndarray::{Array2, Array3, ArrayViewD, Axis};
+use ndarray::{Array2, ArrayViewD, Axis};
 use serde_json::{json, Value};
 
 use super::data::Reference;
 use super::{
-    uncorrected, viscosity, Coarse, NetSize, Options, Result, Sizes, Variant, WakeError, CENTRE,
-    DIAMETER, FACTOR, U_IN,
+    sample, uncorrected, viscosity, Coarse, NetSize, Options, Result, Sizes, Variant, WakeError,
+    CENTRE, DIAMETER, FACTOR, U_IN,
 };
 
 /// One model's held-out rollouts at one Reynolds number.
@@ -41,8 +41,8 @@ pub struct ReRun {
     pub curve: Vec<f64>,
     /// The mean relative L2 error of the long rollout.
     pub long: f64,
-    /// The long rollout's last state (packed).
-    pub last: Array3<f64>,
+    /// The long rollout's last state.
+    pub last: FlowState<f64>,
 }
 
 /// One model's held-out rollouts at every held-out Reynolds number.
@@ -83,11 +83,12 @@ impl HeldOutRun {
     }
 }
 
-/// `count` states of a reference from step `start`, as a trajectory.
+/// `count` states of a reference from step `start`, as a trajectory of the
+/// coarse solver `scene`'s samples.
 ///
 /// # Errors
 /// [`WakeError::Argument`] if the reference has fewer.
-pub fn window(r: &Reference, start: usize, count: usize) -> Result<Trajectory> {
+pub fn window(scene: &Scene, r: &Reference, start: usize, count: usize) -> Result<Trajectory> {
     if start + count > r.states.len() {
         return Err(WakeError::Argument {
             option: "rollout".into(),
@@ -97,26 +98,23 @@ pub fn window(r: &Reference, start: usize, count: usize) -> Result<Trajectory> {
             ),
         });
     }
+    let nu = viscosity(r.re);
     Ok(r.states[start..start + count]
         .iter()
-        .map(|s| State::from(s.clone().into_dyn()))
+        .map(|s| sample(scene, s, nu))
         .collect())
 }
 
 /// One sample's fields, as a metric of a rollout reads them.
 type Fields<'a, 'b> = &'a [ArrayViewD<'b, f64>];
 
-/// The packed samples `p` and `r` as velocities; `None` for another shape.
+/// The samples `p` and `r` as states of `scene`; `None` for other fields.
 fn velocities(
     scene: &Scene,
-    p: ArrayViewD<'_, f64>,
-    r: ArrayViewD<'_, f64>,
+    p: Fields<'_, '_>,
+    r: Fields<'_, '_>,
 ) -> Option<(FlowState<f64>, FlowState<f64>)> {
-    let unpack = |a: ArrayViewD<'_, f64>| {
-        let a = a.into_dimensionality().ok()?;
-        scene.unpack(a).ok().map(|(s, _)| s)
-    };
-    Some((unpack(p)?, unpack(r)?))
+    Some((scene.state_of(p).ok()?, scene.state_of(r).ok()?))
 }
 
 /// `sqrt(Σ a² / Σ b²)` over paired entries `(a, b)`.
@@ -128,8 +126,8 @@ fn ratio(pairs: impl Iterator<Item = (f64, f64)>) -> f64 {
 /// The relative L2 error of the velocity's deviation from the free stream,
 /// `‖u_p − u_r‖ / ‖u_r − U e_x‖` over the faces: the uniform inflow, which
 /// dominates the norm of the whole state, leaves the denominator (docs/11,
-/// "Metrics"). NaN for samples that are not packed states of `scene`.
-pub fn deviation_error(scene: &Scene, p: ArrayViewD<'_, f64>, r: ArrayViewD<'_, f64>) -> f64 {
+/// "Metrics"). NaN for samples that are not states of `scene`.
+pub fn deviation_error(scene: &Scene, p: Fields<'_, '_>, r: Fields<'_, '_>) -> f64 {
     let Some((p, r)) = velocities(scene, p, r) else {
         return f64::NAN;
     };
@@ -139,9 +137,8 @@ pub fn deviation_error(scene: &Scene, p: ArrayViewD<'_, f64>, r: ArrayViewD<'_, 
 }
 
 /// The relative L2 error of the vorticity over the cells,
-/// `‖ω_p − ω_r‖ / ‖ω_r‖`. NaN for samples that are not packed states of
-/// `scene`.
-pub fn vorticity_error(scene: &Scene, p: ArrayViewD<'_, f64>, r: ArrayViewD<'_, f64>) -> f64 {
+/// `‖ω_p − ω_r‖ / ‖ω_r‖`. NaN for samples that are not states of `scene`.
+pub fn vorticity_error(scene: &Scene, p: Fields<'_, '_>, r: Fields<'_, '_>) -> f64 {
     let Some((p, r)) = velocities(scene, p, r) else {
         return f64::NAN;
     };
@@ -165,16 +162,14 @@ pub fn held_out_re<C: Corrector + 'static>(
     r: &Reference,
     sizes: &Sizes,
 ) -> Result<ReRun> {
+    let scene = &hybrid.simulator().scene;
     let windows = sizes
         .starts
         .iter()
-        .map(|&s| window(r, s, sizes.rollout + 1))
+        .map(|&s| window(scene, r, s, sizes.rollout + 1))
         .collect::<Result<Vec<_>>>()?;
-    let scene = &hybrid.simulator().scene;
-    let deviation =
-        |p: Fields<'_, '_>, r: Fields<'_, '_>| deviation_error(scene, p[0].view(), r[0].view());
-    let vorticity =
-        |p: Fields<'_, '_>, r: Fields<'_, '_>| vorticity_error(scene, p[0].view(), r[0].view());
+    let deviation = |p: Fields<'_, '_>, r: Fields<'_, '_>| deviation_error(scene, p, r);
+    let vorticity = |p: Fields<'_, '_>, r: Fields<'_, '_>| vorticity_error(scene, p, r);
     let short = rollout_measured(
         hybrid,
         params,
@@ -182,12 +177,15 @@ pub fn held_out_re<C: Corrector + 'static>(
         sizes.rollout,
         &[&deviation, &vorticity],
     )?;
-    let long = rollout(hybrid, params, &[window(r, 0, sizes.long + 1)?], sizes.long)?;
-    let last = long.last.fields[0]
-        .index_axis(Axis(0), 0)
-        .to_owned()
-        .into_dimensionality()
-        .map_err(|e| WakeError::Output(e.to_string()))?;
+    let long = rollout(
+        hybrid,
+        params,
+        &[window(scene, r, 0, sizes.long + 1)?],
+        sizes.long,
+    )?;
+    let last = long.last.sample(0)?;
+    let views: Vec<_> = last.fields.iter().map(|f| f.view()).collect();
+    let last = scene.state_of(&views)?;
     Ok(ReRun {
         re: r.re,
         mean: short.mean(),
@@ -197,6 +195,12 @@ pub fn held_out_re<C: Corrector + 'static>(
         long: long.mean(),
         last,
     })
+}
+
+/// The relative L2 error of the velocity `(u_x, u_y)` against the state `r`'s.
+pub fn velocity_error(u: (&Array2<f64>, &Array2<f64>), r: &FlowState<f64>) -> f64 {
+    let one = |a: &Array2<f64>| a.clone().insert_axis(Axis(0)).into_dyn();
+    relative_l2_fields(&[one(u.0), one(u.1)], &[one(&r.ux), one(&r.uy)])
 }
 
 /// Rolls an uncorrected solver at `level` × the coarse resolution out from
@@ -234,10 +238,7 @@ fn finer_rollout(
                 seconds += t0.elapsed().as_secs_f64();
                 steps += 1.0;
                 let (cx, cy) = restrict_velocity(coarse.grid(), level, s.ux.view(), s.uy.view())?;
-                let packed = coarse.pack(&FlowState::from_velocity(coarse, cx, cy), nu)?;
-                let a = packed.insert_axis(Axis(0)).into_dyn();
-                let b = r.states[start + t].clone().insert_axis(Axis(0)).into_dyn();
-                err += relative_l2(&a, &b);
+                err += velocity_error((&cx, &cy), &r.states[start + t]);
                 count += 1.0;
             }
         }
@@ -252,17 +253,27 @@ fn coarse_rollout<S: Simulator + 'static, C: Corrector + 'static>(
     params: Option<&Params<f64>>,
     refs: &[Reference],
     sizes: &Sizes,
+    coarse: &Scene,
 ) -> Result<(f64, f64)> {
     let (mut err, mut seconds, mut samples) = (0.0, 0.0, 0.0);
     for r in refs {
         for &start in &sizes.speed_starts {
-            let mut u = State::from(r.states[start].clone().insert_axis(Axis(0)).into_dyn());
+            let mut u = State::stack(&[&sample(coarse, &r.states[start], viscosity(r.re))])?;
             for t in 1..=sizes.rollout {
                 let t0 = Instant::now();
                 u = hybrid.step_plain(params, &u)?;
                 seconds += t0.elapsed().as_secs_f64();
-                let b = r.states[start + t].clone().insert_axis(Axis(0)).into_dyn();
-                err += relative_l2(&u.fields[0], &b);
+                let (ux, uy) = (
+                    u.fields[0].index_axis(Axis(0), 0),
+                    u.fields[1].index_axis(Axis(0), 0),
+                );
+                let to2 =
+                    |a: ArrayViewD<'_, f64>| a.to_owned().into_dimensionality::<ndarray::Ix2>();
+                let (ux, uy) = (
+                    to2(ux).map_err(|e| WakeError::Output(e.to_string()))?,
+                    to2(uy).map_err(|e| WakeError::Output(e.to_string()))?,
+                );
+                err += velocity_error((&ux, &uy), &r.states[start + t]);
                 samples += 1.0;
             }
         }
@@ -284,14 +295,14 @@ pub fn speed<S: Simulator + 'static, C: Corrector + 'static>(
     coarse: &Scene,
 ) -> Result<Value> {
     let mut rows = Vec::new();
-    let (e, s) = coarse_rollout(hybrid, None, refs, sizes)?;
+    let (e, s) = coarse_rollout(hybrid, None, refs, sizes, coarse)?;
     rows.push(json!({"solver": format!("uncorrected {} x {}", sizes.ny, sizes.nx), "level": 1, "rel_error": e, "ms_per_step": s * 1e3}));
     for level in [2, 4] {
         let (e, s) = finer_rollout(sizes, coarse, level, refs)?;
         rows.push(json!({"solver": format!("uncorrected {} x {}", level * sizes.ny, level * sizes.nx), "level": level, "rel_error": e, "ms_per_step": s * 1e3}));
     }
     if let Some(p) = corrector {
-        let (e, s) = coarse_rollout(hybrid, Some(p), refs, sizes)?;
+        let (e, s) = coarse_rollout(hybrid, Some(p), refs, sizes, coarse)?;
         rows.push(json!({"solver": format!("corrected {} x {} (selected SOL)", sizes.ny, sizes.nx), "level": 1, "rel_error": e, "ms_per_step": s * 1e3}));
     }
     for r in &rows {
@@ -447,15 +458,20 @@ pub fn pinned_face_error<S: Simulator>(
 ) -> Result<f64> {
     let mut sum = 0.0;
     for pair in trajectory.windows(2) {
-        let next = coarse.step_plain(&State::stack(&[&pair[0]])?)?.remove(0);
-        let (now, then) = (next.index_axis(Axis(0), 0), &pair[1].fields[0]);
-        let residual: f64 = now
-            .iter()
-            .zip(then.iter())
-            .zip(free.iter())
-            .map(|((a, b), m)| if *m == 0.0 { (a - b).powi(2) } else { 0.0 })
-            .sum();
-        let norm: f64 = then.iter().map(|b| b * b).sum();
+        let next = coarse.step_plain(&State::stack(&[&pair[0]])?)?;
+        let (mut residual, mut norm) = (0.0, 0.0);
+        // The velocity components, each on its block of the free-face lattice.
+        for (c, (now, then)) in next.iter().zip(&pair[1].fields).take(2).enumerate() {
+            let now = now.index_axis(Axis(0), 0);
+            let (a, b) = (then.shape()[0], then.shape()[1]);
+            let mask = free.slice(ndarray::s![c, ..a, ..b]);
+            for ((p, r), m) in now.iter().zip(then.iter()).zip(mask.iter()) {
+                if *m == 0.0 {
+                    residual += (p - r).powi(2);
+                }
+                norm += r * r;
+            }
+        }
         sum += (residual / norm).sqrt();
     }
     Ok(sum / trajectory.len().saturating_sub(1).max(1) as f64)
@@ -555,7 +571,7 @@ pub fn charts(
     curves: &BTreeMap<String, Vec<Vec<f64>>>,
     runs: &[CapacityRun],
     speed: &Value,
-    last: &BTreeMap<String, Array3<f64>>,
+    last: &BTreeMap<String, FlowState<f64>>,
     coarse: &Scene,
     sol: Option<usize>,
 ) -> Result<()> {
@@ -658,7 +674,7 @@ pub fn charts(
 /// the right, the cylinder outlined (`vorticity.svg`).
 fn write_vorticity(
     out: &Path,
-    last: &BTreeMap<String, Array3<f64>>,
+    last: &BTreeMap<String, FlowState<f64>>,
     coarse: &Scene,
 ) -> std::result::Result<(), diffphys::report::ReportError> {
     let chart = |e: WakeError| diffphys::report::ReportError::Chart(e.to_string());
@@ -671,9 +687,7 @@ fn write_vorticity(
     names.sort_by_key(|n| order.iter().position(|o| o == n));
     let mut fields = Vec::new();
     for name in names {
-        let (s, _) = coarse
-            .unpack(last[name].view())
-            .map_err(|e| chart(e.into()))?;
+        let s = &last[name];
         let w = vorticity(coarse, s.ux.view(), s.uy.view()).map_err(|e| chart(e.into()))?;
         fields.push((name.as_str(), w));
     }

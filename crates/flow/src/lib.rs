@@ -17,7 +17,7 @@
 //! | [`diagnostics`] | divergence, vorticity, drag and lift |
 //! | [`step`] | the [`Scene`] and the step composed of the above |
 //! | [`batch`] | batches of states as fields `[batch, …]`, a viscosity per sample (a learning library's state) |
-//! | [`packed`] | batches of states as one array, restriction by face averages |
+//! | [`restrict`] | a state restricted to a coarser grid: face averages, cell averages |
 //! | [`validation`] | the validation flows against their references: Taylor–Green, the cavity (Ghia 1982), the DFG cylinder (Schäfer–Turek 1996) |
 //!
 //! The operators take what they act on (the grid, its [`Faces`], an
@@ -26,7 +26,7 @@
 //! [`Scene::pressure_system`], [`Scene::force_weights`]) and composes the step.
 //! Inside the crate the modules depend downwards only: grid and sides at the
 //! bottom; boundaries, buffers, sparse, spectral and the staggered `D` and `G`;
-//! the operators; the step; packed and validation on top.
+//! the operators; the step; batch, restrict and validation on top.
 //!
 //! A scene is described once; a rollout is a loop of [`Scene::step`] on a tape
 //! (or [`Scene::rollout`], checkpointed), and the gradient of any loss of the
@@ -70,8 +70,8 @@ pub mod diffusion;
 mod error;
 pub mod forcing;
 pub mod grid;
-pub mod packed;
 pub mod pressure;
+pub mod restrict;
 pub mod sides;
 mod sparse;
 mod spectral;
@@ -85,8 +85,8 @@ pub use diffusion::ViscosityMode;
 pub use error::{FlowError, Result};
 pub use forcing::{Buoyancy, Forced, Forcing};
 pub use grid::{FlowGrid, Lattice};
-pub use packed::{batch_of_packed, restrict_velocity};
 pub use pressure::PressureSolver;
+pub use restrict::{restrict_pressure, restrict_velocity};
 pub use sides::{Boundary, Side, Sides};
 pub use step::{
     Exec, FlowParams, FlowState, FlowVars, ParamVars, Scene, SceneBuilder, Settings, Splitting,

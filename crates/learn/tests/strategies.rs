@@ -456,8 +456,9 @@ fn the_held_out_split_is_read_once_per_model_after_selection() {
     ));
 }
 
-/// A step whose state holds a parameter in entry 0 that must stay 1 (as a
-/// packed flow state holds its viscosity): anything else is refused.
+/// A step whose state holds a parameter in entry 0 that must stay 1 (a state
+/// that packs a parameter into its field): anything else is refused, so the
+/// simulator's own perturbation must leave it alone.
 struct Pinned {
     protect: bool,
 }

@@ -10,7 +10,7 @@
 mod wake_flow_scene;
 
 use clap::Parser;
-use diffphys::flow::{FlowState, PressureSolver};
+use diffphys::flow::{FlowState, PressureSolver, Splitting};
 use diffphys::learn::{Hybrid, LearnError, Simulator, Split, State, TrainSeed};
 use diffphys::nn::Arithmetic;
 use ndarray::Array2;
@@ -181,6 +181,50 @@ fn a_corrector_of_the_wrong_shape_is_refused() {
     Hybrid::new(c.clone(), net)
         .check_shapes(&params, &probe(&c))
         .unwrap();
+}
+
+#[test]
+fn the_incremental_coarse_solver_carries_its_pressure_uncorrected() {
+    let o = options(&["--coarse-splitting", "incremental"]).unwrap();
+    assert_eq!(o.coarse_splitting, Splitting::Incremental);
+    assert!(matches!(
+        options(&["--coarse-splitting", "strang"]),
+        Err(WakeError::Argument { .. })
+    ));
+    let sizes = Sizes::of(&o, true);
+    let c = Coarse::new(uncorrected(&sizes, 1, PressureSolver::Cholesky).unwrap());
+    assert_eq!(c.auxiliary_fields(), 1);
+    let probe = probe(&c);
+    assert_eq!(probe.fields.len(), 3);
+    let size = NetSize {
+        width: 4,
+        blocks: 1,
+    };
+    let (net, zero_head) = Net::new(
+        &c.scene,
+        size,
+        Arithmetic::Single,
+        &mut TrainSeed(1).init_rng(),
+    )
+    .unwrap();
+    // A head that does not start at zero, so the correction is not nothing.
+    let mut params = diffphys::nn::Params::new();
+    for (name, v) in zero_head.names().iter().zip(zero_head.values()) {
+        params.add(name.clone(), v.mapv(|x| x + 0.01)).unwrap();
+    }
+    let hybrid = Hybrid::new(c, net);
+    hybrid.check_shapes(&params, &probe).unwrap();
+    let corrected = hybrid.step_plain(Some(&params), &probe).unwrap();
+    let solver = hybrid.step_plain(None, &probe).unwrap();
+    assert_ne!(corrected.fields[0], solver.fields[0], "u_x not corrected");
+    assert_eq!(
+        corrected.fields[2], solver.fields[2],
+        "the pressure corrected"
+    );
+    assert!(
+        solver.fields[2].iter().any(|p| *p != 0.0),
+        "no pressure carried"
+    );
 }
 
 #[test]

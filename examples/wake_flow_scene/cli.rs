@@ -8,7 +8,7 @@ use clap::{Args, Parser, Subcommand};
 
 use super::{
     checked_list, parse_named, parse_re_list, Body, NetSize, Options, ReferenceScheme, Result,
-    Variant, WakeError, ADVECTIONS, ARITHMETICS, MAIN_SIZE,
+    Variant, WakeError, ADVECTIONS, ARITHMETICS, MAIN_SIZE, SPLITTINGS,
 };
 use diffphys::learn::Split;
 
@@ -65,6 +65,9 @@ pub struct SceneArgs {
     /// The coarse solver's advection: semi-lagrangian or maccormack.
     #[arg(long, default_value = "semi-lagrangian", value_name = "NAME")]
     pub coarse_advection: String,
+    /// The coarse solver's splitting: plain or incremental (second order; the state then carries the pressure).
+    #[arg(long, default_value = "plain", value_name = "NAME")]
+    pub coarse_splitting: String,
     /// How each resolution sees the cylinder: cylinder, staircase or inscribed.
     #[arg(long, default_value = "inscribed", value_name = "NAME")]
     pub body: String,
@@ -157,6 +160,8 @@ impl SceneArgs {
         }
         o.coarse_advection =
             parse_named(&ADVECTIONS, "--coarse-advection", &self.coarse_advection)?;
+        o.coarse_splitting =
+            parse_named(&SPLITTINGS, "--coarse-splitting", &self.coarse_splitting)?;
         o.body = parse_named(&Body::ALL, "--body", &self.body)?;
         o.reference = parse_named(
             &ReferenceScheme::ALL,

@@ -10,7 +10,8 @@
 //!
 //! - coarse: `ny × nx` = 32 × 64 cells (16 × 32 with `--small`),
 //!   semi-Lagrangian self-advection, explicit viscosity, plain (first-order)
-//!   splitting, sparse Cholesky pressure solve, `dt` = 0.01 (Courant 0.32 at
+//!   splitting (`--coarse-splitting incremental`: second-order, the state
+//!   then carries the pressure), sparse Cholesky pressure solve, `dt` = 0.01 (Courant 0.32 at
 //!   the inflow speed);
 //! - reference: 4× finer in space and time (128 × 256, `dt / 4`), MacCormack
 //!   advection with the limiter and incremental (second-order) splitting,
@@ -37,7 +38,7 @@ pub use solvers::{
     ReferenceScheme,
 };
 
-use diffphys::flow::{Advection, FlowError};
+use diffphys::flow::{Advection, FlowError, Splitting};
 use diffphys::learn::{LearnError, Split};
 use diffphys::nn::{Arithmetic, NnError};
 use diffphys::tape::TapeError;
@@ -324,6 +325,10 @@ pub struct Sizes {
     /// The coarse (uncorrected and corrected) solver's advection, also at the
     /// speed study's finer levels.
     pub advection: Advection,
+    /// The coarse solver's splitting (also at the speed study's finer
+    /// levels): with [`Splitting::Incremental`] its state carries the
+    /// pressure, an auxiliary field.
+    pub splitting: Splitting,
     /// How each resolution sees the cylinder.
     pub body: Body,
     /// The reference's scheme.
@@ -335,6 +340,7 @@ impl Sizes {
     pub fn of(options: &Options, small: bool) -> Self {
         Sizes {
             advection: options.coarse_advection,
+            splitting: options.coarse_splitting,
             body: options.body,
             reference: options.reference,
             ..if small { Sizes::small() } else { Sizes::full() }
@@ -356,6 +362,7 @@ impl Sizes {
             long: 240,
             speed_starts: vec![0, 100],
             advection: Advection::SemiLagrangian,
+            splitting: Splitting::Plain,
             body: Body::Inscribed,
             reference: ReferenceScheme::SecondOrder,
         }
@@ -376,6 +383,7 @@ impl Sizes {
             long: 36,
             speed_starts: vec![0, 16],
             advection: Advection::SemiLagrangian,
+            splitting: Splitting::Plain,
             body: Body::Inscribed,
             reference: ReferenceScheme::SecondOrder,
         }
@@ -391,6 +399,17 @@ pub const ADVECTIONS: [(&str, Advection); 2] = [
 /// The `--coarse-advection` name of `advection`.
 pub fn advection_label(advection: Advection) -> &'static str {
     name_in(&ADVECTIONS, advection)
+}
+
+/// The coarse solver's splittings, by their `--coarse-splitting` name.
+pub const SPLITTINGS: [(&str, Splitting); 2] = [
+    ("plain", Splitting::Plain),
+    ("incremental", Splitting::Incremental),
+];
+
+/// The `--coarse-splitting` name of `splitting`.
+pub fn splitting_label(splitting: Splitting) -> &'static str {
+    name_in(&SPLITTINGS, splitting)
 }
 
 /// The corrector's convolution arithmetic, by its `--network-arithmetic` name.
@@ -454,6 +473,8 @@ pub struct Options {
     pub threads: usize,
     /// The coarse solver's advection (`--coarse-advection`).
     pub coarse_advection: Advection,
+    /// The coarse solver's splitting (`--coarse-splitting`).
+    pub coarse_splitting: Splitting,
     /// How each resolution sees the cylinder (`--body cylinder|staircase|inscribed`).
     pub body: Body,
     /// The reference's scheme (`--reference-scheme second-order|coarse`).
@@ -494,6 +515,7 @@ impl Options {
             speed: true,
             threads: std::thread::available_parallelism().map_or(1, usize::from),
             coarse_advection: Advection::SemiLagrangian,
+            coarse_splitting: Splitting::Plain,
             body: Body::Inscribed,
             reference: ReferenceScheme::SecondOrder,
             arithmetic: Arithmetic::Single,

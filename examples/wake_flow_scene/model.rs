@@ -5,7 +5,7 @@
 
 use std::path::Path;
 
-use diffphys::flow::PressureSolver;
+use diffphys::flow::{PressureSolver, Splitting};
 use diffphys::learn::study::run_jobs;
 use diffphys::learn::{DataSeed, Hybrid, ModelCard, SavedModel, Split, TrainSeed};
 use diffphys::nn::Arithmetic;
@@ -14,8 +14,8 @@ use serde_json::{json, Map, Value};
 use super::data::{self, base_state, reference, Bump, Reference};
 use super::study::{held_out_re, HeldOutRun, ReRun};
 use super::{
-    advection_label, arithmetic_label, reference_scene, uncorrected, Coarse, Net, NetSize, Result,
-    Sizes, WakeError, RE_CENTRE,
+    advection_label, arithmetic_label, reference_scene, splitting_label, uncorrected, Coarse, Net,
+    NetSize, Result, Sizes, WakeError, RE_CENTRE,
 };
 
 /// The kind of model the scene saves.
@@ -25,8 +25,14 @@ pub const KIND: &str = "wake_flow corrector";
 /// time step, its advection, the body, the reference it was trained against,
 /// the corrector's architecture and arithmetic, the centre of its Re input.
 pub fn card(sizes: &Sizes, size: NetSize, arithmetic: Arithmetic) -> ModelCard {
-    ModelCard::new(KIND)
-        .setting("grid_coarse", [sizes.ny, sizes.nx])
+    let card = ModelCard::new(KIND);
+    // The default adds nothing, so correctors saved before the option stay
+    // readable.
+    let card = match sizes.splitting {
+        Splitting::Plain => card,
+        other => card.setting("coarse_splitting", splitting_label(other)),
+    };
+    card.setting("grid_coarse", [sizes.ny, sizes.nx])
         .setting("dt_coarse", sizes.dt)
         .setting("coarse_advection", advection_label(sizes.advection))
         .setting("body", sizes.body.label())

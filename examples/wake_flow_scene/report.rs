@@ -117,6 +117,7 @@ pub(crate) fn report(
         "body": sizes.body.label(),
         "reference_scheme": sizes.reference.label(),
         "coarse_advection": wake_flow_scene::advection_label(sizes.advection),
+        "coarse_splitting": wake_flow_scene::splitting_label(sizes.splitting),
         "network_arithmetic": wake_flow_scene::arithmetic_label(arithmetic),
         "pinned_face_error": pinned_face_error,
     });

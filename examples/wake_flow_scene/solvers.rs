@@ -160,13 +160,13 @@ pub fn wake_scene(
 }
 
 /// The coarse solver's scheme at `level` times the coarse resolution
-/// (`dt / level`): the advection of `sizes`, plain splitting.
+/// (`dt / level`): the advection and splitting of `sizes`.
 pub fn uncorrected(sizes: &Sizes, level: usize, pressure: PressureSolver) -> Result<Scene> {
     wake_scene(
         level * sizes.nx,
         level * sizes.ny,
         sizes.dt / level as f64,
-        (sizes.advection, Splitting::Plain),
+        (sizes.advection, sizes.splitting),
         pressure,
         obstacle(sizes, level)?,
     )

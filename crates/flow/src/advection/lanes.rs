@@ -15,6 +15,8 @@
 //! the results are the same bits; the unit tests of the MacCormack sweeps and
 //! of the periodic step hold them to the scalar passes.
 
+use std::cell::RefCell;
+
 use super::sampling::{wrap, LatticeStencils, Periodic, Stencil};
 use super::tracer::{Field, Tracer};
 use crate::grid::Lattice;
@@ -26,6 +28,35 @@ pub(super) const SEGMENT: usize = 64;
 
 /// One value per entry of a segment.
 pub(super) type Segment<V = f64> = [V; SEGMENT];
+
+/// The arrays a segment's loops write: filled segment after segment, and
+/// kept by each thread from one call to the next (zeroing them for every
+/// block of entries cost about as much as a tenth of the work).
+pub(super) struct Workspace {
+    pub(super) departures: Departures,
+    pub(super) corners: Corners,
+    /// The tracing velocity of the segment's entries.
+    pub(super) v: [Segment; 2],
+    /// Values by entry: the results, the limiter's range.
+    pub(super) out: [Segment; 3],
+}
+
+thread_local! {
+    static WORKSPACE: RefCell<Box<Workspace>> = RefCell::new(Box::new(Workspace {
+        departures: Departures::default(),
+        corners: Corners::default(),
+        v: [[0.0; SEGMENT]; 2],
+        out: [[0.0; SEGMENT]; 3],
+    }));
+}
+
+/// `f` with this thread's [`Workspace`].
+///
+/// # Panics
+/// If `f` calls it again (the loops here never do).
+pub(super) fn with_workspace<R>(f: impl FnOnce(&mut Workspace) -> R) -> R {
+    WORKSPACE.with(|w| f(&mut w.borrow_mut()))
+}
 
 /// Runs `f(k0, a, b0, m)` on the segments of entries `off..off + len` of a
 /// lattice whose rows hold `nb` entries: `m` (at most [`SEGMENT`]) entries of
@@ -53,6 +84,10 @@ pub(super) fn each_segment(
 pub(super) struct PlainTable {
     rows: Vec<([usize; 2], [f64; 2])>,
     cols: Vec<([usize; 2], [f64; 2])>,
+    /// From each column, how many columns read consecutive entries (the
+    /// corners of column `b + t` are those of `b` shifted by `t`): there the
+    /// loads are slices, not gathers.
+    runs: Vec<usize>,
 }
 
 impl PlainTable {
@@ -61,17 +96,26 @@ impl PlainTable {
         if !t.along_x.iter().chain(&t.along_y).all(|h| h.inside) {
             return None;
         }
+        let cols: Vec<_> = t
+            .along_y
+            .iter()
+            .map(|h| (h.idx, Stencil::weights(h)))
+            .collect();
+        let mut runs = vec![1; cols.len()];
+        for b in (0..cols.len().saturating_sub(1)).rev() {
+            let ([j0, j1], [n0, n1]) = (cols[b].0, cols[b + 1].0);
+            if n0 == j0 + 1 && n1 == j1 + 1 {
+                runs[b] = runs[b + 1] + 1;
+            }
+        }
         Some(PlainTable {
             rows: t
                 .along_x
                 .iter()
                 .map(|h| ([h.idx[0] * t.nb, h.idx[1] * t.nb], Stencil::weights(h)))
                 .collect(),
-            cols: t
-                .along_y
-                .iter()
-                .map(|h| (h.idx, Stencil::weights(h)))
-                .collect(),
+            cols,
+            runs,
         })
     }
 
@@ -82,11 +126,23 @@ impl PlainTable {
         let m = out.len();
         let ([r0, r1], wx) = self.rows[a];
         let Corners { c, wy } = work;
-        for (l, &([j0, j1], w)) in self.cols[b0..b0 + m].iter().enumerate() {
-            c[0][0][l] = u[r0 + j0];
-            c[0][1][l] = u[r0 + j1];
-            c[1][0][l] = u[r1 + j0];
-            c[1][1][l] = u[r1 + j1];
+        let cols = &self.cols[b0..b0 + m];
+        if self.runs[b0] >= m {
+            // the same entries as the loads below, taken as slices
+            let [j0, j1] = cols[0].0;
+            for (r, row) in [r0, r1].into_iter().zip(c.iter_mut()) {
+                row[0][..m].copy_from_slice(&u[r + j0..r + j0 + m]);
+                row[1][..m].copy_from_slice(&u[r + j1..r + j1 + m]);
+            }
+        } else {
+            for (l, &([j0, j1], _)) in cols.iter().enumerate() {
+                c[0][0][l] = u[r0 + j0];
+                c[0][1][l] = u[r0 + j1];
+                c[1][0][l] = u[r1 + j0];
+                c[1][1][l] = u[r1 + j1];
+            }
+        }
+        for (l, &(_, w)) in cols.iter().enumerate() {
             wy[0][l] = w[0];
             wy[1][l] = w[1];
         }
@@ -183,8 +239,7 @@ impl<'a> SegmentVelocity<'a> {
 /// The corner values of the departure points of a segment and the fractions
 /// of the way along x and y: [`Periodic::locate`] and
 /// [`super::sampling::corner_values`] entry by entry. A workspace, filled
-/// by [`Departures::locate`] segment after segment (made once per block:
-/// zeroing its arrays for every segment would cost as much as the work).
+/// by [`Departures::locate`] segment after segment (a [`Workspace`]'s).
 pub(super) struct Departures {
     m: usize,
     corners: [[Segment; 2]; 2],
@@ -364,16 +419,22 @@ impl Tracer<'_> {
         // every entry is written
         let mut out = crate::buffers::scratch(q.len());
         super::tracer::for_blocks(&mut out, |off, block| {
-            let (mut dep, mut work) = (Departures::default(), Corners::default());
-            let (mut v, mut value) = ([[0.0; SEGMENT]; 2], [0.0; SEGMENT]);
-            each_segment(field.sampler.nb, off, block.len(), |k0, a, b0, m| {
-                vel.at(a, k0, b0, m, &mut v, &mut work);
-                dep.locate(&lean, q, xs[a], &ys[b0..b0 + m], &v, dt);
-                dep.values(&mut value);
-                for (l, &val) in value[..m].iter().enumerate() {
-                    let k = k0 + l;
-                    block[k - off] = if field.free(k) { val } else { q[k] };
-                }
+            with_workspace(|w| {
+                let Workspace {
+                    departures: dep,
+                    corners,
+                    v,
+                    out: [value, ..],
+                } = w;
+                each_segment(field.sampler.nb, off, block.len(), |k0, a, b0, m| {
+                    vel.at(a, k0, b0, m, v, corners);
+                    dep.locate(&lean, q, xs[a], &ys[b0..b0 + m], v, dt);
+                    dep.values(value);
+                    for (l, &val) in value[..m].iter().enumerate() {
+                        let k = k0 + l;
+                        block[k - off] = if field.free(k) { val } else { q[k] };
+                    }
+                });
             });
         });
         out

@@ -12,7 +12,7 @@
 
 use diffphys_tape::pool;
 
-use super::lanes::{each_segment, Corners, Departures, SegmentVelocity, SEGMENT};
+use super::lanes::{each_segment, with_workspace, SegmentVelocity, Workspace};
 use super::sampling::Periodic;
 use super::tracer::{for_blocks, Field, Tracer, BLOCK, PARALLEL_FROM};
 use crate::buffers::{give_back, in_block_pairs, scratch};
@@ -91,7 +91,7 @@ impl Tracer<'_> {
 }
 
 impl Tracer<'_> {
-    /// [`Tracer::maccormack`] on a periodic box, a segment of up to [`SEGMENT`] entries
+    /// [`Tracer::maccormack`] on a periodic box, a segment of up to [`super::lanes::SEGMENT`] entries
     /// of a row at a time (see [`super::lanes`]): the same bits.
     fn maccormack_lanes(
         &self,
@@ -118,59 +118,69 @@ impl Tracer<'_> {
             BLOCK,
             split,
             |off, q_hat, traced| {
-                let (mut dep, mut work) = (Departures::default(), Corners::default());
-                let mut v = [[0.0; SEGMENT]; 2];
-                let [mut value, mut lo, mut hi] = [[0.0; SEGMENT]; 3];
-                each_segment(nb, off, q_hat.len(), |k0, a, b0, m| {
-                    vel.at(a, k0, b0, m, &mut v, &mut work);
-                    dep.locate(&lean, q, xs[a], &ys[b0..b0 + m], &v, dt);
-                    dep.values(&mut value);
-                    dep.ranges(&mut lo, &mut hi);
-                    for l in 0..m {
-                        let (k, i) = (k0 + l, k0 + l - off);
-                        if !free(k) {
-                            q_hat[i] = q[k];
-                            continue;
+                with_workspace(|w| {
+                    let Workspace {
+                        departures: dep,
+                        corners,
+                        v,
+                        out: [value, lo, hi],
+                    } = w;
+                    each_segment(nb, off, q_hat.len(), |k0, a, b0, m| {
+                        vel.at(a, k0, b0, m, v, corners);
+                        dep.locate(&lean, q, xs[a], &ys[b0..b0 + m], v, dt);
+                        dep.values(value);
+                        dep.ranges(lo, hi);
+                        for l in 0..m {
+                            let (k, i) = (k0 + l, k0 + l - off);
+                            if !free(k) {
+                                q_hat[i] = q[k];
+                                continue;
+                            }
+                            q_hat[i] = value[l];
+                            traced[i] = Traced {
+                                v: [v[0][l], v[1][l]],
+                                range: [lo[l], hi[l]],
+                            };
                         }
-                        q_hat[i] = value[l];
-                        traced[i] = Traced {
-                            v: [v[0][l], v[1][l]],
-                            range: [lo[l], hi[l]],
-                        };
-                    }
+                    });
                 });
             },
         );
         let qh: &[f64] = &q_hat;
         let mut out = scratch(n);
         for_blocks(&mut out, |off, block| {
-            let mut dep = Departures::default();
-            let mut v = [[0.0; SEGMENT]; 2];
-            let [mut q_tilde, mut value] = [[0.0; SEGMENT]; 2];
-            each_segment(nb, off, block.len(), |k0, a, b0, m| {
-                for (l, t) in traced[k0..k0 + m].iter().enumerate() {
-                    // a fixed entry's `traced` is stale: trace it by zero, unused
-                    let t = if free(k0 + l) { t.v } else { [0.0; 2] };
-                    (v[0][l], v[1][l]) = (t[0], t[1]);
-                }
-                dep.locate(&lean, qh, xs[a], &ys[b0..b0 + m], &v, -dt);
-                dep.values(&mut q_tilde);
-                let (qh, q, q_tilde) = (&qh[k0..k0 + m], &q[k0..k0 + m], &q_tilde[..m]);
-                for l in 0..m {
-                    value[l] = qh[l] + 0.5 * (q[l] - q_tilde[l]);
-                }
-                let block = &mut block[k0 - off..k0 - off + m];
-                for l in 0..m {
-                    let k = k0 + l;
-                    block[l] = if !free(k) {
-                        q[l]
-                    } else if limiter {
-                        let [lo, hi] = traced[k].range;
-                        value[l].clamp(lo, hi)
-                    } else {
-                        value[l]
-                    };
-                }
+            with_workspace(|w| {
+                let Workspace {
+                    departures: dep,
+                    v,
+                    out: [q_tilde, value, _],
+                    ..
+                } = w;
+                each_segment(nb, off, block.len(), |k0, a, b0, m| {
+                    for (l, t) in traced[k0..k0 + m].iter().enumerate() {
+                        // a fixed entry's `traced` is stale: trace it by zero, unused
+                        let t = if free(k0 + l) { t.v } else { [0.0; 2] };
+                        (v[0][l], v[1][l]) = (t[0], t[1]);
+                    }
+                    dep.locate(&lean, qh, xs[a], &ys[b0..b0 + m], v, -dt);
+                    dep.values(q_tilde);
+                    let (qh, q, q_tilde) = (&qh[k0..k0 + m], &q[k0..k0 + m], &q_tilde[..m]);
+                    for l in 0..m {
+                        value[l] = qh[l] + 0.5 * (q[l] - q_tilde[l]);
+                    }
+                    let block = &mut block[k0 - off..k0 - off + m];
+                    for l in 0..m {
+                        let k = k0 + l;
+                        block[l] = if !free(k) {
+                            q[l]
+                        } else if limiter {
+                            let [lo, hi] = traced[k].range;
+                            value[l].clamp(lo, hi)
+                        } else {
+                            value[l]
+                        };
+                    }
+                });
             });
         });
         give_back(q_hat);

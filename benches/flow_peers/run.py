@@ -13,11 +13,13 @@ OUT/flow_peers.json).
 
 Settings (the flow-step issue's): PhiFlow's wake-flow step (the PBDL book's,
 f32, CG to 1e-3) at 32 x 64 and 128 x 256, rollout of 20 steps; JAX-CFD's
-periodic Taylor-Green box at 128^2 in f32 and f64, rollout of 100 steps.
+periodic Taylor-Green box at 128^2 in f32 and f64, rollout of 100 steps, and at 512^2
+in f32, rollout of 20 steps.
 
     python3 benches/flow_peers/run.py                  # everything
     python3 benches/flow_peers/run.py --peers-only     # the peers alone
     python3 benches/flow_peers/run.py --only wake32,box128_f32 --repeats 9
+    python3 benches/flow_peers/run.py --only box128_f32,box512_f32 --python /path/to/venv/bin/python
 
 Nothing in the Rust build or its tests depends on this script.
 """
@@ -34,7 +36,9 @@ import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(os.path.dirname(HERE))
-OURS = os.path.join(ROOT, "target", "release", "examples", "flow_step")
+# our worker, where cargo puts it (CARGO_TARGET_DIR if set)
+OURS = os.path.join(os.environ.get("CARGO_TARGET_DIR") or os.path.join(ROOT, "target"),
+                    "release", "examples", "flow_step")
 
 # name: (peer worker and its arguments, our worker's arguments, floor on ours/peer fwd+bwd)
 SETTINGS = {
@@ -46,6 +50,8 @@ SETTINGS = {
                    ["--scene", "box", "--res", "128", "--steps", "100"], 1.0),
     "box128_f64": (["jaxcfd_worker.py", "--n", "128", "--steps", "100", "--f64"],
                    ["--scene", "box", "--res", "128", "--steps", "100", "--f64"], 1.0),
+    "box512_f32": (["jaxcfd_worker.py", "--n", "512", "--steps", "20"],
+                   ["--scene", "box", "--res", "512", "--steps", "20"], 1.0),
 }
 
 
@@ -138,6 +144,8 @@ def fmt_row(label, s):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--venv", default=os.path.join(ROOT, "target", "flow_peers", "venv"))
+    parser.add_argument("--python", help="an interpreter that already has the peers installed, used as it is "
+                        "(no venv is made or changed)")
     parser.add_argument("--out", default=os.path.join(ROOT, "out", "flow_peers"))
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--core", type=int, default=0)
@@ -152,7 +160,7 @@ def main():
             raise SystemExit(f"unknown setting {name!r}; known: {', '.join(SETTINGS)}")
     os.makedirs(args.out, exist_ok=True)
 
-    python = venv_python(args.venv)
+    python = args.python or venv_python(args.venv)
     if not args.peers_only:
         subprocess.run(["cargo", "build", "--release", "--quiet", "--example", "flow_step"], cwd=ROOT, check=True)
 

@@ -12,7 +12,8 @@
 
 use diffphys_tape::pool;
 
-use super::sampling::{bilinear, bilinear_and_range, corner_values, Periodic};
+use super::lanes::{each_segment, with_workspace, SegmentVelocity, Workspace};
+use super::sampling::Periodic;
 use super::tracer::{for_blocks, Field, Tracer, BLOCK, PARALLEL_FROM};
 use crate::buffers::{give_back, in_block_pairs, scratch};
 
@@ -35,7 +36,9 @@ impl Tracer<'_> {
         limiter: bool,
     ) -> Vec<f64> {
         let n = q.len();
-        let lean = field.sampler.periodic();
+        if let Some(lean) = field.sampler.periodic() {
+            return self.maccormack_lanes(field, lean, q, dt, limiter);
+        }
         let tables = self.tables(field.lattice);
         // every entry of `q_hat` is written, and of `traced` every free one
         let mut q_hat = scratch(n);
@@ -54,10 +57,8 @@ impl Tracer<'_> {
                         return;
                     }
                     let v = self.velocity_at(field.lattice, &tables, k, ab);
-                    let (value, range) = match lean {
-                        Some(lean) => lean_value(lean, q, p, v, dt, true),
-                        None => Self::departure(field, p, v, dt).value_and_range(q, &self.walls),
-                    };
+                    let (value, range) =
+                        Self::departure(field, p, v, dt).value_and_range(q, &self.walls);
                     q_hat[i] = value;
                     traced[i] = Traced { v, range };
                 });
@@ -74,10 +75,7 @@ impl Tracer<'_> {
                     return;
                 }
                 let Traced { v, range } = traced[k];
-                let q_tilde = match lean {
-                    Some(lean) => lean_value(lean, qh, p, v, back, false).0,
-                    None => Self::departure(field, p, v, back).value(qh, &self.walls),
-                };
+                let q_tilde = Self::departure(field, p, v, back).value(qh, &self.walls);
                 let value = qh[k] + 0.5 * (q[k] - q_tilde);
                 block[i] = if limiter {
                     value.clamp(range[0], range[1])
@@ -92,24 +90,102 @@ impl Tracer<'_> {
     }
 }
 
-/// The value of `q` at the departure point `p − dt v` on a periodic box,
-/// and its range where `ranged` (else unspecified): the lean form of
-/// [`super::sampling::Stencil::value_and_range`], the same bits.
-#[inline(always)]
-fn lean_value(
-    lean: Periodic,
-    q: &[f64],
-    p: [f64; 2],
-    v: [f64; 2],
-    dt: f64,
-    ranged: bool,
-) -> (f64, [f64; 2]) {
-    let (c, wx, wy) = lean.locate([p[0] - dt * v[0], p[1] - dt * v[1]]);
-    let corners = corner_values(q, c);
-    if ranged {
-        bilinear_and_range(corners, wx, wy)
-    } else {
-        (bilinear(corners, wx, wy), [0.0; 2])
+impl Tracer<'_> {
+    /// [`Tracer::maccormack`] on a periodic box, a segment of up to [`super::lanes::SEGMENT`] entries
+    /// of a row at a time (see [`super::lanes`]): the same bits.
+    fn maccormack_lanes(
+        &self,
+        field: &Field<'_>,
+        lean: Periodic,
+        q: &[f64],
+        dt: f64,
+        limiter: bool,
+    ) -> Vec<f64> {
+        let vel = SegmentVelocity::periodic(self, field.lattice);
+        let n = q.len();
+        let nb = field.sampler.nb;
+        let [xs, ys] = &field.position;
+        // a box without obstacles has no fixed entry: no test per entry
+        let all_free = field.all_free();
+        let free = |k: usize| all_free || field.free(k);
+        // every entry of `q_hat` is written, and of `traced` every free one
+        let mut q_hat = scratch(n);
+        let mut traced = pool::take_or(n, Traced::default());
+        let split = n >= PARALLEL_FROM && rayon::current_num_threads() > 1;
+        in_block_pairs(
+            &mut q_hat,
+            &mut traced,
+            BLOCK,
+            split,
+            |off, q_hat, traced| {
+                with_workspace(|w| {
+                    let Workspace {
+                        departures: dep,
+                        corners,
+                        v,
+                        out: [value, lo, hi],
+                    } = w;
+                    each_segment(nb, off, q_hat.len(), |k0, a, b0, m| {
+                        vel.at(a, k0, b0, m, v, corners);
+                        dep.locate(&lean, q, xs[a], &ys[b0..b0 + m], v, dt);
+                        dep.values(value);
+                        dep.ranges(lo, hi);
+                        for l in 0..m {
+                            let (k, i) = (k0 + l, k0 + l - off);
+                            if !free(k) {
+                                q_hat[i] = q[k];
+                                continue;
+                            }
+                            q_hat[i] = value[l];
+                            traced[i] = Traced {
+                                v: [v[0][l], v[1][l]],
+                                range: [lo[l], hi[l]],
+                            };
+                        }
+                    });
+                });
+            },
+        );
+        let qh: &[f64] = &q_hat;
+        let mut out = scratch(n);
+        for_blocks(&mut out, |off, block| {
+            with_workspace(|w| {
+                let Workspace {
+                    departures: dep,
+                    v,
+                    out: [q_tilde, value, _],
+                    ..
+                } = w;
+                each_segment(nb, off, block.len(), |k0, a, b0, m| {
+                    for (l, t) in traced[k0..k0 + m].iter().enumerate() {
+                        // a fixed entry's `traced` is stale: trace it by zero, unused
+                        let t = if free(k0 + l) { t.v } else { [0.0; 2] };
+                        (v[0][l], v[1][l]) = (t[0], t[1]);
+                    }
+                    dep.locate(&lean, qh, xs[a], &ys[b0..b0 + m], v, -dt);
+                    dep.values(q_tilde);
+                    let (qh, q, q_tilde) = (&qh[k0..k0 + m], &q[k0..k0 + m], &q_tilde[..m]);
+                    for l in 0..m {
+                        value[l] = qh[l] + 0.5 * (q[l] - q_tilde[l]);
+                    }
+                    let block = &mut block[k0 - off..k0 - off + m];
+                    for l in 0..m {
+                        let k = k0 + l;
+                        block[l] = if !free(k) {
+                            q[l]
+                        } else if limiter {
+                            let [lo, hi] = traced[k].range;
+                            value[l].clamp(lo, hi)
+                        } else {
+                            value[l]
+                        };
+                    }
+                });
+            });
+        });
+        give_back(q_hat);
+        give_back(traced);
+        out
     }
 }
 
@@ -154,7 +230,8 @@ mod tests {
             .collect()
     }
 
-    /// On a periodic box, in a cavity with a moving lid and in a channel with
+    /// On a periodic box (with and without an obstacle, and with rows longer
+    /// than a segment), in a cavity with a moving lid and in a channel with
     /// an obstacle, on every lattice, with and without the limiter, for
     /// displacements of several cells either way.
     #[test]
@@ -171,8 +248,18 @@ mod tests {
         let block = Array2::from_shape_fn((nx, ny), |(i, j)| {
             (5..8).contains(&i) && (3..5).contains(&j)
         });
+        // rows longer than a segment, and blocks that end inside a row
+        let long = FlowGrid {
+            nx: 20,
+            ny: 70,
+            dx: 1.3 / 20.0,
+            dy: 0.7 / 70.0,
+            sides: Sides::periodic(),
+        };
         let cases = [
             (box_grid(Sides::periodic()), open.clone()),
+            (box_grid(Sides::periodic()), block.clone()),
+            (long, Array2::from_elem((20, 70), false)),
             (box_grid(Sides::cavity(0.8)), open),
             (box_grid(Sides::channel()), block),
         ];

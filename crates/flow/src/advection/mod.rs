@@ -42,6 +42,7 @@ use crate::buffers::{give_back, join, narrow, walls_of, wide};
 use crate::grid::{FlowGrid, Lattice};
 use crate::Result;
 
+mod lanes;
 mod maccormack;
 mod sampling;
 mod tracer;

@@ -22,6 +22,14 @@
 //!   `validation::control_volume_force` on a `validation::FaceBox`. It never looks at the
 //!   staircase, so an error of the surface evaluation shows as a gap between
 //!   the two, and an error of the flow field as both moving together.
+//! - **What the step exchanges with the body**: one step from the steady
+//!   state run piece by piece (boundaries, the old pressure gradient,
+//!   advection, viscosity, projection; its velocity checked equal to the
+//!   step's), each piece's change of the momentum inside a box set against
+//!   the box's matching edge term: the rest is the momentum that piece takes
+//!   out of the fluid at the body. The pieces sum to the control-volume
+//!   force; set beside the surface evaluation's pressure and shear parts they
+//!   show which part of the surface formula is not the flow's.
 //! - **Geometry**: the solid cells' area, centroid and first moments about the
 //!   true centre, and whether the mask is mirror-symmetric about y = 0.2.
 //! - **Control** (`--cases symmetric`): the same body at the centre of a
@@ -46,11 +54,16 @@ mod flow_common;
 
 use std::time::Instant;
 
+use diffphys::flow::advection::advect_velocity;
+use diffphys::flow::boundaries::enforce_boundaries;
+use diffphys::flow::diffusion::diffuse;
+use diffphys::flow::pressure::{project, subtract_pressure_gradient};
 use diffphys::flow::validation::{
     control_volume_force, Dfg2d1, DfgChannel, FaceBox, FloorCheck, CONTROL_VOLUME_CLEARANCE,
     DFG_2D1, DFG_2D1_HIGH_ACCURACY, DFG_CENTRE, DFG_DIAMETER, DFG_HEIGHT, DFG_NU,
 };
-use diffphys::flow::{FlowState, Scene};
+use diffphys::flow::{FlowState, Scene, Splitting};
+use ndarray::Array2;
 use serde_json::{json, Value};
 
 type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
@@ -139,6 +152,88 @@ fn pressure_extrapolated(scene: &Scene, s: &FlowState<f64>) -> [f64; 2] {
     f
 }
 
+/// The momentum one step of `scene` from the steady state `s` exchanges with
+/// the body, piece by piece, over the box `b`: each piece of the step
+/// (enforcing the boundaries, the old pressure gradient, advection,
+/// viscosity, projection) is run as the step runs it, and what it adds to the
+/// momentum inside `b` is set against what the control volume's matching edge
+/// term brings in; the rest is what the piece takes out of the fluid at the
+/// body: `body_k = edge_k − ΔM_k / dt`. The pressure pieces are set against
+/// the pressure term, advection against the momentum flux, viscosity against
+/// the viscous term; the pieces sum to the control-volume force. Returns
+/// `[pressure, viscous, convective, boundaries]`, each `[F_x, F_y]`.
+fn step_budget(scene: &Scene, s: &FlowState<f64>, b: FaceBox) -> Result<[[f64; 2]; 4]> {
+    let params = scene.params::<f64>();
+    let (g, faces, set, dt) = (scene.grid(), scene.faces(), scene.settings(), scene.dt());
+    let (next, info) = scene.forward(s, &params)?;
+    if info.substeps != 1 || set.splitting != Splitting::Incremental {
+        return Err("the budget follows one incremental step without substeps".into());
+    }
+    let u0 = enforce_boundaries(g, faces, s.ux.view(), s.uy.view(), params.inflow.view())?;
+    let q = subtract_pressure_gradient(
+        g,
+        faces,
+        dt / 2.0,
+        u0.0.view(),
+        u0.1.view(),
+        s.pressure.view(),
+    )?;
+    let a = advect_velocity(
+        g,
+        faces,
+        set.advection,
+        dt,
+        (q.0.view(), q.1.view()),
+        (u0.0.view(), u0.1.view()),
+        params.wall_speed.view(),
+    )?;
+    let d = diffuse(
+        scene.diffusion(),
+        set.viscosity_mode,
+        dt,
+        a.0.view(),
+        a.1.view(),
+        params.viscosity,
+        params.wall_speed.view(),
+    )?;
+    let p = project(
+        scene.pressure_system(),
+        dt / 2.0,
+        d.0.view(),
+        d.1.view(),
+        Some(s.pressure.view()),
+    )?;
+    if p.ux != next.ux || p.uy != next.uy {
+        return Err("the pieces run one by one do not give the step's velocity".into());
+    }
+    let momentum = |ux: &Array2<f64>, uy: &Array2<f64>| {
+        let state = FlowState {
+            ux: ux.clone(),
+            uy: uy.clone(),
+            pressure: s.pressure.clone(),
+            scalars: Vec::new(),
+        };
+        b.momentum(scene, &state)
+    };
+    let m = [
+        momentum(&s.ux, &s.uy)?,
+        momentum(&u0.0, &u0.1)?,
+        momentum(&q.0, &q.1)?,
+        momentum(&a.0, &a.1)?,
+        momentum(&d.0, &d.1)?,
+        momentum(&p.ux, &p.uy)?,
+    ];
+    let gain = |from: usize, to: usize| [0, 1].map(|k| (m[to][k] - m[from][k]) / dt);
+    let cv = control_volume_force(scene, b, s, Some(&next), DFG_NU)?;
+    let (old_p, new_p) = (gain(1, 2), gain(4, 5));
+    Ok([
+        [0, 1].map(|k| cv.pressure[k] - old_p[k] - new_p[k]),
+        [0, 1].map(|k| cv.viscous[k] - gain(3, 4)[k]),
+        [0, 1].map(|k| cv.convective[k] - gain(2, 3)[k]),
+        [0, 1].map(|k| -gain(0, 1)[k]),
+    ])
+}
+
 /// One steady 2D-1 run in a channel of `height` and its forces by both
 /// methods; with the run's floors (those of `validation::Dfg2d1`).
 fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>)> {
@@ -206,7 +301,14 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
             c(f.convective)[1],
             c(f.unsteady)[1]
         );
+        let budget = step_budget(scene, s, b)?.map(c);
+        println!(
+            "      exchanged with the body by the step's pieces: pressure cD {:.4} cL {:+.5}, viscosity cD {:.4} cL {:+.5}, advection cD {:.4} cL {:+.5}, boundaries cL {:+.1e}",
+            budget[0][0], budget[0][1], budget[1][0], budget[1][1], budget[2][0], budget[2][1], budget[3][1]
+        );
         boxes.push(json!({
+            "exchanged_with_body": {"pressure": budget[0], "viscosity": budget[1],
+                                    "advection": budget[2], "boundaries": budget[3]},
             "half_width": a, "faces": [b.i0, b.i1, b.j0, b.j1], "clearance_cells": clearance,
             "cd": t[0], "cl": t[1],
             "parts_cd": {"pressure": c(f.pressure)[0], "viscous": c(f.viscous)[0],

@@ -56,6 +56,7 @@ use std::time::Instant;
 
 use diffphys::flow::advection::advect_velocity;
 use diffphys::flow::boundaries::enforce_boundaries;
+use diffphys::flow::diagnostics::{obstacle_force, ForceWeights};
 use diffphys::flow::diffusion::diffuse;
 use diffphys::flow::pressure::{project, subtract_pressure_gradient};
 use diffphys::flow::validation::{
@@ -234,6 +235,44 @@ fn step_budget(scene: &Scene, s: &FlowState<f64>, b: FaceBox) -> Result<[[f64; 2
     ])
 }
 
+/// The viscous lift the step's Laplacian takes out of the fluid at the body
+/// (`ForceWeights::momentum_exchange`'s y-component), split by the direction
+/// of the link: `[tangential, normal]`, the links of each free y-face to an
+/// obstacle y-face beside it (across a riser, along x) and to one above or
+/// below it (the zero normal velocity of a tread, along y).
+fn viscous_lift_by_link(scene: &Scene, s: &FlowState<f64>) -> [f64; 2] {
+    let g = scene.grid();
+    let solid = scene.solid();
+    let (nx, ny) = (g.nx as isize, g.ny as isize);
+    // y-face (i, b) lies between cells (i, b − 1) and (i, b)
+    let body = |i: isize, b: isize| {
+        (0..nx).contains(&i)
+            && [b - 1, b]
+                .into_iter()
+                .any(|j| (0..ny).contains(&j) && solid[[i as usize, j as usize]])
+    };
+    let mut f = [0.0; 2];
+    for i in 0..nx {
+        for b in 1..ny {
+            if body(i, b) {
+                continue;
+            }
+            let v = s.uy[[i as usize, b as usize]];
+            for (link, (di, db), weight) in [
+                (0, (-1, 0), g.dy / g.dx),
+                (0, (1, 0), g.dy / g.dx),
+                (1, (0, -1), g.dx / g.dy),
+                (1, (0, 1), g.dx / g.dy),
+            ] {
+                if body(i + di, b + db) {
+                    f[link] += DFG_NU * weight * v;
+                }
+            }
+        }
+    }
+    f
+}
+
 /// One steady 2D-1 run in a channel of `height` and its forces by both
 /// methods; with the run's floors (those of `validation::Dfg2d1`).
 fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>)> {
@@ -259,6 +298,15 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
         [0, 1].map(|d| pressure[d] + 0.5 * shear[d]),
     ];
     let g = scene.grid();
+    let weights = ForceWeights::momentum_exchange(g, scene.solid());
+    let e = obstacle_force(
+        &weights,
+        s.ux.view(),
+        s.uy.view(),
+        s.pressure.view(),
+        DFG_NU,
+    )?;
+    let exchange = c([e[0], e[1]]);
     println!(
         "cpd {cpd:3}, height {height}: {}x{} cells, {steps} steps to t = {:.2} ({}, rate {rate:.1e}; {seconds:.1} s)",
         g.nx,
@@ -282,6 +330,15 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
         c(variants[0])[1],
         c(variants[1])[0],
         c(variants[1])[1]
+    );
+    let links = viscous_lift_by_link(scene, s).map(|f| coefficient * f);
+    println!(
+        "  surface, the step's exchange (ForceWeights::momentum_exchange): cD {:.4} cL {:+.5}   (viscous cL {:+.5}: tangential links {:+.5}, normal links {:+.5})",
+        exchange[0],
+        exchange[1],
+        exchange[1] - c(pressure)[1],
+        links[0],
+        links[1]
     );
     let mut boxes = Vec::new();
     for a in BOXES {
@@ -333,7 +390,9 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
         "surface": {"cd": st[0], "cl": st[1],
                     "pressure": c(pressure), "shear": c(shear),
                     "pressure_extrapolated_to_face": c(variants[0]),
-                    "shear_over_h": c(variants[1])},
+                    "shear_over_h": c(variants[1]),
+                    "momentum_exchange": exchange,
+                    "momentum_exchange_viscous_cl_tangential_normal": links},
         "control_volume": boxes,
         "geometry": geo,
         "surface_cl_history": lift_history,

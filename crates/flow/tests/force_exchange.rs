@@ -2,16 +2,23 @@
 //! (`ForceWeights::momentum_exchange`): on a periodic box with an obstacle,
 //! where no side brings momentum in, what one explicit viscosity step and one
 //! projection take out of the fluid is the force those weights give, to
-//! rounding; and the force's adjoint passes the dot-product test.
+//! rounding; the force's adjoint passes the dot-product test; and the drag it
+//! gives after a few steps of a channel flow has the tape's gradient with
+//! respect to the initial velocity, the inflow and the viscosity that central
+//! differences give.
 
 mod common;
 
 use diffphys_flow::boundaries::enforce_boundaries;
-use diffphys_flow::diagnostics::{obstacle_force, obstacle_force_vjp, ForceWeights};
+use std::sync::Arc;
+
+use diffphys_flow::diagnostics::{obstacle_force, obstacle_force_vjp, ForceWeights, ObstacleForce};
 use diffphys_flow::diffusion::diffuse;
 use diffphys_flow::pressure::project;
-use diffphys_flow::{Obstacle, Scene, Sides, ViscosityMode};
-use diffphys_tape::test_array;
+use diffphys_flow::{
+    FlowParams, FlowState, FlowVars, Obstacle, ParamVars, Scene, Sides, ViscosityMode,
+};
+use diffphys_tape::{test_array, Schedule, Tape};
 use ndarray::{Array1, Array2};
 
 const NU: f64 = 0.02;
@@ -134,4 +141,103 @@ fn the_exchange_force_passes_the_dot_product_test() {
     let f0 = obstacle_force(&weights, ux.view(), uy.view(), p.view(), 0.0).unwrap();
     let dnu = ((f[0] - f0[0]) * g[0] + (f[1] - f0[1]) * g[1]) / NU;
     assert!((r.viscosity - dnu).abs() <= 1e-12 * dnu.abs().max(1.0));
+}
+
+const STEPS: usize = 5;
+
+/// A change of the inputs by `ε` along a direction.
+type Perturb<'a> = dyn Fn(f64, &mut FlowState<f64>, &mut FlowParams<f64>) + 'a;
+
+/// The drag by the momentum exchange after [`STEPS`] steps of the tests'
+/// channel (12 × 6, a cylinder, parabolic inflow).
+fn drag_after_steps(
+    scene: &Scene,
+    w: &ForceWeights,
+    s0: &FlowState<f64>,
+    p: &FlowParams<f64>,
+) -> f64 {
+    let mut s = s0.clone();
+    for _ in 0..STEPS {
+        s = scene.forward(&s, p).unwrap().0;
+    }
+    obstacle_force(w, s.ux.view(), s.uy.view(), s.pressure.view(), p.viscosity).unwrap()[0]
+}
+
+#[test]
+fn the_exchange_drag_through_five_steps_has_the_finite_difference_gradient() {
+    let scene = common::channel().build().unwrap();
+    let weights = Arc::new(ForceWeights::momentum_exchange(scene.grid(), scene.solid()));
+    let (ux, uy) = common::velocity(&scene, 0.3, 21);
+    let s0 = FlowState::from_velocity(&scene, ux, uy);
+    let p = scene.params::<f64>();
+
+    let tape = Tape::<f64>::new();
+    let state = FlowVars::variables(&tape, &s0);
+    let params = ParamVars::variables(&tape, &p);
+    let end = scene
+        .rollout(&tape, Schedule::Full, STEPS, &state, &params)
+        .unwrap();
+    let force = tape
+        .apply(
+            ObstacleForce {
+                weights: Arc::clone(&weights),
+            },
+            &[end.ux, end.uy, end.pressure, params.viscosity],
+        )
+        .unwrap();
+    let pick = tape.constant(ndarray::arr1(&[1.0, 0.0]).into_dyn());
+    let drag = force.dot(pick).unwrap();
+    let value = drag.item().unwrap();
+    assert!((value - drag_after_steps(&scene, &weights, &s0, &p)).abs() < 1e-12 * value.abs());
+    let g = tape
+        .backward(drag, &[state.ux, state.uy, params.inflow, params.viscosity])
+        .unwrap();
+
+    let (dx, dy) = common::velocity(&scene, 1.0, 23);
+    let dinflow: Array1<f64> = test_array::<f64>(&[scene.inflow_len()], 24)
+        .into_dimensionality()
+        .unwrap();
+    let along = |eps: f64, f: &Perturb<'_>| {
+        let run = |e: f64| {
+            let (mut s, mut q) = (s0.clone(), p.clone());
+            f(e, &mut s, &mut q);
+            drag_after_steps(&scene, &weights, &s, &q)
+        };
+        (run(eps) - run(-eps)) / (2.0 * eps)
+    };
+    let dot = |a: &diffphys_tape::ArrayD<f64>, b: &[f64]| {
+        a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>()
+    };
+    let cases = [
+        (
+            "initial velocity",
+            along(1e-6, &|e, s, _| {
+                s.ux.scaled_add(e, &dx);
+                s.uy.scaled_add(e, &dy);
+            }),
+            dot(g.get(state.ux).unwrap(), dx.as_slice().unwrap())
+                + dot(g.get(state.uy).unwrap(), dy.as_slice().unwrap()),
+        ),
+        (
+            "inflow profile",
+            along(1e-6, &|e, _, q| q.inflow.scaled_add(e, &dinflow)),
+            dot(g.get(params.inflow).unwrap(), dinflow.as_slice().unwrap()),
+        ),
+        (
+            "viscosity",
+            along(5e-8, &|e, _, q| q.viscosity += e),
+            g.get(params.viscosity).unwrap().iter().sum(),
+        ),
+    ];
+    for (what, fd, ad) in cases {
+        println!("d drag / d {what}: finite differences {fd:.10e}, tape {ad:.10e}");
+        assert!(
+            ad.abs() > 1e-6,
+            "{what}: the gradient is (nearly) zero: {ad:e}"
+        );
+        assert!(
+            (fd - ad).abs() <= 1e-5 * fd.abs().max(1e-3),
+            "{what}: fd {fd:e} vs tape {ad:e}"
+        );
+    }
 }

@@ -52,14 +52,15 @@ fn the_coarse_dfg_2d2_cylinder_sheds_at_the_published_strouhal_number() {
 }
 
 /// The coarse cylinder's drag: DFG 2D-1 at 8 cells across, run until no face
-/// changes by more than 1e-3 per unit time, its drag by both force methods
+/// changes by more than 3e-3 per unit time (the drags agree with those at
+/// 1e-3 to four digits), its drag by both force methods
 /// (the surface integral and the momentum balance) within 5 % of the
 /// published interval (Schäfer and Turek 1996, Table 4: 5.57-5.59). At 10
 /// cells across the two lie 1.2 % and 2.3 % outside it (docs/10-flow.md).
 #[test]
 fn the_coarse_dfg_2d1_cylinder_has_the_published_drag_by_both_force_methods() {
     let mut case = Dfg2d1::new(8).unwrap();
-    case.tol = 1e-3;
+    case.tol = 3e-3;
     let result = case.run(&mut |_, _, _| Ok(())).unwrap();
     for f in &result.floors {
         println!("DFG 2D-1, 8 cells per diameter: {f}");

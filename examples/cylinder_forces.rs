@@ -22,6 +22,14 @@
 //!   `validation::control_volume_force` on a `validation::FaceBox`. It never looks at the
 //!   staircase, so an error of the surface evaluation shows as a gap between
 //!   the two, and an error of the flow field as both moving together.
+//! - **What the step exchanges with the body**: one step from the steady
+//!   state run piece by piece (boundaries, the old pressure gradient,
+//!   advection, viscosity, projection; its velocity checked equal to the
+//!   step's), each piece's change of the momentum inside a box set against
+//!   the box's matching edge term: the rest is the momentum that piece takes
+//!   out of the fluid at the body. The pieces sum to the control-volume
+//!   force; set beside the surface evaluation's pressure and shear parts they
+//!   show which part of the surface formula is not the flow's.
 //! - **Geometry**: the solid cells' area, centroid and first moments about the
 //!   true centre, and whether the mask is mirror-symmetric about y = 0.2.
 //! - **Control** (`--cases symmetric`): the same body at the centre of a
@@ -46,11 +54,17 @@ mod flow_common;
 
 use std::time::Instant;
 
+use diffphys::flow::advection::advect_velocity;
+use diffphys::flow::boundaries::enforce_boundaries;
+use diffphys::flow::diagnostics::{obstacle_force, ForceWeights};
+use diffphys::flow::diffusion::diffuse;
+use diffphys::flow::pressure::{project, subtract_pressure_gradient};
 use diffphys::flow::validation::{
     control_volume_force, Dfg2d1, DfgChannel, FaceBox, FloorCheck, CONTROL_VOLUME_CLEARANCE,
     DFG_2D1, DFG_2D1_HIGH_ACCURACY, DFG_CENTRE, DFG_DIAMETER, DFG_HEIGHT, DFG_NU,
 };
-use diffphys::flow::{FlowState, Scene};
+use diffphys::flow::{FlowState, Scene, Splitting};
+use ndarray::Array2;
 use serde_json::{json, Value};
 
 type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
@@ -139,6 +153,126 @@ fn pressure_extrapolated(scene: &Scene, s: &FlowState<f64>) -> [f64; 2] {
     f
 }
 
+/// The momentum one step of `scene` from the steady state `s` exchanges with
+/// the body, piece by piece, over the box `b`: each piece of the step
+/// (enforcing the boundaries, the old pressure gradient, advection,
+/// viscosity, projection) is run as the step runs it, and what it adds to the
+/// momentum inside `b` is set against what the control volume's matching edge
+/// term brings in; the rest is what the piece takes out of the fluid at the
+/// body: `body_k = edge_k − ΔM_k / dt`. The pressure pieces are set against
+/// the pressure term, advection against the momentum flux, viscosity against
+/// the viscous term; the pieces sum to the control-volume force. Returns
+/// `[pressure, viscous, convective, boundaries]`, each `[F_x, F_y]`.
+fn step_budget(scene: &Scene, s: &FlowState<f64>, b: FaceBox) -> Result<[[f64; 2]; 4]> {
+    let params = scene.params::<f64>();
+    let (g, faces, set, dt) = (scene.grid(), scene.faces(), scene.settings(), scene.dt());
+    let (next, info) = scene.forward(s, &params)?;
+    if info.substeps != 1 || set.splitting != Splitting::Incremental {
+        return Err("the budget follows one incremental step without substeps".into());
+    }
+    let u0 = enforce_boundaries(g, faces, s.ux.view(), s.uy.view(), params.inflow.view())?;
+    let q = subtract_pressure_gradient(
+        g,
+        faces,
+        dt / 2.0,
+        u0.0.view(),
+        u0.1.view(),
+        s.pressure.view(),
+    )?;
+    let a = advect_velocity(
+        g,
+        faces,
+        set.advection,
+        dt,
+        (q.0.view(), q.1.view()),
+        (u0.0.view(), u0.1.view()),
+        params.wall_speed.view(),
+    )?;
+    let d = diffuse(
+        scene.diffusion(),
+        set.viscosity_mode,
+        dt,
+        a.0.view(),
+        a.1.view(),
+        params.viscosity,
+        params.wall_speed.view(),
+    )?;
+    let p = project(
+        scene.pressure_system(),
+        dt / 2.0,
+        d.0.view(),
+        d.1.view(),
+        Some(s.pressure.view()),
+    )?;
+    if p.ux != next.ux || p.uy != next.uy {
+        return Err("the pieces run one by one do not give the step's velocity".into());
+    }
+    let momentum = |ux: &Array2<f64>, uy: &Array2<f64>| {
+        let state = FlowState {
+            ux: ux.clone(),
+            uy: uy.clone(),
+            pressure: s.pressure.clone(),
+            scalars: Vec::new(),
+        };
+        b.momentum(scene, &state)
+    };
+    let m = [
+        momentum(&s.ux, &s.uy)?,
+        momentum(&u0.0, &u0.1)?,
+        momentum(&q.0, &q.1)?,
+        momentum(&a.0, &a.1)?,
+        momentum(&d.0, &d.1)?,
+        momentum(&p.ux, &p.uy)?,
+    ];
+    let gain = |from: usize, to: usize| [0, 1].map(|k| (m[to][k] - m[from][k]) / dt);
+    let cv = control_volume_force(scene, b, s, Some(&next), DFG_NU)?;
+    let (old_p, new_p) = (gain(1, 2), gain(4, 5));
+    Ok([
+        [0, 1].map(|k| cv.pressure[k] - old_p[k] - new_p[k]),
+        [0, 1].map(|k| cv.viscous[k] - gain(3, 4)[k]),
+        [0, 1].map(|k| cv.convective[k] - gain(2, 3)[k]),
+        [0, 1].map(|k| -gain(0, 1)[k]),
+    ])
+}
+
+/// The viscous lift the step's Laplacian takes out of the fluid at the body
+/// (`ForceWeights::momentum_exchange`'s y-component), split by the direction
+/// of the link: `[tangential, normal]`, the links of each free y-face to an
+/// obstacle y-face beside it (across a riser, along x) and to one above or
+/// below it (the zero normal velocity of a tread, along y).
+fn viscous_lift_by_link(scene: &Scene, s: &FlowState<f64>) -> [f64; 2] {
+    let g = scene.grid();
+    let solid = scene.solid();
+    let (nx, ny) = (g.nx as isize, g.ny as isize);
+    // y-face (i, b) lies between cells (i, b − 1) and (i, b)
+    let body = |i: isize, b: isize| {
+        (0..nx).contains(&i)
+            && [b - 1, b]
+                .into_iter()
+                .any(|j| (0..ny).contains(&j) && solid[[i as usize, j as usize]])
+    };
+    let mut f = [0.0; 2];
+    for i in 0..nx {
+        for b in 1..ny {
+            if body(i, b) {
+                continue;
+            }
+            let v = s.uy[[i as usize, b as usize]];
+            for (link, (di, db), weight) in [
+                (0, (-1, 0), g.dy / g.dx),
+                (0, (1, 0), g.dy / g.dx),
+                (1, (0, -1), g.dx / g.dy),
+                (1, (0, 1), g.dx / g.dy),
+            ] {
+                if body(i + di, b + db) {
+                    f[link] += DFG_NU * weight * v;
+                }
+            }
+        }
+    }
+    f
+}
+
 /// One steady 2D-1 run in a channel of `height` and its forces by both
 /// methods; with the run's floors (those of `validation::Dfg2d1`).
 fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>)> {
@@ -164,6 +298,15 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
         [0, 1].map(|d| pressure[d] + 0.5 * shear[d]),
     ];
     let g = scene.grid();
+    let weights = ForceWeights::momentum_exchange(g, scene.solid());
+    let e = obstacle_force(
+        &weights,
+        s.ux.view(),
+        s.uy.view(),
+        s.pressure.view(),
+        DFG_NU,
+    )?;
+    let exchange = c([e[0], e[1]]);
     println!(
         "cpd {cpd:3}, height {height}: {}x{} cells, {steps} steps to t = {:.2} ({}, rate {rate:.1e}; {seconds:.1} s)",
         g.nx,
@@ -188,6 +331,15 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
         c(variants[1])[0],
         c(variants[1])[1]
     );
+    let links = viscous_lift_by_link(scene, s).map(|f| coefficient * f);
+    println!(
+        "  surface, the step's exchange (ForceWeights::momentum_exchange): cD {:.4} cL {:+.5}   (viscous cL {:+.5}: tangential links {:+.5}, normal links {:+.5})",
+        exchange[0],
+        exchange[1],
+        exchange[1] - c(pressure)[1],
+        links[0],
+        links[1]
+    );
     let mut boxes = Vec::new();
     for a in BOXES {
         let b = FaceBox::around(g, DFG_CENTRE, a);
@@ -206,7 +358,14 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
             c(f.convective)[1],
             c(f.unsteady)[1]
         );
+        let budget = step_budget(scene, s, b)?.map(c);
+        println!(
+            "      exchanged with the body by the step's pieces: pressure cD {:.4} cL {:+.5}, viscosity cD {:.4} cL {:+.5}, advection cD {:.4} cL {:+.5}, boundaries cL {:+.1e}",
+            budget[0][0], budget[0][1], budget[1][0], budget[1][1], budget[2][0], budget[2][1], budget[3][1]
+        );
         boxes.push(json!({
+            "exchanged_with_body": {"pressure": budget[0], "viscosity": budget[1],
+                                    "advection": budget[2], "boundaries": budget[3]},
             "half_width": a, "faces": [b.i0, b.i1, b.j0, b.j1], "clearance_cells": clearance,
             "cd": t[0], "cl": t[1],
             "parts_cd": {"pressure": c(f.pressure)[0], "viscous": c(f.viscous)[0],
@@ -231,7 +390,9 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
         "surface": {"cd": st[0], "cl": st[1],
                     "pressure": c(pressure), "shear": c(shear),
                     "pressure_extrapolated_to_face": c(variants[0]),
-                    "shear_over_h": c(variants[1])},
+                    "shear_over_h": c(variants[1]),
+                    "momentum_exchange": exchange,
+                    "momentum_exchange_viscous_cl_tangential_normal": links},
         "control_volume": boxes,
         "geometry": geo,
         "surface_cl_history": lift_history,

@@ -21,6 +21,14 @@
 //!   `∂F/∂ν` the shear term over `ν`. A staircase body converges at first
 //!   order in `h`.
 //!
+//!   [`ForceWeights::momentum_exchange`] gives the same op the momentum the
+//!   step itself takes out of the fluid at the body: the same pressure term,
+//!   and for the viscous term `ν u_f A / d` on every link of the five-point
+//!   Laplacian from a free face `f` to an obstacle face, tangential and
+//!   normal links alike. On the DFG 2D-1 cylinder the wall-shear model above
+//!   misses the normal links' lift, which does not fall with `h`
+//!   (docs/10-flow.md, "What the step exchanges with the body").
+//!
 //! Divergence and vorticity read only the grid: they take a [`FlowGrid`] or
 //! anything that holds one (`AsRef<FlowGrid>`, such as a [`crate::Scene`]).
 
@@ -31,7 +39,7 @@ use ndarray::{Array1, Array2, ArrayView2, IxDyn};
 
 use crate::boundaries::{scalar_of, view2};
 use crate::buffers::{narrow, wide};
-use crate::grid::FlowGrid;
+use crate::grid::{FlowGrid, Lattice};
 use crate::staggered::{divergence_wide, gradient_wide};
 use crate::Result;
 
@@ -235,6 +243,80 @@ impl ForceWeights {
                 let c = grid.dx / grid.dy;
                 w.shear.push((0, il * ny + fluid, 0, c));
                 w.shear.push((0, ir * ny + fluid, 0, c));
+            }
+        }
+        w
+    }
+}
+
+impl ForceWeights {
+    /// The obstacle's surface as the step's momentum balance sees it: the
+    /// pressure weights of [`ForceWeights::new`] (the momentum the projection
+    /// takes from the fluid at the body is exactly `Σ P_fluid n A_f`), and for
+    /// the viscous part one link per free face `f` and neighbouring obstacle
+    /// face `s` of the five-point Laplacian that the viscosity step applies,
+    ///
+    /// ```text
+    /// F_visc = Σ_links ν (u_f − u_s) A / d = Σ_links ν u_f A / d   (u_s = 0)
+    /// ```
+    ///
+    /// (`A / d` = `dy/dx` for a link along x, `dx/dy` along y, per unit
+    /// depth), in both directions: a face beside a tread and one before a
+    /// riser alike. This
+    /// is the momentum the discrete viscosity takes out of the fluid at the
+    /// body (with explicit viscosity, the momentum change of one viscosity
+    /// step over `dt`, exactly), where [`ForceWeights::new`] models a
+    /// continuous wall's shear, `ν ū_t / (h/2)` on each face, tangential
+    /// links only. Linear in `u` like it; adjoint the same weights.
+    ///
+    /// # Panics
+    /// If `solid` is not `[nx, ny]`.
+    pub fn momentum_exchange(grid: &FlowGrid, solid: &Array2<bool>) -> Self {
+        let mut w = ForceWeights::new(grid, solid);
+        w.shear.clear();
+        let lattices = [(0, Lattice::FaceX), (1, Lattice::FaceY)];
+        for (d, lattice) in lattices {
+            let [na, nb] = grid.shape(lattice);
+            // a face of the obstacle: one of its cells is solid
+            let body = |a: usize, b: usize| match lattice {
+                Lattice::FaceX => {
+                    let (lo, hi) = grid.x_face_cells(a);
+                    [lo, hi].into_iter().flatten().any(|c| solid[[c, b]])
+                }
+                _ => {
+                    let (lo, hi) = grid.y_face_cells(b);
+                    [lo, hi].into_iter().flatten().any(|c| solid[[a, c]])
+                }
+            };
+            let normal_index = |a: usize, b: usize| if d == 0 { a } else { b };
+            let axes = [
+                (na, grid.periodic_x(), grid.dy / grid.dx, true),
+                (nb, grid.periodic_y(), grid.dx / grid.dy, false),
+            ];
+            for a in 0..na {
+                for b in 0..nb {
+                    let on_side = grid.boundary_side(lattice, normal_index(a, b)).is_some();
+                    if on_side || body(a, b) {
+                        continue;
+                    }
+                    for (n, periodic, weight, along_a) in axes {
+                        let i = if along_a { a } else { b };
+                        for step in [-1i64, 1] {
+                            let j = i as i64 + step;
+                            let j = if periodic {
+                                j.rem_euclid(n as i64) as usize
+                            } else if (0..n as i64).contains(&j) {
+                                j as usize
+                            } else {
+                                continue;
+                            };
+                            let (sa, sb) = if along_a { (j, b) } else { (a, j) };
+                            if body(sa, sb) {
+                                w.shear.push((d, a * nb + b, d, weight));
+                            }
+                        }
+                    }
+                }
             }
         }
         w

@@ -160,15 +160,8 @@ impl<S: Simulator + 'static, C: Corrector + 'static> Hybrid<S, C> {
     /// The solver's step of `u`, its parameters carried.
     fn solver_step<'t>(&self, u: &StateVars<'t>) -> diffphys_tape::Result<StateVars<'t>> {
         let fields = self.simulator.step(u)?;
-        if fields.len() != u.fields.len() {
-            return Err(TapeError::invalid(
-                "simulator",
-                format!(
-                    "a step returned {} fields for a state of {}",
-                    fields.len(),
-                    u.fields.len()
-                ),
-            ));
+        if let Some(message) = field_count_mismatch(fields.len(), u.fields.len()) {
+            return Err(TapeError::invalid("simulator", message));
         }
         Ok(StateVars {
             fields,
@@ -215,15 +208,8 @@ impl<S: Simulator + 'static, C: Corrector + 'static> Hybrid<S, C> {
     /// As [`Hybrid::check_shapes`], for the step's own fields and corrections.
     pub fn step_plain(&self, params: Option<&Params<f64>>, u: &State) -> Result<State> {
         let fields = self.simulator.step_plain(u)?;
-        if fields.len() != u.fields.len() {
-            return Err(LearnError::invalid(
-                "simulator",
-                format!(
-                    "a step returned {} fields for a state of {}",
-                    fields.len(),
-                    u.fields.len()
-                ),
-            ));
+        if let Some(message) = field_count_mismatch(fields.len(), u.fields.len()) {
+            return Err(LearnError::invalid("simulator", message));
         }
         let v = State {
             fields,
@@ -346,6 +332,12 @@ impl<S: Simulator + 'static, C: Corrector + 'static> Hybrid<S, C> {
             })
             .collect())
     }
+}
+
+/// What is wrong with a step that returned `got` fields for a state of
+/// `expected`, if anything.
+fn field_count_mismatch(got: usize, expected: usize) -> Option<String> {
+    (got != expected).then(|| format!("a step returned {got} fields for a state of {expected}"))
 }
 
 /// Each field's share of the entries of `fields` (the weights that make the

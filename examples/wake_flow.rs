@@ -42,8 +42,8 @@ use diffphys::learn::study::{
     self as learn_study, pilot_learning_rates, run_jobs, Ledger, Plan, Protocol,
 };
 use diffphys::learn::{
-    rollout, Budget, DataSeed, Hybrid, LrSchedule, Report, SavedModel, Schedule, Simulator, Split,
-    Splits, State, Strategy, Summary, TrainSeed, Trained, TrainedCorrector, Trainer, Trajectory,
+    rollout, Budget, DataSeed, Hybrid, LrSchedule, Report, SavedModel, Schedule, Split, Splits,
+    Strategy, Summary, TrainSeed, Trained, TrainedCorrector, Trainer, Trajectory,
 };
 use diffphys::nn::{Arithmetic, Params};
 use diffphys::report::{progress_bar, Progress};
@@ -57,7 +57,7 @@ use wake_flow_scene::data::{self, base_state, reference, Bump, Reference};
 use wake_flow_scene::model;
 use wake_flow_scene::study::{self, HeldOutRun};
 use wake_flow_scene::{
-    free_faces, reference_scene, uncorrected, Body, Coarse, Net, NetSize, Options, Sizes, Variant,
+    net, reference_scene, uncorrected, Body, Coarse, Net, NetSize, Options, Sizes, Variant,
     WakeError, MAIN_SIZE, SIZES, STEP_EVALUATIONS,
 };
 
@@ -94,27 +94,6 @@ fn strategy(variant: Variant, sigma: f64) -> Option<Strategy> {
             },
         }),
     }
-}
-
-/// The root mean square one-step error of the coarse solver over the free
-/// faces of the training trajectories (every 10th state): the noise scale.
-fn one_step_rms(coarse: &Coarse, train: &[Trajectory]) -> Result<f64, BoxError> {
-    let free = free_faces(&coarse.scene);
-    let (mut sum, mut count) = (0.0, 0.0);
-    for tr in train {
-        for t in (0..tr.len() - 1).step_by(10) {
-            let next = coarse.step_plain(&State::stack(&[&tr[t]])?)?;
-            // u_x and u_y, each on its block of the free-face lattice.
-            for (c, (now, then)) in next.iter().zip(&tr[t + 1].fields).take(2).enumerate() {
-                let (a, b) = (then.shape()[0], then.shape()[1]);
-                let mask = free.slice(ndarray::s![c, ..a, ..b]);
-                let d = (&now.index_axis(ndarray::Axis(0), 0) - then) * mask;
-                sum += d.mapv(|e| e * e).sum();
-            }
-            count += free.sum();
-        }
-    }
-    Ok((sum / count).sqrt())
 }
 
 struct Model {
@@ -180,8 +159,8 @@ fn train_one(setup: &Setup<'_>, job: &Job) -> Result<Model, BoxError> {
         validation_steps: setup.validation_steps,
     };
     let strategy = strategy(variant, setup.sigma).ok_or("src is not trained")?;
-    let (net, params) = Net::new(
-        &setup.coarse.scene,
+    let (net, params) = net(
+        setup.coarse.scene(),
         size,
         setup.arithmetic,
         &mut TrainSeed(seed).init_rng(),
@@ -372,8 +351,8 @@ impl Ctx {
     /// A corrector of `size` on the coarse scene, drawn from training seed
     /// `seed`.
     fn new_net(&self, size: NetSize, seed: u64) -> wake_flow_scene::Result<(Net, Params<f64>)> {
-        Net::new(
-            &self.coarse.scene,
+        net(
+            self.coarse.scene(),
             size,
             self.arithmetic,
             &mut TrainSeed(seed).init_rng(),

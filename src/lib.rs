@@ -51,6 +51,7 @@
 #[cfg(feature = "harness")]
 pub use diffphys_compare as compare;
 pub use diffphys_flow as flow;
+pub use diffphys_hybrid as hybrid;
 pub use diffphys_learn as learn;
 pub use diffphys_nn as nn;
 pub use diffphys_ops as ops;

@@ -17,6 +17,15 @@ const ALLOWED: &[(&str, &[&str])] = &[
     ("flow", &["diffphys-tape", "diffphys-ops"]),
     ("report", &["diffphys-tape"]),
     (
+        "hybrid",
+        &[
+            "diffphys-tape",
+            "diffphys-nn",
+            "diffphys-learn",
+            "diffphys-flow",
+        ],
+    ),
+    (
         "compare",
         &["diffphys-tape", "diffphys-ops", "diffphys-report"],
     ),

@@ -11,12 +11,13 @@ mod wake_flow_scene;
 
 use clap::Parser;
 use diffphys::flow::{FlowState, PressureSolver, Splitting};
+use diffphys::hybrid::{free_faces, LatticeNet};
 use diffphys::learn::{Hybrid, LearnError, Simulator, Split, State, TrainSeed};
 use diffphys::nn::Arithmetic;
 use ndarray::Array2;
 use wake_flow_scene::cli::{seeds, Cli, Command};
 use wake_flow_scene::{
-    free_faces, sample, uncorrected, viscosity, Coarse, Net, NetSize, Options, Sizes, Variant,
+    net, re_code, sample, uncorrected, viscosity, Coarse, NetSize, Options, Sizes, Variant,
     WakeError,
 };
 
@@ -129,24 +130,19 @@ fn an_empty_split_is_refused() {
     }
 }
 
-/// Views of a sample's fields.
-fn views(fields: &[ndarray::ArrayD<f64>]) -> Vec<ndarray::ArrayViewD<'_, f64>> {
-    fields.iter().map(|a| a.view()).collect()
-}
-
 fn coarse() -> Coarse {
     Coarse::new(uncorrected(&Sizes::small(), 1, PressureSolver::Cholesky).unwrap())
 }
 
 /// A batch of one uniform flow at Re 400.
 fn probe(c: &Coarse) -> State {
-    let g = c.scene.grid();
+    let g = c.scene().grid();
     let s = FlowState::from_velocity(
-        &c.scene,
+        c.scene(),
         Array2::from_elem(g.shape_x(), 1.0),
         Array2::zeros(g.shape_y()),
     );
-    State::stack(&[&sample(&c.scene, &s, viscosity(400.0))]).unwrap()
+    State::stack(&[&sample(c.scene(), &s, viscosity(400.0))]).unwrap()
 }
 
 #[test]
@@ -156,29 +152,30 @@ fn a_corrector_of_the_wrong_shape_is_refused() {
         width: 4,
         blocks: 1,
     };
-    let (net, params) = Net::with_outputs(
-        &c.scene,
+    let (net3, params) = LatticeNet::with_outputs(
+        c.scene(),
         size,
+        re_code,
         3,
         Arithmetic::Single,
         &mut TrainSeed(1).init_rng(),
     )
     .unwrap();
-    let hybrid = Hybrid::new(c.clone(), net);
+    let hybrid = Hybrid::new(c.clone(), net3);
     match hybrid.check_shapes(&params, &probe(&c)) {
         Err(LearnError::CorrectorFields { expected, got }) => {
             assert_eq!((expected, got), (2, 3));
         }
         other => panic!("expected a corrector-fields error, got {other:?}"),
     }
-    let (net, params) = Net::new(
-        &c.scene,
+    let (corrector, params) = net(
+        c.scene(),
         size,
         Arithmetic::Single,
         &mut TrainSeed(1).init_rng(),
     )
     .unwrap();
-    Hybrid::new(c.clone(), net)
+    Hybrid::new(c.clone(), corrector)
         .check_shapes(&params, &probe(&c))
         .unwrap();
 }
@@ -200,8 +197,8 @@ fn the_incremental_coarse_solver_carries_its_pressure_uncorrected() {
         width: 4,
         blocks: 1,
     };
-    let (net, zero_head) = Net::new(
-        &c.scene,
+    let (corrector, zero_head) = net(
+        c.scene(),
         size,
         Arithmetic::Single,
         &mut TrainSeed(1).init_rng(),
@@ -212,7 +209,7 @@ fn the_incremental_coarse_solver_carries_its_pressure_uncorrected() {
     for (name, v) in zero_head.names().iter().zip(zero_head.values()) {
         params.add(name.clone(), v.mapv(|x| x + 0.01)).unwrap();
     }
-    let hybrid = Hybrid::new(c, net);
+    let hybrid = Hybrid::new(c, corrector);
     hybrid.check_shapes(&params, &probe).unwrap();
     let corrected = hybrid.step_plain(Some(&params), &probe).unwrap();
     let solver = hybrid.step_plain(None, &probe).unwrap();
@@ -234,7 +231,7 @@ fn noise_leaves_the_viscosity_and_the_fixed_faces_alone() {
     let mut noisy = clean.clone();
     c.perturb(&mut noisy, 0.1, &mut TrainSeed(2).sampling_rng());
     assert_eq!(noisy.params, clean.params, "the viscosity moved");
-    let free = free_faces(&c.scene);
+    let free = free_faces(c.scene());
     let mut moved = 0;
     for (channel, (n, m)) in noisy.fields.iter().zip(&clean.fields).enumerate() {
         for ((i, &x), &y) in n.indexed_iter().zip(m.iter()) {
@@ -341,7 +338,7 @@ fn the_body_the_reference_scheme_and_the_arithmetic_parse_and_unknown_names_are_
 /// averages them onto the coarse grid.
 fn pinned_after_one_reference_step(body: wake_flow_scene::Body) -> f64 {
     use diffphys::flow::restrict_velocity;
-    use wake_flow_scene::{reference_scene, study, FACTOR};
+    use wake_flow_scene::{reference_scene, FACTOR};
     let sizes = Sizes {
         body,
         ..Sizes::small()
@@ -352,19 +349,18 @@ fn pinned_after_one_reference_step(body: wake_flow_scene::Body) -> f64 {
     start.ux.fill(1.0);
     let after = fine.forward(&start, &fine.params()).unwrap().0;
     let (ux, uy) = restrict_velocity(
-        coarse.scene.grid(),
+        coarse.scene().grid(),
         FACTOR,
         after.ux.view(),
         after.uy.view(),
     )
     .unwrap();
-    let free = free_faces(&coarse.scene);
     let state = sample(
-        &coarse.scene,
-        &FlowState::from_velocity(&coarse.scene, ux, uy),
+        coarse.scene(),
+        &FlowState::from_velocity(coarse.scene(), ux, uy),
         fine.params().viscosity,
     );
-    study::pinned_face_error(&coarse, &free, &vec![state.clone(), state]).unwrap()
+    coarse.pinned_face_error(&[state.clone(), state]).unwrap()
 }
 
 #[test]
@@ -441,8 +437,8 @@ fn evaluate_refuses_a_model_saved_for_another_scene() {
 
     let sizes = Sizes::small();
     let c = coarse();
-    let (_, params) = Net::new(
-        &c.scene,
+    let (_, params) = net(
+        c.scene(),
         MAIN_SIZE,
         Arithmetic::Single,
         &mut TrainSeed(1).init_rng(),
@@ -484,41 +480,4 @@ fn evaluate_refuses_a_model_saved_for_another_scene() {
         "nothing was generated for a refused model"
     );
     std::fs::remove_dir_all(&dir).ok();
-}
-
-#[test]
-fn the_deviation_and_vorticity_errors_measure_the_wake_not_the_free_stream() {
-    use wake_flow_scene::study::{deviation_error, vorticity_error};
-    let c = coarse();
-    let g = c.scene.grid();
-    // A reference: the free stream plus a cross-stream wave; a prediction:
-    // the free stream alone (it misses the whole wake).
-    let wave = Array2::from_shape_fn(g.shape_y(), |(i, j)| {
-        (0.3 * i as f64 + 0.7 * j as f64).sin()
-    });
-    let state = |uy: Array2<f64>| {
-        let s = FlowState::from_velocity(&c.scene, Array2::from_elem(g.shape_x(), 1.0), uy);
-        c.scene.sample_of(&s)
-    };
-    let (r, p) = (state(0.1 * &wave), state(Array2::zeros(g.shape_y())));
-    let (rv, pv) = (views(&r), views(&p));
-    assert_eq!(deviation_error(&c.scene, &rv, &rv), 0.0);
-    assert_eq!(vorticity_error(&c.scene, &rv, &rv), 0.0);
-    // Missing the whole deviation is an error of 1 (100 %), however small the
-    // wave is against the free stream; the state's relative error is not.
-    let missed = deviation_error(&c.scene, &pv, &rv);
-    assert!((missed - 1.0).abs() < 1e-12, "{missed}");
-    let batch = |f: &[ndarray::ArrayD<f64>]| {
-        f.iter()
-            .map(|a| a.clone().insert_axis(ndarray::Axis(0)))
-            .collect::<Vec<_>>()
-    };
-    let whole = diffphys::learn::relative_l2_fields(&batch(&p), &batch(&r));
-    assert!(whole < 0.2 * missed, "{whole}");
-    assert!(vorticity_error(&c.scene, &pv, &rv) > 0.5);
-    // Not a state of the scene: NaN, which the rollout refuses.
-    let wrong = ndarray::ArrayD::<f64>::zeros(vec![3, 3]);
-    let wrong = [wrong.view(), wrong.view()];
-    assert!(deviation_error(&c.scene, &wrong, &rv).is_nan());
-    assert!(vorticity_error(&c.scene, &rv, &wrong).is_nan());
 }

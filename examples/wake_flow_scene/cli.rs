@@ -229,7 +229,14 @@ impl Options {
             o.capacity = list
                 .split(',')
                 .filter(|s| !s.trim().is_empty())
-                .map(|s| NetSize::parse(s.trim()))
+                .map(|s| {
+                    s.trim()
+                        .parse::<NetSize>()
+                        .map_err(|e| WakeError::Argument {
+                            option: "--capacity-sizes".into(),
+                            message: e.to_string(),
+                        })
+                })
                 .filter(|s| s.as_ref().map_or(true, |s| *s != MAIN_SIZE))
                 .collect::<Result<_>>()?;
         }

@@ -16,12 +16,12 @@ use diffphys::report::progress_bar;
 use serde_json::{json, Value};
 
 use super::data::{advance_by, start_state, Bump};
-use super::study::{deviation_error, velocity_error};
 use super::{
     reference_scene_at, uncorrected, viscosity, Options, Result, Sizes, WakeError, DIAMETER,
     FACTOR, U_IN,
 };
 use diffphys::flow::PressureSolver;
+use diffphys::hybrid::metrics::{deviation_error, velocity_error};
 
 /// One level's recorded window at one Re: the velocities restricted to the
 /// coarse grid, and the force coefficients after each coarse step.
@@ -195,7 +195,7 @@ pub fn check(options: &Options, sizes: &Sizes, data_seed: u64) -> Result<Value> 
                     coarse.sample_of(&ours.states[t]),
                     coarse.sample_of(&finer.states[t]),
                 );
-                deviation_error(&coarse, &views(&p), &views(&r))
+                deviation_error(&coarse, [U_IN, 0.0], &views(&p), &views(&r))
             })
             .sum::<f64>()
             / steps.len() as f64;

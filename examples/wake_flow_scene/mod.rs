@@ -32,11 +32,13 @@ mod net;
 mod solvers;
 pub mod study;
 
-pub use net::{Net, NetSize, MAIN_SIZE, SIZES};
-pub use solvers::{
-    free_faces, reference_scene, reference_scene_at, sample, uncorrected, Body, Coarse,
-    ReferenceScheme,
-};
+pub use diffphys::hybrid::{sample, NetSize};
+pub use net::{net, Net, MAIN_SIZE, SIZES};
+pub use solvers::{reference_scene, reference_scene_at, uncorrected, Body, ReferenceScheme};
+
+/// The coarse solver: the hybrid library's simulator of the coarse scene (a
+/// viscosity per sample, so one batch mixes Reynolds numbers).
+pub type Coarse = diffphys::hybrid::FlowSimulator;
 
 use diffphys::flow::{Advection, FlowError, Splitting};
 use diffphys::learn::{LearnError, Split};
@@ -116,6 +118,9 @@ pub enum WakeError {
     /// A tape op refused.
     #[error(transparent)]
     Tape(#[from] TapeError),
+    /// The hybrid library refused (a corrector size, a trajectory).
+    #[error(transparent)]
+    Hybrid(#[from] diffphys::hybrid::HybridError),
     /// Writing a chart or a file failed.
     #[error("output: {0}")]
     Output(String),

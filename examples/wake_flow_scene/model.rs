@@ -14,7 +14,7 @@ use serde_json::{json, Map, Value};
 use super::data::{self, base_state, reference, Bump, Reference};
 use super::study::{held_out_re, HeldOutRun, ReRun};
 use super::{
-    advection_label, arithmetic_label, reference_scene, splitting_label, uncorrected, Coarse, Net,
+    advection_label, arithmetic_label, net, reference_scene, splitting_label, uncorrected, Coarse,
     NetSize, Result, Sizes, WakeError, RE_CENTRE,
 };
 
@@ -100,15 +100,15 @@ pub fn evaluate(e: &Evaluation<'_>) -> Result<Value> {
             option: "--model".into(),
             message: "the saved model names no corrector size".into(),
         })?;
-    let size = NetSize::parse(corrector)?;
+    let size: NetSize = corrector.parse()?;
     saved.card.check(&card(e.sizes, size, e.arithmetic))?;
     let coarse = Coarse::new(uncorrected(e.sizes, 1, PressureSolver::Cholesky)?);
     let fine = reference_scene(e.sizes)?;
     // The corrector's layers (each worker builds its own: a hybrid is not
     // shared between threads), with the saved parameters.
     let new_net = || {
-        Net::new(
-            &coarse.scene,
+        net(
+            coarse.scene(),
             size,
             e.arithmetic,
             &mut TrainSeed(0).init_rng(),
@@ -135,7 +135,7 @@ pub fn evaluate(e: &Evaluation<'_>) -> Result<Value> {
         reference(
             &cache,
             e.sizes,
-            &coarse.scene,
+            coarse.scene(),
             &fine,
             (&base, bump),
             re,

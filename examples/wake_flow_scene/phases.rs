@@ -42,7 +42,7 @@ pub(crate) fn references(ctx: &Ctx, ds: u64) -> Result<Splits<Vec<Reference>>, B
                 let base = base_state(cache, sizes, fine, bump, &tick)?;
                 // The Reynolds numbers of a split share the workers.
                 Ok(run_jobs(list, threads, |&re| {
-                    reference(cache, sizes, &coarse.scene, fine, (&base, bump), re, &tick)
+                    reference(cache, sizes, coarse.scene(), fine, (&base, bump), re, &tick)
                         .map_err(|e| e.to_string())
                 })?)
             };
@@ -87,17 +87,16 @@ pub(crate) fn untrained(
     let train: Vec<Trajectory> = splits
         .train
         .iter()
-        .map(|r| study::window(&coarse.scene, r, 0, r.states.len()))
+        .map(|r| study::window(coarse.scene(), r, 0, r.states.len()))
         .collect::<Result<_, _>>()?;
     let validation: Vec<Trajectory> = splits
         .validation
         .iter()
-        .map(|r| study::window(&coarse.scene, r, 0, sizes.rollout + 1))
+        .map(|r| study::window(coarse.scene(), r, 0, sizes.rollout + 1))
         .collect::<Result<_, _>>()?;
-    let sigma = one_step_rms(coarse, &train)?;
+    let sigma = coarse.one_step_rms(&train, 10)?;
     // What no corrector can remove: the pinned faces' error (train and
     // validation Re; the body decides it, see `Body`).
-    let free = free_faces(&coarse.scene);
     let mut pinned = Vec::new();
     for (re, t) in options
         .train_re
@@ -105,7 +104,7 @@ pub(crate) fn untrained(
         .zip(&train)
         .chain(options.validation_re.iter().zip(&validation))
     {
-        pinned.push((*re, study::pinned_face_error(coarse, &free, t)?));
+        pinned.push((*re, coarse.pinned_face_error(t)?));
     }
     println!(
         "  error on the faces the coarse step pins (no corrector removes it), per train and validation Re: {}",
@@ -523,7 +522,7 @@ pub(crate) fn speed_study(
         let hybrid: Wake = Hybrid::new(coarse.clone(), net0);
         let params = probe.as_ref().map(|p| &p.0);
         let result = splits.held_out().evaluate_baseline(|refs| {
-            study::speed(&hybrid, params, refs, sizes, &coarse.scene).map_err(|e| {
+            study::speed(&hybrid, params, refs, sizes, coarse.scene()).map_err(|e| {
                 diffphys::learn::LearnError::Invalid {
                     what: "speed",
                     message: e.to_string(),

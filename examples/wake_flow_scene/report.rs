@@ -76,7 +76,7 @@ pub(crate) fn report(
         &capacity_runs,
         &speed,
         &results.last,
-        &coarse.scene,
+        coarse.scene(),
         options.unrolls().first().copied(),
     )?;
     let npy: Vec<(String, ndarray::ArrayViewD<'_, f64>)> = results

@@ -1,14 +1,8 @@
 //! The solvers of the scene: how each resolution sees the cylinder, the
-//! coarse, reference and finer uncorrected scenes, and the coarse solver as the
-//! learning library's simulator.
+//! coarse, reference and finer uncorrected scenes.
 
-use diffphys::flow::{
-    Advection, Boundary, FlowState, Obstacle, PressureSolver, Scene, Sides, Splitting,
-};
-use diffphys::learn::{standard_normal, Simulator, State, StateVars};
-use diffphys::tape::{ArrayD, Var};
+use diffphys::flow::{Advection, Boundary, Obstacle, PressureSolver, Scene, Sides, Splitting};
 use ndarray::Array2;
-use rand::rngs::StdRng;
 
 use super::{
     name_in, viscosity, Result, Sizes, WakeError, CENTRE, DIAMETER, FACTOR, LX, LY, RE_CENTRE, U_IN,
@@ -203,107 +197,4 @@ pub fn reference_scene_at(sizes: &Sizes, factor: usize) -> Result<Scene> {
         PressureSolver::Cholesky,
         body,
     )
-}
-
-/// The coarse solver as the learning library's simulator: one step of a batch
-/// of states as fields (`u_x`, `u_y`, and the pressure when the scheme
-/// carries it, an auxiliary: [`diffphys::flow::batch`]), each sample at its
-/// own viscosity (the state's parameter, `[batch]`); input noise only on the
-/// [`free_faces`].
-#[derive(Debug, Clone)]
-pub struct Coarse {
-    /// The coarse scene.
-    pub scene: Scene,
-    free: ArrayD<f64>,
-}
-
-impl Coarse {
-    /// The simulator of `scene`.
-    pub fn new(scene: Scene) -> Self {
-        let free = free_faces(&scene);
-        Coarse { scene, free }
-    }
-}
-
-/// The viscosities of a batch: its one parameter.
-fn viscosities<T>(params: &[T]) -> diffphys::tape::Result<&T> {
-    params.first().ok_or_else(|| {
-        diffphys::tape::TapeError::invalid("wake state", "no viscosity among the parameters")
-    })
-}
-
-impl Simulator for Coarse {
-    fn auxiliary_fields(&self) -> usize {
-        self.scene.batch_fields() - 2
-    }
-
-    fn step<'t>(&self, state: &StateVars<'t>) -> diffphys::tape::Result<Vec<Var<'t, f64>>> {
-        Ok(self
-            .scene
-            .step_batch(&state.fields, *viscosities(&state.params)?)?)
-    }
-
-    fn step_plain(&self, state: &State) -> diffphys::tape::Result<Vec<ArrayD<f64>>> {
-        let fields: Vec<_> = state.fields.iter().map(|f| f.view()).collect();
-        Ok(self
-            .scene
-            .forward_batch(&fields, viscosities(&state.params)?.view())?)
-    }
-
-    /// The noise is drawn on the corrector's lattice (`[2, nx + 1, ny + 1]`,
-    /// [`free_faces`]), one normal number per lattice entry in order, and
-    /// added where the lattice holds a free face.
-    fn perturb(&self, state: &mut State, sigma: f64, rng: &mut StdRng) {
-        let (a, b) = (self.free.shape()[1], self.free.shape()[2]);
-        let (ux, rest) = state.fields.split_at_mut(1);
-        let (ux, uy) = (&mut ux[0], &mut rest[0]);
-        for n in 0..ux.shape()[0] {
-            for (c, field) in [&mut *ux, &mut *uy].into_iter().enumerate() {
-                let shape = [field.shape()[1], field.shape()[2]];
-                for i in 0..a {
-                    for j in 0..b {
-                        let noise = sigma * standard_normal(rng);
-                        if i < shape[0] && j < shape[1] {
-                            field[[n, i, j]] += self.free[[c, i, j]] * noise;
-                        }
-                    }
-                }
-            }
-        }
-    }
-}
-
-/// One sample of the coarse solver's state: the fields `scene` carries of
-/// `state` and its viscosity `nu`.
-pub fn sample(scene: &Scene, state: &FlowState<f64>, nu: f64) -> State {
-    State::new(scene.sample_of(state), vec![ndarray::arr0(nu).into_dyn()])
-}
-
-/// The faces a correction may change, on the corrector's lattice
-/// (`[2, nx + 1, ny + 1]`: `u_x` in the top-left `[nx + 1, ny]` of channel 0,
-/// `u_y` in the top-left `[nx, ny + 1]` of channel 1): not the padding, not
-/// the inflow face, not the side walls' normal faces, not the faces of solid
-/// cells.
-pub fn free_faces(scene: &Scene) -> ArrayD<f64> {
-    let g = scene.grid();
-    let solid = scene.solid();
-    let (nx, ny) = (g.nx, g.ny);
-    let is_solid = |i: Option<usize>, j: Option<usize>| match (i, j) {
-        (Some(i), Some(j)) if i < nx && j < ny => solid[[i, j]],
-        _ => false,
-    };
-    let mut m = ArrayD::zeros(vec![2, nx + 1, ny + 1]);
-    for a in 1..=nx {
-        for b in 0..ny {
-            let fixed = is_solid(a.checked_sub(1), Some(b)) || is_solid(Some(a), Some(b));
-            m[[0, a, b]] = f64::from(u8::from(!fixed));
-        }
-    }
-    for a in 0..nx {
-        for b in 1..ny {
-            let fixed = is_solid(Some(a), b.checked_sub(1)) || is_solid(Some(a), Some(b));
-            m[[1, a, b]] = f64::from(u8::from(!fixed));
-        }
-    }
-    m
 }

@@ -8,9 +8,9 @@ use std::time::Instant;
 
 use diffphys::flow::diagnostics::vorticity;
 use diffphys::flow::{restrict_velocity, FlowParams, FlowState, PressureSolver, Scene};
+use diffphys::hybrid::metrics::{deviation_error, velocity_error, vorticity_error, Fields};
 use diffphys::learn::{
-    relative_l2_fields, rollout, rollout_measured, Corrector, Hybrid, Simulator, State, Summary,
-    Trajectory,
+    rollout, rollout_measured, Corrector, Hybrid, Simulator, State, Summary, Trajectory,
 };
 use diffphys::nn::Params;
 use diffphys::report::chart::{
@@ -33,9 +33,10 @@ pub struct ReRun {
     /// The mean relative L2 error over the rollout's steps and its starts.
     pub mean: f64,
     /// The same for the velocity's deviation from the free stream
-    /// ([`deviation_error`]).
+    /// ([`diffphys::hybrid::metrics::deviation_error`]).
     pub deviation: f64,
-    /// The same for the vorticity ([`vorticity_error`]).
+    /// The same for the vorticity
+    /// ([`diffphys::hybrid::metrics::vorticity_error`]).
     pub vorticity: f64,
     /// The error after each step, mean over the starts.
     pub curve: Vec<f64>,
@@ -105,50 +106,6 @@ pub fn window(scene: &Scene, r: &Reference, start: usize, count: usize) -> Resul
         .collect())
 }
 
-/// One sample's fields, as a metric of a rollout reads them.
-type Fields<'a, 'b> = &'a [ArrayViewD<'b, f64>];
-
-/// The samples `p` and `r` as states of `scene`; `None` for other fields.
-fn velocities(
-    scene: &Scene,
-    p: Fields<'_, '_>,
-    r: Fields<'_, '_>,
-) -> Option<(FlowState<f64>, FlowState<f64>)> {
-    Some((scene.state_of(p).ok()?, scene.state_of(r).ok()?))
-}
-
-/// `sqrt(Σ a² / Σ b²)` over paired entries `(a, b)`.
-fn ratio(pairs: impl Iterator<Item = (f64, f64)>) -> f64 {
-    let (num, den) = pairs.fold((0.0, 0.0), |(n, d), (a, b)| (n + a * a, d + b * b));
-    (num / den).sqrt()
-}
-
-/// The relative L2 error of the velocity's deviation from the free stream,
-/// `‖u_p − u_r‖ / ‖u_r − U e_x‖` over the faces: the uniform inflow, which
-/// dominates the norm of the whole state, leaves the denominator (docs/11,
-/// "Metrics"). NaN for samples that are not states of `scene`.
-pub fn deviation_error(scene: &Scene, p: Fields<'_, '_>, r: Fields<'_, '_>) -> f64 {
-    let Some((p, r)) = velocities(scene, p, r) else {
-        return f64::NAN;
-    };
-    let x = p.ux.iter().zip(&r.ux).map(|(a, b)| (a - b, b - U_IN));
-    let y = p.uy.iter().zip(&r.uy).map(|(a, b)| (a - b, *b));
-    ratio(x.chain(y))
-}
-
-/// The relative L2 error of the vorticity over the cells,
-/// `‖ω_p − ω_r‖ / ‖ω_r‖`. NaN for samples that are not states of `scene`.
-pub fn vorticity_error(scene: &Scene, p: Fields<'_, '_>, r: Fields<'_, '_>) -> f64 {
-    let Some((p, r)) = velocities(scene, p, r) else {
-        return f64::NAN;
-    };
-    let w = |s: &FlowState<f64>| vorticity(scene, s.ux.view(), s.uy.view()).ok();
-    let (Some(wp), Some(wr)) = (w(&p), w(&r)) else {
-        return f64::NAN;
-    };
-    ratio(wp.iter().zip(&wr).map(|(a, b)| (a - b, *b)))
-}
-
 /// The rollouts of the hybrid (`params = None`: the coarse solver alone) on
 /// one held-out reference: `rollout` steps from each start (measuring the
 /// relative error of the state, of the deviation from the free stream and of
@@ -162,13 +119,14 @@ pub fn held_out_re<C: Corrector + 'static>(
     r: &Reference,
     sizes: &Sizes,
 ) -> Result<ReRun> {
-    let scene = &hybrid.simulator().scene;
+    let scene = hybrid.simulator().scene();
     let windows = sizes
         .starts
         .iter()
         .map(|&s| window(scene, r, s, sizes.rollout + 1))
         .collect::<Result<Vec<_>>>()?;
-    let deviation = |p: Fields<'_, '_>, r: Fields<'_, '_>| deviation_error(scene, p, r);
+    let deviation =
+        |p: Fields<'_, '_>, r: Fields<'_, '_>| deviation_error(scene, [U_IN, 0.0], p, r);
     let vorticity = |p: Fields<'_, '_>, r: Fields<'_, '_>| vorticity_error(scene, p, r);
     let short = rollout_measured(
         hybrid,
@@ -195,12 +153,6 @@ pub fn held_out_re<C: Corrector + 'static>(
         long: long.mean(),
         last,
     })
-}
-
-/// The relative L2 error of the velocity `(u_x, u_y)` against the state `r`'s.
-pub fn velocity_error(u: (&Array2<f64>, &Array2<f64>), r: &FlowState<f64>) -> f64 {
-    let one = |a: &Array2<f64>| a.clone().insert_axis(Axis(0)).into_dyn();
-    relative_l2_fields(&[one(u.0), one(u.1)], &[one(&r.ux), one(&r.uy)])
 }
 
 /// Rolls an uncorrected solver at `level` × the coarse resolution out from
@@ -441,41 +393,6 @@ pub fn pressure_solves(sizes: &Sizes, re: f64) -> Result<Value> {
 /// One capacity run: size, variant, training seed, held-out errors (100
 /// steps, long) and the parameter count.
 pub type CapacityRun = (NetSize, Variant, u64, f64, f64, usize);
-
-/// The error no correction can remove: the relative L2 norm, on the faces
-/// the coarse step pins (inflow, walls, solid cells), of the coarse step from
-/// each recorded state against the next one, mean over the steps. Zero when
-/// every pinned face of the restricted reference holds what the coarse solver
-/// pins there ([`super::Body::Staircase`]); a corrector only changes the free
-/// faces, so the rollout error of any corrected solver is at least about this.
-///
-/// # Errors
-/// A step that fails.
-pub fn pinned_face_error<S: Simulator>(
-    coarse: &S,
-    free: &ndarray::ArrayD<f64>,
-    trajectory: &Trajectory,
-) -> Result<f64> {
-    let mut sum = 0.0;
-    for pair in trajectory.windows(2) {
-        let next = coarse.step_plain(&State::stack(&[&pair[0]])?)?;
-        let (mut residual, mut norm) = (0.0, 0.0);
-        // The velocity components, each on its block of the free-face lattice.
-        for (c, (now, then)) in next.iter().zip(&pair[1].fields).take(2).enumerate() {
-            let now = now.index_axis(Axis(0), 0);
-            let (a, b) = (then.shape()[0], then.shape()[1]);
-            let mask = free.slice(ndarray::s![c, ..a, ..b]);
-            for ((p, r), m) in now.iter().zip(then.iter()).zip(mask.iter()) {
-                if *m == 0.0 {
-                    residual += (p - r).powi(2);
-                }
-                norm += r * r;
-            }
-        }
-        sum += (residual / norm).sqrt();
-    }
-    Ok(sum / trajectory.len().saturating_sub(1).max(1) as f64)
-}
 
 /// The capacity table: per size, the parameter count and the held-out errors
 /// of `non` and the first SOL variant (mean, min, max over the runs).

@@ -1,0 +1,248 @@
+//! The hybrid flow pieces on a small channel past a body: the simulator's
+//! noise and pinned-face measurements, the lattice corrector's gradient
+//! through a corrected step against central differences, and the flow
+//! metrics.
+
+use diffphys_flow::{Boundary, FlowState, Obstacle, PressureSolver, Scene, Sides};
+use diffphys_hybrid::metrics::{deviation_error, vorticity_error};
+use diffphys_hybrid::{free_faces, sample, FlowSimulator, HybridError, LatticeNet, NetSize};
+use diffphys_learn::{Hybrid, Simulator, State, StateVars, TrainSeed};
+use diffphys_nn::{Arithmetic, Bound, Params};
+use diffphys_tape::{check_gradient, ArrayD, GradCheckOptions};
+use ndarray::{Array2, Axis};
+use rand::SeedableRng;
+
+/// A 12 × 6 channel (inflow left, outflow right, free-slip walls) past a
+/// block, plain splitting.
+fn channel() -> Scene {
+    Scene::builder(12, 6, [2.0, 1.0])
+        .sides(Sides {
+            left: Boundary::Inflow,
+            right: Boundary::Outflow,
+            bottom: Boundary::FreeSlip,
+            top: Boundary::FreeSlip,
+        })
+        .obstacle(Obstacle::Rectangle {
+            lo: [0.4, 0.3],
+            hi: [0.8, 0.7],
+        })
+        .uniform_inflow(1.0)
+        .dt(0.02)
+        .splitting(diffphys_flow::Splitting::Plain)
+        .pressure_solver(PressureSolver::Cholesky)
+        .build()
+        .unwrap()
+}
+
+/// A state with some structure: the free stream plus a smooth cross flow,
+/// made a state of `scene` by one step.
+fn state(scene: &Scene) -> FlowState<f64> {
+    let g = scene.grid();
+    let uy = Array2::from_shape_fn(g.shape_y(), |(i, j)| {
+        0.2 * (0.7 * i as f64 + 0.4 * j as f64).sin()
+    });
+    let s = FlowState::from_velocity(scene, Array2::from_elem(g.shape_x(), 1.0), uy);
+    scene.forward(&s, &scene.params()).unwrap().0
+}
+
+fn code(nu: f64) -> f64 {
+    (0.2 / nu / 400.0).ln()
+}
+
+#[test]
+fn noise_lands_on_free_faces_only_and_repeats_per_seed() {
+    let sim = FlowSimulator::new(channel());
+    let s = State::stack(&[&sim.sample(&state(sim.scene()), 1e-3)]).unwrap();
+    let noisy = |seed| {
+        let mut n = s.clone();
+        sim.perturb(&mut n, 0.1, &mut rand::rngs::StdRng::seed_from_u64(seed));
+        n
+    };
+    let (a, b) = (noisy(3), noisy(3));
+    assert_eq!(a, b, "the same seed draws the same noise");
+    let free = free_faces(sim.scene());
+    let (mut moved, mut kept) = (0, 0);
+    for (c, (n, o)) in a.fields.iter().zip(&s.fields).take(2).enumerate() {
+        let (n, o) = (n.index_axis(Axis(0), 0), o.index_axis(Axis(0), 0));
+        for ((idx, x), y) in n.indexed_iter().zip(o.iter()) {
+            let f = free[[c, idx[0], idx[1]]];
+            if f == 0.0 {
+                assert_eq!(x, y, "a pinned face moved at {c} {idx:?}");
+                kept += 1;
+            } else if x != y {
+                moved += 1;
+            }
+        }
+    }
+    assert!(moved > 50 && kept > 10, "moved {moved}, kept {kept}");
+    assert_eq!(a.params, s.params, "the viscosity is not noised");
+}
+
+#[test]
+fn pinned_faces_of_the_solvers_own_state_carry_no_error() {
+    let sim = FlowSimulator::new(channel());
+    let s0 = sim.sample(&state(sim.scene()), 2e-3);
+    let s1 = State::new(
+        sim.step_plain(&State::stack(&[&s0]).unwrap())
+            .unwrap()
+            .into_iter()
+            .map(|f| f.index_axis_move(Axis(0), 0))
+            .collect(),
+        s0.params.clone(),
+    );
+    // Its own next state: no error anywhere.
+    assert_eq!(
+        sim.pinned_face_error(&[s0.clone(), s1.clone()]).unwrap(),
+        0.0
+    );
+    assert_eq!(
+        sim.one_step_rms(&[vec![s0.clone(), s1.clone()]], 1)
+            .unwrap(),
+        0.0
+    );
+    // A target that differs on a wall face is pinned-face error; one that
+    // differs on a free face is not.
+    let mut wall = s1.clone();
+    wall.fields[1][[3, 0]] += 0.5;
+    assert!(sim.pinned_face_error(&[s0.clone(), wall]).unwrap() > 0.0);
+    let mut inner = s1.clone();
+    inner.fields[0][[1, 1]] += 0.5;
+    assert_eq!(
+        sim.pinned_face_error(&[s0.clone(), inner.clone()]).unwrap(),
+        0.0
+    );
+    assert!(sim.one_step_rms(&[vec![s0.clone(), inner]], 1).unwrap() > 0.0);
+    assert!(matches!(
+        sim.one_step_rms(&[vec![s0]], 1),
+        Err(HybridError::Trajectory { .. })
+    ));
+}
+
+#[test]
+fn the_corrected_step_passes_central_differences() {
+    let scene = channel();
+    let sim = FlowSimulator::new(scene.clone());
+    let size = NetSize {
+        width: 3,
+        blocks: 1,
+    };
+    let mut rng = TrainSeed(2).init_rng();
+    let (net, zero_head) =
+        LatticeNet::new(&scene, size, code, Arithmetic::Native, &mut rng).unwrap();
+    // A head away from zero, so that every layer's parameters matter.
+    let mut params = Params::new();
+    for (name, v) in zero_head.names().iter().zip(zero_head.values()) {
+        params.add(name.clone(), v.mapv(|x| x + 0.05)).unwrap();
+    }
+    let hybrid = Hybrid::new(sim.clone(), net);
+    let s = State::stack(&[
+        &sim.sample(&state(&scene), 2e-3),
+        &sim.sample(&state(&scene), 4e-3),
+    ])
+    .unwrap();
+    let np = params.values().len();
+    let mut inputs: Vec<ArrayD<f64>> = params.values().to_vec();
+    inputs.extend(s.fields.iter().cloned());
+    // The viscosity enters the network as data (its code channel is not on
+    // the tape), so it is held constant here; the solver's gradient with
+    // respect to it is flow's own test (crates/flow/tests/batch.rs).
+    let nu = s.params.clone();
+    let weights: Vec<ArrayD<f64>> = s
+        .fields
+        .iter()
+        .map(|f| f.mapv(|x| (3.0 * x).sin()))
+        .collect();
+    let check = check_gradient(
+        |tape, v| {
+            let p = Bound::from_vars(v[..np].to_vec());
+            let u = StateVars {
+                fields: v[np..np + 2].to_vec(),
+                params: nu.iter().map(|a| tape.constant(a.clone())).collect(),
+            };
+            let next = hybrid.step(Some(&p), &u)?.fields;
+            let mut loss = tape.scalar(0.0);
+            for (f, w) in next.iter().zip(&weights) {
+                loss = loss.add(f.mul(tape.constant(w.clone()))?.powi(2)?.sum()?)?;
+            }
+            Ok(loss)
+        },
+        &inputs,
+        GradCheckOptions::for_type::<f64>(),
+    )
+    .unwrap();
+    assert!(check.passed, "{check:?}");
+    assert!(check.entries > 200, "{check:?}");
+    // The parameters and both fields all matter.
+    assert_eq!(inputs.len(), np + 2);
+}
+
+#[test]
+fn a_zero_head_starts_as_the_solver_and_sizes_parse() {
+    let scene = channel();
+    let sim = FlowSimulator::new(scene.clone());
+    let size: NetSize = "w4b2".parse().unwrap();
+    assert_eq!(
+        (size.width, size.blocks, size.label()),
+        (4, 2, "w4b2".to_string())
+    );
+    for bad in ["w0b1", "4b2", "w4", "wxb2"] {
+        assert!(
+            matches!(bad.parse::<NetSize>(), Err(HybridError::Size { .. })),
+            "{bad}"
+        );
+    }
+    let (net, params) = LatticeNet::new(
+        &scene,
+        size,
+        code,
+        Arithmetic::Native,
+        &mut TrainSeed(1).init_rng(),
+    )
+    .unwrap();
+    let hybrid = Hybrid::new(sim.clone(), net);
+    let s = State::stack(&[&sim.sample(&state(&scene), 2e-3)]).unwrap();
+    assert_eq!(
+        hybrid.step_plain(Some(&params), &s).unwrap(),
+        hybrid.step_plain(None, &s).unwrap()
+    );
+}
+
+#[test]
+fn the_deviation_and_vorticity_errors_measure_the_wake_not_the_free_stream() {
+    let scene = channel();
+    let g = scene.grid();
+    // A reference: the free stream plus a cross-stream wave; a prediction:
+    // the free stream alone (it misses the whole wake).
+    let wave = Array2::from_shape_fn(g.shape_y(), |(i, j)| {
+        (0.3 * i as f64 + 0.7 * j as f64).sin()
+    });
+    let fields = |uy: Array2<f64>| {
+        let s = FlowState::from_velocity(&scene, Array2::from_elem(g.shape_x(), 1.0), uy);
+        scene.sample_of(&s)
+    };
+    let (r, p) = (fields(0.1 * &wave), fields(Array2::zeros(g.shape_y())));
+    let rv: Vec<_> = r.iter().map(|a| a.view()).collect();
+    let pv: Vec<_> = p.iter().map(|a| a.view()).collect();
+    assert_eq!(deviation_error(&scene, [1.0, 0.0], &rv, &rv), 0.0);
+    assert_eq!(vorticity_error(&scene, &rv, &rv), 0.0);
+    // Missing the whole deviation is an error of 1 (100 %), however small the
+    // wave is against the free stream; the state's relative error is not.
+    let missed = deviation_error(&scene, [1.0, 0.0], &pv, &rv);
+    assert!((missed - 1.0).abs() < 1e-12, "{missed}");
+    let batch = |f: &[ArrayD<f64>]| {
+        f.iter()
+            .map(|a| a.clone().insert_axis(Axis(0)))
+            .collect::<Vec<_>>()
+    };
+    let whole = diffphys_learn::relative_l2_fields(&batch(&p), &batch(&r));
+    assert!(whole < 0.2 * missed, "{whole}");
+    assert!(vorticity_error(&scene, &pv, &rv) > 0.5);
+    // Not a state of the scene: NaN, which the rollout refuses.
+    let wrong = ArrayD::<f64>::zeros(vec![3, 3]);
+    let wrong = [wrong.view(), wrong.view()];
+    assert!(deviation_error(&scene, [1.0, 0.0], &wrong, &rv).is_nan());
+    assert!(vorticity_error(&scene, &rv, &wrong).is_nan());
+    // The sample the metric reads is the simulator's.
+    let s = sample(&scene, &FlowState::zeros(&scene), 1e-3);
+    assert_eq!(s.fields.len(), scene.batch_fields());
+}

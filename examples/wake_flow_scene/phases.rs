@@ -522,7 +522,7 @@ pub(crate) fn speed_study(
         let hybrid: Wake = Hybrid::new(coarse.clone(), net0);
         let params = probe.as_ref().map(|p| &p.0);
         let result = splits.held_out().evaluate_baseline(|refs| {
-            study::speed(&hybrid, params, refs, sizes, coarse.scene()).map_err(|e| {
+            study::speed(&hybrid, params, refs, sizes).map_err(|e| {
                 diffphys::learn::LearnError::Invalid {
                     what: "speed",
                     message: e.to_string(),

@@ -7,22 +7,21 @@ use std::path::Path;
 use std::time::Instant;
 
 use diffphys::flow::diagnostics::vorticity;
-use diffphys::flow::{restrict_velocity, FlowParams, FlowState, PressureSolver, Scene};
-use diffphys::hybrid::metrics::{deviation_error, velocity_error, vorticity_error, Fields};
-use diffphys::learn::{
-    rollout, rollout_measured, Corrector, Hybrid, Simulator, State, Summary, Trajectory,
-};
+use diffphys::flow::{FlowParams, FlowState, PressureSolver, Scene};
+use diffphys::hybrid::metrics::{deviation_error, vorticity_error, Fields};
+use diffphys::hybrid::speed::{self, Case};
+use diffphys::learn::{rollout, rollout_measured, Corrector, Hybrid, Summary, Trajectory};
 use diffphys::nn::Params;
 use diffphys::report::chart::{
     heatmap_panels_svg, line_chart_svg, HeatmapPanels, LineChart, Outline, Series,
 };
-use ndarray::{Array2, ArrayViewD, Axis};
+use ndarray::Array2;
 use serde_json::{json, Value};
 
 use super::data::Reference;
 use super::{
-    sample, uncorrected, viscosity, Coarse, NetSize, Options, Result, Sizes, Variant, WakeError,
-    CENTRE, DIAMETER, FACTOR, U_IN,
+    reference_scene_at, sample, uncorrected, viscosity, Coarse, NetSize, Options, Result, Sizes,
+    Variant, WakeError, CENTRE, DIAMETER, FACTOR, U_IN,
 };
 
 /// One model's held-out rollouts at one Reynolds number.
@@ -155,24 +154,11 @@ pub fn held_out_re<C: Corrector + 'static>(
     })
 }
 
-/// Rolls an uncorrected solver at `level` × the coarse resolution out from
-/// the fine start states, restricted to the coarse grid after every coarse
-/// step: the mean relative error against the reference and the seconds per
-/// coarse step and sample.
-fn finer_rollout(
-    sizes: &Sizes,
-    coarse: &Scene,
-    level: usize,
-    refs: &[Reference],
-) -> Result<(f64, f64)> {
-    let scene = uncorrected(sizes, level, PressureSolver::Cholesky)?;
-    let (mut err, mut count, mut seconds, mut steps) = (0.0, 0.0, 0.0, 0.0);
+/// The speed study's rollouts: from each speed start of each reference,
+/// the rollout's steps.
+fn speed_cases<'a>(refs: &'a [Reference], sizes: &Sizes) -> Result<Vec<Case<'a>>> {
+    let mut cases = Vec::new();
     for r in refs {
-        let nu = viscosity(r.re);
-        let p = FlowParams {
-            viscosity: nu,
-            ..scene.params()
-        };
         for &start in &sizes.speed_starts {
             let k = sizes
                 .starts
@@ -180,82 +166,53 @@ fn finer_rollout(
                 .position(|&s| s == start)
                 .ok_or_else(|| WakeError::Output(format!("speed start {start} is not a start")))?;
             let (fx, fy) = &r.fine_starts[k];
-            let (ux, uy) = restrict_velocity(scene.grid(), FACTOR / level, fx.view(), fy.view())?;
-            let mut s = FlowState::from_velocity(&scene, ux, uy);
-            for t in 1..=sizes.rollout {
-                let t0 = Instant::now();
-                for _ in 0..level {
-                    s = scene.forward(&s, &p)?.0;
-                }
-                seconds += t0.elapsed().as_secs_f64();
-                steps += 1.0;
-                let (cx, cy) = restrict_velocity(coarse.grid(), level, s.ux.view(), s.uy.view())?;
-                err += velocity_error((&cx, &cy), &r.states[start + t]);
-                count += 1.0;
-            }
+            cases.push(Case {
+                viscosity: viscosity(r.re),
+                fine_start: (fx.view(), fy.view()),
+                fine_factor: FACTOR,
+                coarse_start: &r.states[start],
+                targets: &r.states[start + 1..=start + sizes.rollout],
+            });
         }
     }
-    Ok((err / count, seconds / steps))
-}
-
-/// The coarse hybrid's rollouts timed: mean error and seconds per step and
-/// sample (network included).
-fn coarse_rollout<S: Simulator + 'static, C: Corrector + 'static>(
-    hybrid: &Hybrid<S, C>,
-    params: Option<&Params<f64>>,
-    refs: &[Reference],
-    sizes: &Sizes,
-    coarse: &Scene,
-) -> Result<(f64, f64)> {
-    let (mut err, mut seconds, mut samples) = (0.0, 0.0, 0.0);
-    for r in refs {
-        for &start in &sizes.speed_starts {
-            let mut u = State::stack(&[&sample(coarse, &r.states[start], viscosity(r.re))])?;
-            for t in 1..=sizes.rollout {
-                let t0 = Instant::now();
-                u = hybrid.step_plain(params, &u)?;
-                seconds += t0.elapsed().as_secs_f64();
-                let (ux, uy) = (
-                    u.fields[0].index_axis(Axis(0), 0),
-                    u.fields[1].index_axis(Axis(0), 0),
-                );
-                let to2 =
-                    |a: ArrayViewD<'_, f64>| a.to_owned().into_dimensionality::<ndarray::Ix2>();
-                let (ux, uy) = (
-                    to2(ux).map_err(|e| WakeError::Output(e.to_string()))?,
-                    to2(uy).map_err(|e| WakeError::Output(e.to_string()))?,
-                );
-                err += velocity_error((&ux, &uy), &r.states[start + t]);
-                samples += 1.0;
-            }
-        }
-    }
-    Ok((err / samples, seconds / samples))
+    Ok(cases)
 }
 
 /// Speed against accuracy on the held-out references: the uncorrected solver
-/// at 1×, 2× and 4× the coarse resolution and the corrected coarse solver
-/// (the selected SOL corrector of the first training seed).
+/// at 1×, 2× and 4× the coarse resolution, the reference's scheme at 1×, 2×
+/// and 4× (the honest "just run a finer grid"), and the corrected coarse
+/// solver (the selected SOL corrector of the first training seed).
 ///
 /// # Errors
 /// Whatever the solvers return.
-pub fn speed<S: Simulator + 'static, C: Corrector + 'static>(
-    hybrid: &Hybrid<S, C>,
+pub fn speed<C: Corrector + 'static>(
+    hybrid: &Hybrid<Coarse, C>,
     corrector: Option<&Params<f64>>,
     refs: &[Reference],
     sizes: &Sizes,
-    coarse: &Scene,
 ) -> Result<Value> {
-    let mut rows = Vec::new();
-    let (e, s) = coarse_rollout(hybrid, None, refs, sizes, coarse)?;
-    rows.push(json!({"solver": format!("uncorrected {} x {}", sizes.ny, sizes.nx), "level": 1, "rel_error": e, "ms_per_step": s * 1e3}));
+    let cases = speed_cases(refs, sizes)?;
+    let coarse = hybrid.simulator().scene().grid();
+    let row = |solver: String, level: usize, t: speed::Timed| json!({"solver": solver, "level": level, "rel_error": t.rel_error, "ms_per_step": t.seconds_per_step * 1e3});
+    let cells = |level: usize| format!("{} x {}", level * sizes.ny, level * sizes.nx);
+    let mut rows = vec![row(
+        format!("uncorrected {}", cells(1)),
+        1,
+        speed::corrected(hybrid, None, &cases)?,
+    )];
     for level in [2, 4] {
-        let (e, s) = finer_rollout(sizes, coarse, level, refs)?;
-        rows.push(json!({"solver": format!("uncorrected {} x {}", level * sizes.ny, level * sizes.nx), "level": level, "rel_error": e, "ms_per_step": s * 1e3}));
+        let scene = uncorrected(sizes, level, PressureSolver::Cholesky)?;
+        let t = speed::finer(&scene, level, coarse, &cases)?;
+        rows.push(row(format!("uncorrected {}", cells(level)), level, t));
+    }
+    for level in [1, 2, 4] {
+        let scene = reference_scene_at(sizes, level)?;
+        let t = speed::finer(&scene, level, coarse, &cases)?;
+        rows.push(row(format!("reference scheme {}", cells(level)), level, t));
     }
     if let Some(p) = corrector {
-        let (e, s) = coarse_rollout(hybrid, Some(p), refs, sizes, coarse)?;
-        rows.push(json!({"solver": format!("corrected {} x {} (selected SOL)", sizes.ny, sizes.nx), "level": 1, "rel_error": e, "ms_per_step": s * 1e3}));
+        let t = speed::corrected(hybrid, Some(p), &cases)?;
+        rows.push(row(format!("corrected {} (selected SOL)", cells(1)), 1, t));
     }
     for r in &rows {
         println!(
@@ -265,17 +222,16 @@ pub fn speed<S: Simulator + 'static, C: Corrector + 'static>(
             r["ms_per_step"].as_f64().unwrap_or(f64::NAN)
         );
     }
-    let corrected = corrector.map(|_| rows[rows.len() - 1].clone());
-    let verdict = corrected.as_ref().map(|c| {
-        let (ce, ct) = (
-            c["rel_error"].as_f64().unwrap_or(f64::NAN),
-            c["ms_per_step"].as_f64().unwrap_or(f64::NAN),
-        );
-        let two = &rows[1];
-        let (te, tt) = (
-            two["rel_error"].as_f64().unwrap_or(f64::NAN),
-            two["ms_per_step"].as_f64().unwrap_or(f64::NAN),
-        );
+    let figures = |r: &Value| {
+        (
+            r["rel_error"].as_f64().unwrap_or(f64::NAN),
+            r["ms_per_step"].as_f64().unwrap_or(f64::NAN),
+        )
+    };
+    let verdict = corrector.map(|_| {
+        let (ce, ct) = figures(&rows[rows.len() - 1]);
+        let (te, tt) = figures(&rows[1]);
+        let (re, rt) = figures(&rows[4]);
         let matched = rows[..3]
             .iter()
             .find(|r| r["rel_error"].as_f64().unwrap_or(f64::INFINITY) <= ce)
@@ -283,6 +239,8 @@ pub fn speed<S: Simulator + 'static, C: Corrector + 'static>(
         json!({
             "corrected_beats_2x_in_error": ce < te,
             "corrected_beats_2x_in_time": ct < tt,
+            "corrected_beats_reference_scheme_2x_in_error": ce < re,
+            "corrected_beats_reference_scheme_2x_in_time": ct < rt,
             "first_uncorrected_resolution_at_or_below_corrected_error": matched,
         })
     });
@@ -291,7 +249,7 @@ pub fn speed<S: Simulator + 'static, C: Corrector + 'static>(
         "verdict": verdict,
         "rollout_steps": sizes.rollout,
         "starts": sizes.speed_starts,
-        "note": "wall time per coarse step and sample on this machine (2 cores shared); finer solvers take 2 and 4 substeps per coarse step and start from the reference's fine state restricted to their grid",
+        "note": "wall time per coarse step and sample on this machine (2 cores shared); finer solvers take 2 and 4 substeps per coarse step and start from the reference's fine state restricted to their grid; the reference scheme (MacCormack with the limiter, incremental splitting) starts with a zero pressure",
     }))
 }
 

@@ -17,6 +17,9 @@
 //!   channel coding each sample's viscosity), its corrections masked to the
 //!   free faces and its head starting at zero, so the hybrid starts as the
 //!   solver.
+//! - Speed against accuracy ([`speed`]): the corrected coarse solver and
+//!   uncorrected finer ones from the same starts against the same reference,
+//!   timed per coarse step.
 //! - Flow metrics of a rollout ([`metrics`]): the error of the velocity's
 //!   deviation from a free stream and of the vorticity, as
 //!   [`diffphys_learn::Metric`]s read them.
@@ -42,6 +45,7 @@
 mod corrector;
 pub mod metrics;
 mod simulator;
+pub mod speed;
 
 pub use corrector::{LatticeNet, NetSize, ParamCode};
 pub use simulator::{free_faces, sample, FlowSimulator};

@@ -55,11 +55,7 @@ impl FlowSimulator {
     /// One plain step of the one sample `now`: each velocity component's
     /// new values beside `then`'s and the free-face mask of its block of the
     /// lattice.
-    fn compare_step<'a>(
-        &'a self,
-        now: &State,
-        then: &'a State,
-    ) -> Result<Vec<Compared<'a>>> {
+    fn compare_step<'a>(&'a self, now: &State, then: &'a State) -> Result<Vec<Compared<'a>>> {
         let next = self.step_plain(&State::stack(&[now])?)?;
         Ok(next
             .into_iter()

@@ -3,7 +3,7 @@
 //! through a corrected step against central differences, and the flow
 //! metrics.
 
-use diffphys_flow::{Boundary, FlowState, Obstacle, PressureSolver, Scene, Sides};
+use diffphys_flow::{Boundary, FlowParams, FlowState, Obstacle, PressureSolver, Scene, Sides};
 use diffphys_hybrid::metrics::{deviation_error, vorticity_error};
 use diffphys_hybrid::{free_faces, sample, FlowSimulator, HybridError, LatticeNet, NetSize};
 use diffphys_learn::{Hybrid, Simulator, State, StateVars, TrainSeed};
@@ -245,4 +245,76 @@ fn the_deviation_and_vorticity_errors_measure_the_wake_not_the_free_stream() {
     // The sample the metric reads is the simulator's.
     let s = sample(&scene, &FlowState::zeros(&scene), 1e-3);
     assert_eq!(s.fields.len(), scene.batch_fields());
+}
+
+#[test]
+fn the_speed_study_measures_every_solver_on_the_same_cases() {
+    use diffphys_hybrid::speed::{corrected, finer, Case};
+    let scene = channel();
+    let sim = FlowSimulator::new(scene.clone());
+    let (net, params) = LatticeNet::new(
+        &scene,
+        NetSize {
+            width: 2,
+            blocks: 0,
+        },
+        code,
+        Arithmetic::Native,
+        &mut TrainSeed(1).init_rng(),
+    )
+    .unwrap();
+    let hybrid = Hybrid::new(sim, net);
+    let p = FlowParams {
+        viscosity: 2e-3,
+        ..scene.params()
+    };
+    let start = state(&scene);
+    let mut targets = vec![];
+    let mut s = start.clone();
+    for _ in 0..3 {
+        s = scene.forward(&s, &p).unwrap().0;
+        targets.push(s.clone());
+    }
+    let case = Case {
+        viscosity: 2e-3,
+        fine_start: (start.ux.view(), start.uy.view()),
+        fine_factor: 1,
+        coarse_start: &start,
+        targets: &targets,
+    };
+    // Against its own trajectory, the solver alone is exact, by either path;
+    // the zero-head corrector too.
+    let alone = corrected(&hybrid, None, &[case]).unwrap();
+    let same = finer(&scene, 1, scene.grid(), &[case]).unwrap();
+    assert_eq!((alone.rel_error, same.rel_error), (0.0, 0.0));
+    assert_eq!(
+        corrected(&hybrid, Some(&params), &[case])
+            .unwrap()
+            .rel_error,
+        0.0
+    );
+    // Against a shifted reference, both see the same error.
+    let shifted: Vec<_> = targets
+        .iter()
+        .map(|t| FlowState {
+            ux: t.ux.mapv(|x| x + 0.1),
+            ..t.clone()
+        })
+        .collect();
+    let case = Case {
+        targets: &shifted,
+        ..case
+    };
+    let a = corrected(&hybrid, None, &[case]).unwrap().rel_error;
+    let b = finer(&scene, 1, scene.grid(), &[case]).unwrap().rel_error;
+    assert!(a > 0.01 && a == b, "{a} {b}");
+    // A level that does not divide the start's factor, or nothing to time.
+    assert!(matches!(
+        finer(&scene, 2, scene.grid(), &[case]),
+        Err(HybridError::Trajectory { .. })
+    ));
+    assert!(matches!(
+        corrected(&hybrid, None, &[]),
+        Err(HybridError::Trajectory { .. })
+    ));
 }

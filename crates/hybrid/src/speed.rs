@@ -1,0 +1,144 @@
+//! Speed against accuracy: a corrected coarse solver and uncorrected finer
+//! ones rolled out from the same starts against the same reference, timed
+//! per coarse step.
+//!
+//! Every solver is measured on the same [`Case`]s: a start (on a fine grid,
+//! restricted to each solver's own), the viscosity, and the reference's
+//! states on the coarse grid after each coarse step. A finer solver at
+//! `level` × the coarse resolution takes `level` substeps per coarse step
+//! (its own `dt` is the coarse one over `level`) and is restricted to the
+//! coarse grid after each coarse step to be compared. The error is the mean
+//! over the cases and steps of the velocity's relative L2 error
+//! ([`crate::metrics::velocity_error`]); the time is the wall time of the
+//! steps alone (restrictions and errors not counted), per coarse step and
+//! sample.
+
+use std::time::Instant;
+
+use diffphys_flow::{restrict_velocity, FlowGrid, FlowParams, FlowState, Scene};
+use diffphys_learn::{Corrector, Hybrid, State};
+use diffphys_nn::Params;
+use ndarray::{ArrayView2, Axis, Ix2};
+
+use crate::metrics::velocity_error;
+use crate::{FlowSimulator, HybridError, Result};
+
+/// One rollout of the study.
+#[derive(Debug, Clone, Copy)]
+pub struct Case<'a> {
+    /// The kinematic viscosity.
+    pub viscosity: f64,
+    /// The start's velocity `(u_x, u_y)` on a grid `fine_factor` × the coarse
+    /// one.
+    pub fine_start: (ArrayView2<'a, f64>, ArrayView2<'a, f64>),
+    /// How much finer the start's grid is than the coarse grid.
+    pub fine_factor: usize,
+    /// The coarse solver's start state (the reference's, on the coarse grid).
+    pub coarse_start: &'a FlowState<f64>,
+    /// The reference on the coarse grid after each coarse step (the rollout
+    /// runs this many steps).
+    pub targets: &'a [FlowState<f64>],
+}
+
+/// What one solver measured.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Timed {
+    /// The mean relative L2 error of the velocity over the cases and steps.
+    pub rel_error: f64,
+    /// Wall seconds per coarse step and sample.
+    pub seconds_per_step: f64,
+}
+
+impl Timed {
+    fn of(err: f64, seconds: f64, steps: f64) -> Result<Self> {
+        if steps == 0.0 {
+            return Err(HybridError::Trajectory {
+                what: "speed study",
+                message: "no case with a step to time".into(),
+            });
+        }
+        Ok(Timed {
+            rel_error: err / steps,
+            seconds_per_step: seconds / steps,
+        })
+    }
+}
+
+/// The uncorrected `scene` at `level` × the resolution of `coarse`, rolled
+/// out over `cases`.
+///
+/// # Errors
+/// [`HybridError::Trajectory`] without a step to time; a restriction (a
+/// `level` that does not divide the start's factor) or a step that fails.
+pub fn finer(scene: &Scene, level: usize, coarse: &FlowGrid, cases: &[Case<'_>]) -> Result<Timed> {
+    let (mut err, mut seconds, mut steps) = (0.0, 0.0, 0.0);
+    for case in cases {
+        let p = FlowParams {
+            viscosity: case.viscosity,
+            ..scene.params()
+        };
+        if level == 0 || case.fine_factor % level != 0 {
+            return Err(HybridError::Trajectory {
+                what: "speed study",
+                message: format!(
+                    "a solver at {level}x the coarse grid cannot start from a state at {}x",
+                    case.fine_factor
+                ),
+            });
+        }
+        let (fx, fy) = case.fine_start;
+        let (ux, uy) = restrict_velocity(scene.grid(), case.fine_factor / level, fx, fy)?;
+        let mut s = FlowState::from_velocity(scene, ux, uy);
+        for target in case.targets {
+            let t0 = Instant::now();
+            for _ in 0..level {
+                s = scene.forward(&s, &p)?.0;
+            }
+            seconds += t0.elapsed().as_secs_f64();
+            steps += 1.0;
+            let (cx, cy) = restrict_velocity(coarse, level, s.ux.view(), s.uy.view())?;
+            err += velocity_error((&cx, &cy), target);
+        }
+    }
+    Timed::of(err, seconds, steps)
+}
+
+/// The hybrid of the coarse solver and `corrector` (`params = None`: the
+/// solver alone) rolled out over `cases`, one sample at a time (the network
+/// included in the time).
+///
+/// # Errors
+/// [`HybridError::Trajectory`] without a step to time; a step that fails.
+pub fn corrected<C: Corrector + 'static>(
+    hybrid: &Hybrid<FlowSimulator, C>,
+    params: Option<&Params<f64>>,
+    cases: &[Case<'_>],
+) -> Result<Timed> {
+    let (mut err, mut seconds, mut steps) = (0.0, 0.0, 0.0);
+    for case in cases {
+        let mut u = State::stack(&[&hybrid.simulator().sample(case.coarse_start, case.viscosity)])?;
+        for target in case.targets {
+            let t0 = Instant::now();
+            u = hybrid.step_plain(params, &u)?;
+            seconds += t0.elapsed().as_secs_f64();
+            let one = |c: usize| {
+                u.fields[c]
+                    .index_axis(Axis(0), 0)
+                    .to_owned()
+                    .into_dimensionality::<Ix2>()
+            };
+            let (ux, uy) = (one(0).map_err(shape)?, one(1).map_err(shape)?);
+            err += velocity_error((&ux, &uy), target);
+            steps += 1.0;
+        }
+    }
+    Timed::of(err, seconds, steps)
+}
+
+/// A state field that is not two-dimensional.
+fn shape(e: ndarray::ShapeError) -> HybridError {
+    HybridError::Trajectory {
+        what: "speed study",
+        message: format!("a velocity field that is not 2-D: {e}"),
+    }
+}

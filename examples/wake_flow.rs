@@ -42,8 +42,8 @@ use diffphys::learn::study::{
     self as learn_study, pilot_learning_rates, run_jobs, Ledger, Plan, Protocol,
 };
 use diffphys::learn::{
-    rollout, Budget, DataSeed, Hybrid, LrSchedule, Report, SavedModel, Schedule, Split, Splits,
-    Strategy, Summary, TrainSeed, Trained, TrainedCorrector, Trainer, Trajectory,
+    rollout, Budget, DataSeed, Figures, Hybrid, LrSchedule, Report, SavedModel, Schedule, Split,
+    Splits, Strategy, Summary, TrainSeed, Trained, TrainedCorrector, Trainer, Trajectory,
 };
 use diffphys::nn::{Arithmetic, Params};
 use diffphys::report::{progress_bar, Progress};

@@ -120,13 +120,7 @@ pub fn charts(
 ) -> Result<(), BoxError> {
     let series: Vec<Series> = curves
         .iter()
-        .map(|(name, c)| {
-            let n = c.len() as f64;
-            let points = (0..c[0].len())
-                .map(|t| ((t + 1) as f64, c.iter().map(|v| v[t]).sum::<f64>() / n))
-                .collect();
-            Series::new(name.clone(), points)
-        })
+        .map(|(name, c)| Series::mean_per_step(name.clone(), c))
         .collect();
     line_chart_svg(
         &out.join("relative_error.svg"),

@@ -270,7 +270,7 @@ pub(crate) fn protocol(
         &format!("data {ds}: held-out"),
     );
     let (src, reference_last) = baselines(ctx, splits, &bar)?;
-    rec.results.record("src", ds, None, &src);
+    rec.results.record("src", ds, None, &src)?;
     rec.results
         .last
         .entry("reference".into())
@@ -492,10 +492,11 @@ fn record_held_out(
         ));
     }
     if m.size == MAIN_SIZE {
-        rec.results.record(&m.variant.name(), ds, Some(m.seed), run);
+        rec.results
+            .record(&m.variant.name(), ds, Some(m.seed), run)?;
     }
     if o.selected() {
-        rec.results.record("sol_selected", ds, Some(m.seed), run);
+        rec.results.record("sol_selected", ds, Some(m.seed), run)?;
     }
     Ok(())
 }

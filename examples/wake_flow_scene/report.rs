@@ -48,31 +48,15 @@ pub(crate) fn report(
         "\nheld-out mean relative L2 error over {} steps (data seeds {:?} x train seeds {:?}):",
         sizes.rollout, seeds.data, seeds.train
     );
-    print!("{}", results.held_out.table(Some("src")));
+    let metric = |m: &str| results.figures.report(m).cloned().unwrap_or_default();
+    print!("{}", metric(STATE).table(Some("src")));
     println!("long rollout ({} steps):", sizes.long);
-    print!("{}", results.long.table(Some("src")));
-    let per_re_json: serde_json::Map<String, Value> = results.per_re.iter()
-        .map(|(re, m)| {
-            let v: serde_json::Map<String, Value> = m
-                .iter()
-                .map(|(name, runs)| {
-                    let n = runs.len() as f64;
-                    let avg = |f: fn(&ReErrors) -> f64| runs.iter().map(f).sum::<f64>() / n;
-                    let mean = avg(|r| r.mean);
-                    let min = runs.iter().map(|r| r.mean).fold(f64::INFINITY, f64::min);
-                    let max = runs.iter().map(|r| r.mean).fold(f64::NEG_INFINITY, f64::max);
-                    (name.clone(), json!({"mean": mean, "min": min, "max": max, "long_mean": avg(|r| r.long),
-                        "deviation_mean": avg(|r| r.deviation), "vorticity_mean": avg(|r| r.vorticity), "runs": runs.len()}))
-                })
-                .collect();
-            (re.clone(), Value::Object(v))
-        })
-        .collect();
+    print!("{}", metric(LONG).table(Some("src")));
     let (floors, capacity) = floors(options, &results, &capacity_runs);
     study::validation_chart(&args.out, &validation_curves)?;
     study::charts(
         &args.out,
-        &results.curves,
+        results.figures.curves(),
         &capacity_runs,
         &speed,
         &results.last,
@@ -147,10 +131,10 @@ pub(crate) fn report(
         "learning_rate": chosen_lr,
         "params": params_count,
         "main_size": MAIN_SIZE.label(),
-        "mean_rel_error": summary(&results.held_out),
-        "long_rel_error": summary(&results.long),
+        "mean_rel_error": summary(&metric(STATE)),
+        "long_rel_error": summary(&metric(LONG)),
         "validation_rel_error": summary(&validation_report),
-        "per_re": per_re_json,
+        "per_re": results.figures.per_condition_json(),
         "capacity": capacity,
         "selected_k": selected_k,
         "selected_size": selected_size,
@@ -183,8 +167,8 @@ pub(crate) fn report(
         .collect::<serde_json::Map<_, _>>()
         .into();
     line["held_out_evaluations"] = held_out_evaluations.into();
-    line["deviation_rel_error"] = summary(&results.deviation).into();
-    line["vorticity_rel_error"] = summary(&results.vorticity).into();
+    line["deviation_rel_error"] = summary(&metric(DEVIATION)).into();
+    line["vorticity_rel_error"] = summary(&metric(VORTICITY)).into();
     line["saved_models"] = json!(args.out.join("models").display().to_string());
     // The floors are the full scene's (docs/11): `--small`'s budgets and grids
     // measure that the study runs, not what it reaches.
@@ -220,18 +204,14 @@ fn missed_floors(floors: &Value) -> Vec<String> {
 /// The floors of the scene (docs/11) from the held-out figures, and the
 /// capacity sweep's JSON.
 fn floors(options: &Options, results: &Results, capacity_runs: &[CapacityRun]) -> (Value, Value) {
-    let ratio_at = |re: &str, a: &str, b: &str| -> Option<f64> {
-        let m = results.per_re.get(re)?;
-        let mean = |k: &str| {
-            m.get(k)
-                .map(|r| r.iter().map(|x| x.mean).sum::<f64>() / r.len() as f64)
-        };
-        Some(mean(a)? / mean(b)?)
+    let ratio = |re: &str| {
+        let mean = |method: &str| results.figures.mean_at(re, method, STATE);
+        Some(mean("sol_selected")? / mean("src")?)
     };
     let sol_src: BTreeMap<String, Option<f64>> = results
-        .per_re
-        .keys()
-        .map(|re| (re.clone(), ratio_at(re, "sol_selected", "src")))
+        .figures
+        .conditions()
+        .map(|re| (re.to_string(), ratio(re)))
         .collect();
     let floor_sol_src = if sol_src.values().any(Option::is_none) || sol_src.is_empty() {
         json!("not measured")
@@ -267,61 +247,54 @@ fn floors(options: &Options, results: &Results, capacity_runs: &[CapacityRun]) -
     (floors, capacity)
 }
 
-/// Per Reynolds number, per method, every run's errors.
-type PerRe = BTreeMap<String, BTreeMap<String, Vec<ReErrors>>>;
+/// The held-out metrics: the state's relative L2 error over the rollouts
+/// (the primary one), over the long rollout, the deviation's and the
+/// vorticity's.
+const STATE: &str = "state";
+const LONG: &str = "long";
+const DEVIATION: &str = "deviation";
+const VORTICITY: &str = "vorticity";
 
-/// One run's errors at one Reynolds number.
-#[derive(Debug, Clone, Copy)]
-pub(crate) struct ReErrors {
-    /// The relative L2 error of the state over the rollouts.
-    mean: f64,
-    /// The same over the long rollout.
-    long: f64,
-    /// The error of the velocity's deviation from the free stream.
-    deviation: f64,
-    /// The error of the vorticity.
-    vorticity: f64,
-}
-
-/// The held-out figures of every run.
-#[derive(Default)]
+/// The held-out figures of every run, and the long rollouts' last states
+/// at the first held-out Re (one per method).
 pub(crate) struct Results {
-    pub(crate) held_out: Report,
-    pub(crate) long: Report,
-    pub(crate) deviation: Report,
-    pub(crate) vorticity: Report,
-    pub(crate) per_re: PerRe,
-    pub(crate) curves: BTreeMap<String, Vec<Vec<f64>>>,
+    pub(crate) figures: Figures,
     pub(crate) last: BTreeMap<String, FlowState<f64>>,
 }
 
-impl Results {
-    pub(crate) fn record(&mut self, name: &str, ds: u64, ts: Option<u64>, run: &HeldOutRun) {
-        self.held_out.add(name, ds, ts, run.mean());
-        self.long.add(name, ds, ts, run.long_mean());
-        self.deviation.add(name, ds, ts, run.deviation_mean());
-        self.vorticity.add(name, ds, ts, run.vorticity_mean());
-        for r in &run.per_re {
-            self.per_re
-                .entry(format!("{}", r.re))
-                .or_default()
-                .entry(name.to_string())
-                .or_default()
-                .push(ReErrors {
-                    mean: r.mean,
-                    long: r.long,
-                    deviation: r.deviation,
-                    vorticity: r.vorticity,
-                });
+impl Default for Results {
+    fn default() -> Self {
+        Results {
+            figures: Figures::new(&[STATE, LONG, DEVIATION, VORTICITY]),
+            last: BTreeMap::new(),
         }
-        self.curves
-            .entry(name.to_string())
-            .or_default()
-            .push(run.curve());
+    }
+}
+
+impl Results {
+    pub(crate) fn record(
+        &mut self,
+        name: &str,
+        ds: u64,
+        ts: Option<u64>,
+        run: &HeldOutRun,
+    ) -> Result<(), BoxError> {
+        let per_re: Vec<(String, Vec<f64>)> = run
+            .per_re
+            .iter()
+            .map(|r| {
+                (
+                    format!("{}", r.re),
+                    vec![r.mean, r.long, r.deviation, r.vorticity],
+                )
+            })
+            .collect();
+        self.figures.add(name, (ds, ts), &per_re, run.curve())?;
         if let Some(r) = run.per_re.first() {
             self.last
                 .entry(name.to_string())
                 .or_insert_with(|| r.last.clone());
         }
+        Ok(())
     }
 }

@@ -63,16 +63,6 @@ impl HeldOutRun {
         self.per_re.iter().map(|r| r.long).sum::<f64>() / self.per_re.len().max(1) as f64
     }
 
-    /// The mean over the Reynolds numbers of the deviation's error.
-    pub fn deviation_mean(&self) -> f64 {
-        self.per_re.iter().map(|r| r.deviation).sum::<f64>() / self.per_re.len().max(1) as f64
-    }
-
-    /// The mean over the Reynolds numbers of the vorticity's error.
-    pub fn vorticity_mean(&self) -> f64 {
-        self.per_re.iter().map(|r| r.vorticity).sum::<f64>() / self.per_re.len().max(1) as f64
-    }
-
     /// The per-step error, mean over the Reynolds numbers.
     pub fn curve(&self) -> Vec<f64> {
         let n = self.per_re.len().max(1) as f64;
@@ -453,14 +443,8 @@ pub fn charts(
     let e = |e: diffphys::report::ReportError| WakeError::Output(e.to_string());
     let series: Vec<Series> = curves
         .iter()
-        .filter(|(_, c)| !c.is_empty() && !c[0].is_empty())
-        .map(|(name, c)| {
-            let n = c.len() as f64;
-            let points = (0..c[0].len())
-                .map(|t| ((t + 1) as f64, c.iter().map(|v| v[t]).sum::<f64>() / n))
-                .collect();
-            Series::new(name.clone(), points)
-        })
+        .map(|(name, c)| Series::mean_per_step(name.clone(), c))
+        .filter(|s| !s.points.is_empty())
         .collect();
     line_chart_svg(
         &out.join("relative_error.svg"),

@@ -1,10 +1,14 @@
 //! Results over data seeds × training seeds: per method every run, and the mean,
-//! minimum and maximum over them.
+//! minimum and maximum over them ([`Report`]); several metrics of every run,
+//! overall and per condition (a Reynolds number, say), with per-step curves
+//! ([`Figures`]).
 
 use std::collections::BTreeMap;
 
 use serde::Serialize;
 use serde_json::{json, Value};
+
+use crate::{LearnError, Result};
 
 /// The mean, minimum and maximum of a set of runs.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -148,6 +152,132 @@ impl Report {
     }
 }
 
+/// Every run's figures under several metrics, overall and per condition
+/// (each held-out Reynolds number, say), with its per-step curve.
+///
+/// A run gives one value per metric at each condition; its overall figure
+/// under a metric is the mean over its conditions, kept in one [`Report`]
+/// per metric. The first metric is the primary one: per condition it is
+/// summarised with its minimum and maximum, the others by their means
+/// ([`Figures::per_condition_json`]).
+#[derive(Debug, Clone, Default)]
+pub struct Figures {
+    metrics: Vec<String>,
+    overall: Vec<Report>,
+    /// Condition → method → runs → one value per metric.
+    per_condition: BTreeMap<String, BTreeMap<String, Vec<Vec<f64>>>>,
+    curves: BTreeMap<String, Vec<Vec<f64>>>,
+}
+
+impl Figures {
+    /// Figures under `metrics`, the first the primary one.
+    pub fn new(metrics: &[&str]) -> Self {
+        Figures {
+            metrics: metrics.iter().map(|m| m.to_string()).collect(),
+            overall: vec![Report::new(); metrics.len()],
+            ..Figures::default()
+        }
+    }
+
+    /// Records the run of `method` from `data_seed` and `train_seed`: its
+    /// values at each condition (one per metric, in order) and its per-step
+    /// curve.
+    ///
+    /// # Errors
+    /// [`LearnError::Invalid`] without a condition or for a condition with
+    /// another number of values than metrics.
+    pub fn add(
+        &mut self,
+        method: &str,
+        (data_seed, train_seed): (u64, Option<u64>),
+        per_condition: &[(String, Vec<f64>)],
+        curve: Vec<f64>,
+    ) -> Result<()> {
+        let invalid = |message: String| LearnError::Invalid {
+            what: "figures",
+            message,
+        };
+        if per_condition.is_empty() {
+            return Err(invalid(format!("a run of {method} at no condition")));
+        }
+        if let Some((c, v)) = per_condition
+            .iter()
+            .find(|(_, v)| v.len() != self.metrics.len())
+        {
+            return Err(invalid(format!(
+                "{} values at {c} for {} metrics",
+                v.len(),
+                self.metrics.len()
+            )));
+        }
+        let n = per_condition.len() as f64;
+        for (k, report) in self.overall.iter_mut().enumerate() {
+            let mean = per_condition.iter().map(|(_, v)| v[k]).sum::<f64>() / n;
+            report.add(method, data_seed, train_seed, mean);
+        }
+        for (c, v) in per_condition {
+            self.per_condition
+                .entry(c.clone())
+                .or_default()
+                .entry(method.to_string())
+                .or_default()
+                .push(v.clone());
+        }
+        self.curves
+            .entry(method.to_string())
+            .or_default()
+            .push(curve);
+        Ok(())
+    }
+
+    /// Every run's overall figure under `metric`.
+    pub fn report(&self, metric: &str) -> Option<&Report> {
+        let k = self.metrics.iter().position(|m| m == metric)?;
+        self.overall.get(k)
+    }
+
+    /// Per method, every run's per-step curve.
+    pub fn curves(&self) -> &BTreeMap<String, Vec<Vec<f64>>> {
+        &self.curves
+    }
+
+    /// The conditions, in order.
+    pub fn conditions(&self) -> impl Iterator<Item = &str> {
+        self.per_condition.keys().map(String::as_str)
+    }
+
+    /// The mean over the runs of `method` at `condition` under `metric`.
+    pub fn mean_at(&self, condition: &str, method: &str, metric: &str) -> Option<f64> {
+        let k = self.metrics.iter().position(|m| m == metric)?;
+        let runs = self.per_condition.get(condition)?.get(method)?;
+        Summary::of(&runs.iter().map(|v| v[k]).collect::<Vec<_>>()).map(|s| s.mean)
+    }
+
+    /// `{condition: {method: {mean, min, max, runs, <metric>_mean, ...}}}`:
+    /// the primary metric's mean, minimum and maximum over the runs, and each
+    /// other metric's mean.
+    pub fn per_condition_json(&self) -> Value {
+        let methods = |m: &BTreeMap<String, Vec<Vec<f64>>>| -> serde_json::Map<String, Value> {
+            m.iter()
+                .filter_map(|(method, runs)| {
+                    let of = |k: usize| Summary::of(&runs.iter().map(|v| v[k]).collect::<Vec<_>>());
+                    let primary = of(0)?;
+                    let mut entry = json!({"mean": primary.mean, "min": primary.min, "max": primary.max, "runs": primary.runs});
+                    for (k, name) in self.metrics.iter().enumerate().skip(1) {
+                        entry[format!("{name}_mean")] = json!(of(k).map(|s| s.mean));
+                    }
+                    Some((method.clone(), entry))
+                })
+                .collect()
+        };
+        self.per_condition
+            .iter()
+            .map(|(c, m)| (c.clone(), Value::Object(methods(m))))
+            .collect::<serde_json::Map<_, _>>()
+            .into()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -166,5 +296,39 @@ mod tests {
         assert_eq!(j["non"]["mean"], 4.0);
         assert_eq!(j["non"]["per_run"][2]["data_seed"], 2);
         assert!(Summary::of(&[]).is_none());
+    }
+
+    #[test]
+    fn figures_per_condition_and_overall() {
+        let mut f = Figures::new(&["state", "long"]);
+        let at = |a: f64, b: f64| {
+            vec![
+                ("71".to_string(), vec![a, 10.0 * a]),
+                ("283".to_string(), vec![b, 10.0 * b]),
+            ]
+        };
+        f.add("src", (1, None), &at(0.2, 0.4), vec![0.1, 0.2])
+            .unwrap();
+        f.add("sol", (1, Some(1)), &at(0.02, 0.06), vec![0.01])
+            .unwrap();
+        f.add("sol", (1, Some(2)), &at(0.04, 0.08), vec![0.03])
+            .unwrap();
+        let state = f.report("state").unwrap();
+        assert!((state.summary("src").unwrap().mean - 0.3).abs() < 1e-15);
+        assert!((state.summary("sol").unwrap().mean - 0.05).abs() < 1e-15);
+        assert!((f.report("long").unwrap().summary("sol").unwrap().max - 0.6).abs() < 1e-15);
+        assert!(f.report("vorticity").is_none());
+        assert!((f.mean_at("71", "sol", "state").unwrap() - 0.03).abs() < 1e-15);
+        assert!(f.mean_at("71", "non", "state").is_none());
+        assert_eq!(f.conditions().collect::<Vec<_>>(), vec!["283", "71"]);
+        let j = f.per_condition_json();
+        assert_eq!(j["71"]["sol"]["runs"], 2);
+        assert_eq!(j["71"]["sol"]["min"], 0.02);
+        assert!((j["283"]["src"]["long_mean"].as_f64().unwrap() - 4.0).abs() < 1e-15);
+        assert_eq!(f.curves()["sol"].len(), 2);
+        // A run without a condition, or with a value missing, is refused.
+        assert!(f.add("non", (1, Some(1)), &[], vec![]).is_err());
+        let short = vec![("71".to_string(), vec![0.1])];
+        assert!(f.add("non", (1, Some(1)), &short, vec![]).is_err());
     }
 }

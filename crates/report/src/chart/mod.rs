@@ -64,6 +64,25 @@ impl Series {
             points,
         }
     }
+
+    /// The mean of several per-step curves (a rollout's error after each
+    /// step, one curve per run): the point `(t + 1, mean_r runs[r][t])` for
+    /// every step `t` that all runs reach. No runs, no points.
+    ///
+    /// ```
+    /// use diffphys_report::chart::Series;
+    /// let s = Series::mean_per_step("sol", &[vec![1.0, 2.0, 9.0], vec![3.0, 4.0]]);
+    /// assert_eq!(s.points, vec![(1.0, 2.0), (2.0, 3.0)]);
+    /// assert!(Series::mean_per_step("none", &[]).points.is_empty());
+    /// ```
+    pub fn mean_per_step(label: impl Into<String>, runs: &[Vec<f64>]) -> Self {
+        let steps = runs.iter().map(Vec::len).min().unwrap_or(0);
+        let n = runs.len() as f64;
+        let points = (0..steps)
+            .map(|t| ((t + 1) as f64, runs.iter().map(|v| v[t]).sum::<f64>() / n))
+            .collect();
+        Series::new(label, points)
+    }
 }
 
 /// A line chart: one curve per [`Series`], a legend, and linear or log axes.

@@ -11,14 +11,13 @@ mod wake_flow_scene;
 
 use clap::Parser;
 use diffphys::flow::{FlowState, PressureSolver, Splitting};
-use diffphys::hybrid::{free_faces, LatticeNet};
+use diffphys::hybrid::{free_faces, sample, LatticeNet};
 use diffphys::learn::{Hybrid, LearnError, Simulator, Split, State, TrainSeed};
 use diffphys::nn::Arithmetic;
 use ndarray::Array2;
 use wake_flow_scene::cli::{seeds, Cli, Command};
 use wake_flow_scene::{
-    net, re_code, sample, uncorrected, viscosity, Coarse, NetSize, Options, Sizes, Variant,
-    WakeError,
+    net, re_code, uncorrected, viscosity, Coarse, NetSize, Options, Sizes, Variant, WakeError,
 };
 
 /// The command line `wake_flow --small ARGS`, parsed by clap (which must

@@ -9,19 +9,20 @@
 //! and the Strouhal number from them.
 
 use diffphys::flow::diagnostics::obstacle_force;
-use diffphys::flow::{restrict_velocity, FlowParams, FlowState, Scene};
+use diffphys::flow::{FlowState, Scene};
 use diffphys::learn::study::run_jobs;
 use diffphys::learn::{DataSeed, Split};
 use diffphys::report::progress_bar;
 use serde_json::{json, Value};
 
-use super::data::{advance_by, start_state, Bump};
+use super::data::{start_state, Bump};
 use super::{
     reference_scene_at, uncorrected, viscosity, Options, Result, Sizes, WakeError, DIAMETER,
     FACTOR, U_IN,
 };
 use diffphys::flow::PressureSolver;
 use diffphys::hybrid::metrics::{deviation_error, velocity_error};
+use diffphys::hybrid::reference::{advance, Recorder};
 
 /// One level's recorded window at one Re: the velocities restricted to the
 /// coarse grid, and the force coefficients after each coarse step.
@@ -51,34 +52,32 @@ fn window(
     re: f64,
     tick: &(dyn Fn(u64) + Sync),
 ) -> Result<Window> {
-    let fine = &level.fine;
-    let mut s = advance_by(fine, level.factor, base.clone(), re, sizes.warm, tick)?;
     let nu = viscosity(re);
-    let p = FlowParams {
-        viscosity: nu,
-        ..fine.params()
-    };
     let scale = 2.0 / (U_IN * U_IN * DIAMETER);
-    let (mut states, mut forces) = (Vec::new(), Vec::new());
-    for t in 0..=sizes.record {
-        if t > 0 {
-            for _ in 0..level.factor {
-                s = fine.forward(&s, &p)?.0;
-            }
-            tick(1);
-        }
-        let (ux, uy) = restrict_velocity(coarse.grid(), level.factor, s.ux.view(), s.uy.view())?;
-        states.push(FlowState::from_velocity(coarse, ux, uy));
+    let mut forces = Vec::new();
+    let recorder = Recorder {
+        fine: &level.fine,
+        coarse,
+        factor: level.factor,
+        warm: sizes.warm,
+        record: sizes.record,
+        starts: &[],
+    };
+    let reference = recorder.record(base, (re, nu), tick, &mut |s| {
         let f = obstacle_force(
-            fine.force_weights(),
+            level.fine.force_weights(),
             s.ux.view(),
             s.uy.view(),
             s.pressure.view(),
             nu,
         )?;
         forces.push([scale * f[0], scale * f[1]]);
-    }
-    Ok(Window { states, forces })
+        Ok(())
+    })?;
+    Ok(Window {
+        states: reference.states,
+        forces,
+    })
 }
 
 /// The lift's periods (between up-crossings of its mean, interpolated
@@ -152,11 +151,11 @@ pub fn check(options: &Options, sizes: &Sizes, data_seed: u64) -> Result<Value> 
     let base_states = run_jobs(&bases, options.threads, |&(_, l, bump)| {
         let fine = &levels[l].fine;
         let start = start_state(fine, bump);
-        advance_by(
+        advance(
             fine,
             levels[l].factor,
             start,
-            sizes.base_re,
+            viscosity(sizes.base_re),
             sizes.warm_base,
             &tick,
         )

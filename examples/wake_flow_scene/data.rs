@@ -13,26 +13,17 @@
 
 use std::path::Path;
 
-use diffphys::flow::{restrict_pressure, restrict_velocity, FlowParams, FlowState, Scene};
-use diffphys::learn::cache::{self, Arrays};
-use ndarray::{Array2, ArrayD, Axis, Ix2, Ix3};
+use diffphys::flow::{FlowState, Scene};
+pub use diffphys::hybrid::reference::Reference;
+use diffphys::hybrid::reference::{advance, state_from_arrays, state_to_arrays, Recorder};
+use diffphys::learn::cache;
+use ndarray::Array2;
 use rand::Rng;
 
 use super::{viscosity, Body, ReferenceScheme, Result, Sizes, WakeError, CENTRE, FACTOR, U_IN};
 
 /// Bump this when the generation changes in a way the settings do not show.
 const VERSION: u32 = 2;
-
-/// The reference of one Reynolds number.
-#[derive(Debug, Clone)]
-pub struct Reference {
-    /// The Reynolds number.
-    pub re: f64,
-    /// `record + 1` coarse states (velocity and pressure, restricted).
-    pub states: Vec<FlowState<f64>>,
-    /// The fine velocity `(u_x, u_y)` at each rollout start of `Sizes::starts`.
-    pub fine_starts: Vec<(Array2<f64>, Array2<f64>)>,
-}
 
 /// The reference cache of `sizes` under `OUT/reference/`: keyed by every
 /// setting the data depend on but the Re and the split's draw.
@@ -59,32 +50,6 @@ pub fn cache(out: &Path, sizes: &Sizes) -> Result<cache::Cache> {
         sizes.starts
     ) + &variant;
     Ok(cache::Cache::new(out.join("reference"), settings)?)
-}
-
-/// The array called `name` of a cache entry, with `D` dimensions.
-fn take<D: ndarray::Dimension>(arrays: &mut Arrays, name: &str) -> Result<ndarray::Array<f64, D>> {
-    let at = arrays.iter().position(|(n, _)| n == name);
-    let (_, a) = at
-        .map(|i| arrays.swap_remove(i))
-        .ok_or_else(|| WakeError::Cache {
-            path: name.into(),
-            message: "the cache entry lacks this array".into(),
-        })?;
-    a.into_dimensionality().map_err(|e| WakeError::Cache {
-        path: name.into(),
-        message: e.to_string(),
-    })
-}
-
-/// `arrays`, each with a leading axis, stacked.
-fn stacked<'a, D: ndarray::Dimension + 'a>(
-    arrays: impl Iterator<Item = &'a ndarray::Array<f64, D>>,
-) -> Result<ArrayD<f64>> {
-    let views: Vec<_> = arrays.map(|a| a.view().into_dyn()).collect();
-    ndarray::stack(Axis(0), &views).map_err(|e| WakeError::Cache {
-        path: "reference".into(),
-        message: e.to_string(),
-    })
 }
 
 /// The perturbation of a split's base state: the bump's centre and signed
@@ -124,41 +89,6 @@ pub fn start_state(scene: &Scene, bump: Bump) -> FlowState<f64> {
     FlowState::from_velocity(scene, ux, uy)
 }
 
-/// `coarse_steps` coarse steps of the fine solver at `re` ([`FACTOR`] fine
-/// steps each).
-fn advance(
-    fine: &Scene,
-    s: FlowState<f64>,
-    re: f64,
-    coarse_steps: usize,
-    tick: &(dyn Fn(u64) + Sync),
-) -> Result<FlowState<f64>> {
-    advance_by(fine, FACTOR, s, re, coarse_steps, tick)
-}
-
-/// `coarse_steps` coarse steps of a solver `factor` times finer than the
-/// coarse one at `re` (`factor` steps each).
-pub fn advance_by(
-    fine: &Scene,
-    factor: usize,
-    mut s: FlowState<f64>,
-    re: f64,
-    coarse_steps: usize,
-    tick: &(dyn Fn(u64) + Sync),
-) -> Result<FlowState<f64>> {
-    let p = FlowParams {
-        viscosity: viscosity(re),
-        ..fine.params()
-    };
-    for _ in 0..coarse_steps {
-        for _ in 0..factor {
-            s = fine.forward(&s, &p)?.0;
-        }
-        tick(1);
-    }
-    Ok(s)
-}
-
 /// The base state of a split (cached).
 pub fn base_state(
     cache: &cache::Cache,
@@ -167,29 +97,22 @@ pub fn base_state(
     bump: Bump,
     tick: &(dyn Fn(u64) + Sync),
 ) -> Result<FlowState<f64>> {
-    let (mut arrays, hit) = cache.get_or_make("base", &format!("{bump:?}"), || {
+    let (arrays, hit) = cache.get_or_make("base", &format!("{bump:?}"), || {
+        let start = start_state(fine, bump);
         let s = advance(
             fine,
-            start_state(fine, bump),
-            sizes.base_re,
+            FACTOR,
+            start,
+            viscosity(sizes.base_re),
             sizes.warm_base,
             tick,
         )?;
-        Ok::<_, WakeError>(vec![
-            ("ux".into(), s.ux.into_dyn()),
-            ("uy".into(), s.uy.into_dyn()),
-            ("pressure".into(), s.pressure.into_dyn()),
-        ])
+        Ok::<_, WakeError>(state_to_arrays(&s))
     })?;
     if hit {
         tick(sizes.warm_base as u64);
     }
-    Ok(FlowState {
-        ux: take::<Ix2>(&mut arrays, "ux")?,
-        uy: take::<Ix2>(&mut arrays, "uy")?,
-        pressure: take::<Ix2>(&mut arrays, "pressure")?,
-        scalars: Vec::new(),
-    })
+    Ok(state_from_arrays(arrays)?)
 }
 
 /// The reference at `re` from `base` (cached).
@@ -203,66 +126,20 @@ pub fn reference(
     tick: &(dyn Fn(u64) + Sync),
 ) -> Result<Reference> {
     let make = || {
-        let nu = viscosity(re);
-        let mut s = advance(fine, base.0.clone(), re, sizes.warm, tick)?;
-        let p = FlowParams {
-            viscosity: nu,
-            ..fine.params()
+        let recorder = Recorder {
+            fine,
+            coarse,
+            factor: FACTOR,
+            warm: sizes.warm,
+            record: sizes.record,
+            starts: &sizes.starts,
         };
-        let (mut states, mut fine_starts) = (Vec::new(), Vec::new());
-        for t in 0..=sizes.record {
-            if t > 0 {
-                for _ in 0..FACTOR {
-                    s = fine.forward(&s, &p)?.0;
-                }
-                tick(1);
-            }
-            let (ux, uy) = restrict_velocity(coarse.grid(), FACTOR, s.ux.view(), s.uy.view())?;
-            let pressure = restrict_pressure(coarse.grid(), FACTOR, s.pressure.view())?;
-            states.push(FlowState {
-                pressure,
-                ..FlowState::from_velocity(coarse, ux, uy)
-            });
-            if sizes.starts.contains(&t) {
-                fine_starts.push((s.ux.clone(), s.uy.clone()));
-            }
-        }
-        Ok::<_, WakeError>(vec![
-            ("ux".into(), stacked(states.iter().map(|s| &s.ux))?),
-            ("uy".into(), stacked(states.iter().map(|s| &s.uy))?),
-            (
-                "pressure".into(),
-                stacked(states.iter().map(|s| &s.pressure))?,
-            ),
-            ("fine_ux".into(), stacked(fine_starts.iter().map(|f| &f.0))?),
-            ("fine_uy".into(), stacked(fine_starts.iter().map(|f| &f.1))?),
-        ])
+        let r = recorder.record(base.0, (re, viscosity(re)), tick, &mut |_| Ok(()))?;
+        Ok::<_, WakeError>(r.to_arrays()?)
     };
-    let (mut arrays, hit) =
-        cache.get_or_make(&format!("re{re}"), &format!("{:?}", base.1), make)?;
+    let (arrays, hit) = cache.get_or_make(&format!("re{re}"), &format!("{:?}", base.1), make)?;
     if hit {
         tick((sizes.warm + sizes.record) as u64);
     }
-    let ux = take::<Ix3>(&mut arrays, "ux")?;
-    let uy = take::<Ix3>(&mut arrays, "uy")?;
-    let pressure = take::<Ix3>(&mut arrays, "pressure")?;
-    let fine_ux = take::<Ix3>(&mut arrays, "fine_ux")?;
-    let fine_uy = take::<Ix3>(&mut arrays, "fine_uy")?;
-    Ok(Reference {
-        re,
-        states: ux
-            .outer_iter()
-            .zip(uy.outer_iter())
-            .zip(pressure.outer_iter())
-            .map(|((ux, uy), p)| FlowState {
-                pressure: p.to_owned(),
-                ..FlowState::from_velocity(coarse, ux.to_owned(), uy.to_owned())
-            })
-            .collect(),
-        fine_starts: fine_ux
-            .outer_iter()
-            .zip(fine_uy.outer_iter())
-            .map(|(a, b)| (a.to_owned(), b.to_owned()))
-            .collect(),
-    })
+    Ok(Reference::from_arrays(arrays, coarse, (re, viscosity(re)))?)
 }

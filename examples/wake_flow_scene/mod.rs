@@ -32,7 +32,7 @@ mod net;
 mod solvers;
 pub mod study;
 
-pub use diffphys::hybrid::{sample, NetSize};
+pub use diffphys::hybrid::NetSize;
 pub use net::{net, Net, MAIN_SIZE, SIZES};
 pub use solvers::{reference_scene, reference_scene_at, uncorrected, Body, ReferenceScheme};
 
@@ -97,14 +97,6 @@ pub enum WakeError {
         re: f64,
         /// The pinned-face error.
         error: f64,
-    },
-    /// The reference cache could not be read or written.
-    #[error("reference cache {path}: {message}")]
-    Cache {
-        /// The file.
-        path: String,
-        /// What went wrong.
-        message: String,
     },
     /// The learning library refused (empty split, unroll 0, corrector shape, …).
     #[error(transparent)]

@@ -12,11 +12,12 @@ use diffphys::nn::Arithmetic;
 use serde_json::{json, Map, Value};
 
 use super::data::{self, base_state, reference, Bump, Reference};
-use super::study::{held_out_re, HeldOutRun, ReRun};
+use super::study::{held_out_re, HeldOutRun};
 use super::{
     advection_label, arithmetic_label, net, reference_scene, splitting_label, uncorrected, Coarse,
     NetSize, Result, Sizes, WakeError, RE_CENTRE,
 };
+use diffphys::hybrid::reference::Rollouts;
 
 /// The kind of model the scene saves.
 pub const KIND: &str = "wake_flow corrector";
@@ -142,7 +143,7 @@ pub fn evaluate(e: &Evaluation<'_>) -> Result<Value> {
             &|_| {},
         )
     })?;
-    let runs: Vec<(ReRun, ReRun)> = run_jobs(&refs, e.threads, |r| {
+    let runs: Vec<(Rollouts, Rollouts)> = run_jobs(&refs, e.threads, |r| {
         let hybrid = Hybrid::new(coarse.clone(), new_net()?.0);
         Ok::<_, WakeError>((
             held_out_re(&hybrid, None, r, e.sizes)?,

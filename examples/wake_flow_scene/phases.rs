@@ -87,12 +87,12 @@ pub(crate) fn untrained(
     let train: Vec<Trajectory> = splits
         .train
         .iter()
-        .map(|r| study::window(coarse.scene(), r, 0, r.states.len()))
+        .map(|r| r.window(coarse.scene(), 0, r.states.len()))
         .collect::<Result<_, _>>()?;
     let validation: Vec<Trajectory> = splits
         .validation
         .iter()
-        .map(|r| study::window(coarse.scene(), r, 0, sizes.rollout + 1))
+        .map(|r| r.window(coarse.scene(), 0, sizes.rollout + 1))
         .collect::<Result<_, _>>()?;
     let sigma = coarse.one_step_rms(&train, 10)?;
     // What no corrector can remove: the pinned faces' error (train and

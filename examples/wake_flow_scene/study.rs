@@ -8,9 +8,9 @@ use std::time::Instant;
 
 use diffphys::flow::diagnostics::vorticity;
 use diffphys::flow::{FlowParams, FlowState, PressureSolver, Scene};
-use diffphys::hybrid::metrics::{deviation_error, vorticity_error, Fields};
+use diffphys::hybrid::reference::{evaluate, Evaluation, Rollouts};
 use diffphys::hybrid::speed::{self, Case};
-use diffphys::learn::{rollout, rollout_measured, Corrector, Hybrid, Summary, Trajectory};
+use diffphys::learn::{Corrector, Hybrid, Summary};
 use diffphys::nn::Params;
 use diffphys::report::chart::{
     heatmap_panels_svg, line_chart_svg, HeatmapPanels, LineChart, Outline, Series,
@@ -20,36 +20,15 @@ use serde_json::{json, Value};
 
 use super::data::Reference;
 use super::{
-    reference_scene_at, sample, uncorrected, viscosity, Coarse, NetSize, Options, Result, Sizes,
-    Variant, WakeError, CENTRE, DIAMETER, FACTOR, U_IN,
+    reference_scene_at, uncorrected, viscosity, Coarse, NetSize, Options, Result, Sizes, Variant,
+    WakeError, CENTRE, DIAMETER, FACTOR, U_IN,
 };
-
-/// One model's held-out rollouts at one Reynolds number.
-#[derive(Debug, Clone)]
-pub struct ReRun {
-    /// The Reynolds number.
-    pub re: f64,
-    /// The mean relative L2 error over the rollout's steps and its starts.
-    pub mean: f64,
-    /// The same for the velocity's deviation from the free stream
-    /// ([`diffphys::hybrid::metrics::deviation_error`]).
-    pub deviation: f64,
-    /// The same for the vorticity
-    /// ([`diffphys::hybrid::metrics::vorticity_error`]).
-    pub vorticity: f64,
-    /// The error after each step, mean over the starts.
-    pub curve: Vec<f64>,
-    /// The mean relative L2 error of the long rollout.
-    pub long: f64,
-    /// The long rollout's last state.
-    pub last: FlowState<f64>,
-}
 
 /// One model's held-out rollouts at every held-out Reynolds number.
 #[derive(Debug, Clone)]
 pub struct HeldOutRun {
     /// Per Reynolds number.
-    pub per_re: Vec<ReRun>,
+    pub per_re: Vec<Rollouts>,
 }
 
 impl HeldOutRun {
@@ -73,32 +52,9 @@ impl HeldOutRun {
     }
 }
 
-/// `count` states of a reference from step `start`, as a trajectory of the
-/// coarse solver `scene`'s samples.
-///
-/// # Errors
-/// [`WakeError::Argument`] if the reference has fewer.
-pub fn window(scene: &Scene, r: &Reference, start: usize, count: usize) -> Result<Trajectory> {
-    if start + count > r.states.len() {
-        return Err(WakeError::Argument {
-            option: "rollout".into(),
-            message: format!(
-                "a window of {count} states from step {start} needs more than the {} recorded",
-                r.states.len()
-            ),
-        });
-    }
-    let nu = viscosity(r.re);
-    Ok(r.states[start..start + count]
-        .iter()
-        .map(|s| sample(scene, s, nu))
-        .collect())
-}
-
 /// The rollouts of the hybrid (`params = None`: the coarse solver alone) on
-/// one held-out reference: `rollout` steps from each start (measuring the
-/// relative error of the state, of the deviation from the free stream and of
-/// the vorticity), and the long rollout from step 0.
+/// one held-out reference ([`evaluate`]): `rollout` steps from each start,
+/// and the long rollout from step 0.
 ///
 /// # Errors
 /// Whatever the rollouts return.
@@ -107,41 +63,14 @@ pub fn held_out_re<C: Corrector + 'static>(
     params: Option<&Params<f64>>,
     r: &Reference,
     sizes: &Sizes,
-) -> Result<ReRun> {
-    let scene = hybrid.simulator().scene();
-    let windows = sizes
-        .starts
-        .iter()
-        .map(|&s| window(scene, r, s, sizes.rollout + 1))
-        .collect::<Result<Vec<_>>>()?;
-    let deviation =
-        |p: Fields<'_, '_>, r: Fields<'_, '_>| deviation_error(scene, [U_IN, 0.0], p, r);
-    let vorticity = |p: Fields<'_, '_>, r: Fields<'_, '_>| vorticity_error(scene, p, r);
-    let short = rollout_measured(
-        hybrid,
-        params,
-        &windows,
-        sizes.rollout,
-        &[&deviation, &vorticity],
-    )?;
-    let long = rollout(
-        hybrid,
-        params,
-        &[window(scene, r, 0, sizes.long + 1)?],
-        sizes.long,
-    )?;
-    let last = long.last.sample(0)?;
-    let views: Vec<_> = last.fields.iter().map(|f| f.view()).collect();
-    let last = scene.state_of(&views)?;
-    Ok(ReRun {
-        re: r.re,
-        mean: short.mean(),
-        deviation: short.measured_mean(0).unwrap_or(f64::NAN),
-        vorticity: short.measured_mean(1).unwrap_or(f64::NAN),
-        curve: short.per_step,
-        long: long.mean(),
-        last,
-    })
+) -> Result<Rollouts> {
+    let e = Evaluation {
+        starts: &sizes.starts,
+        rollout: sizes.rollout,
+        long: sizes.long,
+        free_stream: [U_IN, 0.0],
+    };
+    Ok(evaluate(hybrid, params, r, &e)?)
 }
 
 /// The speed study's rollouts: from each speed start of each reference,

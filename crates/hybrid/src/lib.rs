@@ -17,6 +17,9 @@
 //!   channel coding each sample's viscosity), its corrections masked to the
 //!   free faces and its head starting at zero, so the hybrid starts as the
 //!   solver.
+//! - Reference trajectories ([`reference`]): a finer solver's states
+//!   restricted to the coarse grid, recorded after a skipped transient, in a
+//!   cache form; a hybrid's rollouts scored against one.
 //! - Speed against accuracy ([`speed`]): the corrected coarse solver and
 //!   uncorrected finer ones from the same starts against the same reference,
 //!   timed per coarse step.
@@ -44,6 +47,7 @@
 
 mod corrector;
 pub mod metrics;
+pub mod reference;
 mod simulator;
 pub mod speed;
 

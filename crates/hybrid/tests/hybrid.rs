@@ -50,6 +50,19 @@ fn state(scene: &Scene) -> FlowState<f64> {
     scene.forward(&s, &scene.params()).unwrap().0
 }
 
+/// The solver of `scene` with the smallest corrector (two channels, no
+/// residual block), its head at zero.
+fn tiny_hybrid(scene: &Scene) -> (Hybrid<FlowSimulator, LatticeNet>, Params<f64>) {
+    let size = NetSize {
+        width: 2,
+        blocks: 0,
+    };
+    let mut rng = TrainSeed(1).init_rng();
+    let (net, params) = LatticeNet::new(scene, size, code, Arithmetic::Native, &mut rng).unwrap();
+    (Hybrid::new(FlowSimulator::new(scene.clone()), net), params)
+}
+
+/// The corrector's viscosity channel: the log of a Reynolds number.
 fn code(nu: f64) -> f64 {
     (0.2 / nu / 400.0).ln()
 }
@@ -256,19 +269,7 @@ fn the_deviation_and_vorticity_errors_measure_the_wake_not_the_free_stream() {
 fn the_speed_study_measures_every_solver_on_the_same_cases() {
     use diffphys_hybrid::speed::{corrected, finer, Case};
     let scene = channel();
-    let sim = FlowSimulator::new(scene.clone());
-    let (net, params) = LatticeNet::new(
-        &scene,
-        NetSize {
-            width: 2,
-            blocks: 0,
-        },
-        code,
-        Arithmetic::Native,
-        &mut TrainSeed(1).init_rng(),
-    )
-    .unwrap();
-    let hybrid = Hybrid::new(sim, net);
+    let (hybrid, params) = tiny_hybrid(&scene);
     let p = FlowParams {
         viscosity: 2e-3,
         ..scene.params()
@@ -358,18 +359,7 @@ fn a_reference_records_restricts_round_trips_and_scores_a_rollout() {
         r.window(&coarse, 3, 5),
         Err(HybridError::Trajectory { .. })
     ));
-    let (net, params) = LatticeNet::new(
-        &coarse,
-        NetSize {
-            width: 2,
-            blocks: 0,
-        },
-        code,
-        Arithmetic::Native,
-        &mut TrainSeed(1).init_rng(),
-    )
-    .unwrap();
-    let hybrid = Hybrid::new(FlowSimulator::new(coarse.clone()), net);
+    let (hybrid, params) = tiny_hybrid(&coarse);
     let e = Evaluation {
         starts: &[0, 2],
         rollout: 3,

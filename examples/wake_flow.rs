@@ -305,6 +305,9 @@ struct Ctx {
     evaluations: usize,
     threads: usize,
     arithmetic: Arithmetic,
+    /// Develop on validation only (`--validation-only`): the held-out split
+    /// is not read.
+    validation_only: bool,
 }
 
 impl Ctx {
@@ -345,6 +348,7 @@ impl Ctx {
             fine,
             cache,
             evaluations,
+            validation_only: cli.train.validation_only,
         })
     }
 

@@ -480,3 +480,16 @@ fn evaluate_refuses_a_model_saved_for_another_scene() {
     );
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn validation_only_is_a_flag_of_the_study_not_of_its_configuration() {
+    let c = cli(&["--validation-only"]);
+    assert!(c.train.validation_only);
+    assert!(!cli(&[]).train.validation_only);
+    // The options that shape the models (the ledger's configuration) do not
+    // change with it: a later full run counts as the same configuration.
+    assert_eq!(
+        Options::from_args(&c.train).unwrap(),
+        Options::from_args(&cli(&[]).train).unwrap()
+    );
+}

@@ -122,6 +122,10 @@ pub struct TrainArgs {
     /// No speed study.
     #[arg(long)]
     pub no_speed: bool,
+    /// Develop on validation only: train and select, save the models, run
+    /// the speed study on the validation split; the held-out split is not read.
+    #[arg(long)]
+    pub validation_only: bool,
     /// Write the last states as .npy files under OUT/npy.
     #[arg(long)]
     pub npy: bool,

@@ -265,16 +265,20 @@ pub(crate) fn protocol(
         .unwrap_or(options.learning_rates[0])
     };
     let plan = plan(options, seeds);
-    let bar = progress_bar(
-        options.held_out_re.len() * (1 + plan.jobs().len()),
-        &format!("data {ds}: held-out"),
-    );
-    let (src, reference_last) = baselines(ctx, splits, &bar)?;
-    rec.results.record("src", ds, None, &src)?;
-    rec.results
-        .last
-        .entry("reference".into())
-        .or_insert(reference_last);
+    let held_out_jobs = if ctx.validation_only {
+        0
+    } else {
+        options.held_out_re.len() * (1 + plan.jobs().len())
+    };
+    let bar = progress_bar(held_out_jobs, &format!("data {ds}: held-out"));
+    if !ctx.validation_only {
+        let (src, reference_last) = baselines(ctx, splits, &bar)?;
+        rec.results.record("src", ds, None, &src)?;
+        rec.results
+            .last
+            .entry("reference".into())
+            .or_insert(reference_last);
+    }
     let train_job = |j: &learn_study::Job<Variant, NetSize>| {
         train_one(
             &setup,
@@ -291,23 +295,37 @@ pub(crate) fn protocol(
     // size, competes (the unroll and the corrector's size are both chosen
     // here); the others stand alone. Then the held-out split, each trained
     // model once.
-    let outcomes = Protocol {
+    let protocol = Protocol {
         plan: &plan,
         threads: ctx.threads,
-    }
-    .run(
-        splits.held_out(),
-        train_job,
-        |m| m.trained.model.validation,
-        |e| matches!(e.variant, Variant::Sol(_)),
-        |_, models, refs| {
-            let models: Vec<_> = models
-                .iter()
-                .map(|m| (Some(&m.trained.model.params), m.size, m.seed))
-                .collect();
-            held_out_runs(ctx, &models, refs, &bar)
-        },
-    )?;
+    };
+    let score = |m: &Model| m.trained.model.validation;
+    let competes = |e: &learn_study::Entry<Variant, NetSize>| matches!(e.variant, Variant::Sol(_));
+    let outcomes: Vec<_> = if ctx.validation_only {
+        let selected = protocol.select(train_job, score, competes)?;
+        selected
+            .into_iter()
+            .map(|o| o.map_held_out(|()| None))
+            .collect()
+    } else {
+        let evaluated = protocol.run(
+            splits.held_out(),
+            train_job,
+            score,
+            competes,
+            |_, models, refs| {
+                let models: Vec<_> = models
+                    .iter()
+                    .map(|m| (Some(&m.trained.model.params), m.size, m.seed))
+                    .collect();
+                held_out_runs(ctx, &models, refs, &bar)
+            },
+        )?;
+        evaluated
+            .into_iter()
+            .map(|o| o.map_held_out(Some))
+            .collect()
+    };
     bar.finish_and_clear();
     mem("held-out");
     for &(variant, size) in &plan.entries {
@@ -325,14 +343,16 @@ pub(crate) fn protocol(
                 .insert(ds.to_string(), json!(o.entry.size.label()));
         }
         for r in &o.runs {
-            record_held_out(ctx, ds, o, r, rec)?;
+            save_and_record(ctx, ds, o, r, rec)?;
             if o.selected() && probe.is_none() {
                 probe = Some((r.model.trained.model.params.clone(), o.entry.size));
             }
         }
     }
-    rec.held_out_readings
-        .insert(ds, splits.held_out().readings());
+    if !ctx.validation_only {
+        rec.held_out_readings
+            .insert(ds, splits.held_out().readings());
+    }
     Ok(probe)
 }
 
@@ -418,7 +438,7 @@ fn baselines(
 fn record_training(
     options: &Options,
     ds: u64,
-    o: &learn_study::Outcome<Variant, NetSize, Model, HeldOutRun>,
+    o: &learn_study::Outcome<Variant, NetSize, Model, Option<HeldOutRun>>,
     rec: &mut Record,
 ) {
     let (variant, size) = (o.entry.variant, o.entry.size);
@@ -453,20 +473,20 @@ fn record_training(
     }
 }
 
-/// What a trained model's held-out reading leaves: its saved model (with the
-/// settings and figures that describe it), the capacity sweep's entry, the
-/// report's.
-fn record_held_out(
+/// What a trained model leaves: its saved model (with the settings and
+/// figures that describe it) and, when the held-out split was read, the
+/// capacity sweep's entry and the report's.
+fn save_and_record(
     ctx: &Ctx,
     ds: u64,
-    o: &learn_study::Outcome<Variant, NetSize, Model, HeldOutRun>,
-    r: &learn_study::Run<Model, HeldOutRun>,
+    o: &learn_study::Outcome<Variant, NetSize, Model, Option<HeldOutRun>>,
+    r: &learn_study::Run<Model, Option<HeldOutRun>>,
     rec: &mut Record,
 ) -> Result<(), BoxError> {
     let Ctx { options, sizes, .. } = ctx;
-    let (m, run) = (&r.model, &r.held_out);
+    let m = &r.model;
     let t = &m.trained.model;
-    let card = model::card(sizes, m.size, ctx.arithmetic)
+    let mut card = model::card(sizes, m.size, ctx.arithmetic)
         .provenance("variant", m.variant.name())
         .provenance("chosen_on_validation", o.chosen)
         .provenance("data_seed", ds)
@@ -476,10 +496,15 @@ fn record_held_out(
         .provenance("kept_iteration", t.best_iteration)
         .provenance("validation", t.validation)
         .provenance("train_re", &options.train_re)
-        .provenance("validation_re", &options.validation_re)
-        .provenance("held_out_per_re", model::per_re_json(run));
+        .provenance("validation_re", &options.validation_re);
+    if let Some(run) = &r.held_out {
+        card = card.provenance("held_out_per_re", model::per_re_json(run));
+    }
     let name = model::dir_name(&m.variant.name(), m.size, ds, m.seed);
     SavedModel::save(ctx.args.out.join("models").join(name), &t.params, &card)?;
+    let Some(run) = &r.held_out else {
+        return Ok(());
+    };
     let first_sol = options.unrolls().first().copied().map(Variant::Sol);
     if m.variant == Variant::Non || Some(m.variant) == first_sol {
         rec.capacity_runs.push((
@@ -522,17 +547,20 @@ pub(crate) fn speed_study(
         let (net0, _) = new_net(size, 0)?;
         let hybrid: Wake = Hybrid::new(coarse.clone(), net0);
         let params = probe.as_ref().map(|p| &p.0);
-        let result = splits.held_out().evaluate_baseline(|refs| {
-            study::speed(&hybrid, params, refs, sizes).map_err(|e| {
-                diffphys::learn::LearnError::Invalid {
+        let speed_on = |refs: &[Reference]| study::speed(&hybrid, params, refs, sizes);
+        speed = if ctx.validation_only {
+            speed_on(&splits.validation)?
+        } else {
+            let result = splits.held_out().evaluate_baseline(|refs| {
+                speed_on(refs).map_err(|e| diffphys::learn::LearnError::Invalid {
                     what: "speed",
                     message: e.to_string(),
-                }
-            })
-        })?;
-        speed = result;
-        rec.held_out_readings
-            .insert(splits.seed.0, splits.held_out().readings());
+                })
+            })?;
+            rec.held_out_readings
+                .insert(splits.seed.0, splits.held_out().readings());
+            result
+        };
         mem("speed");
         pressure = study::pressure_solves(sizes, options.validation_re[0])?;
     }

@@ -167,6 +167,9 @@ pub(crate) fn report(
         .collect::<serde_json::Map<_, _>>()
         .into();
     line["held_out_evaluations"] = held_out_evaluations.into();
+    // `--validation-only`: trained and selected, the held-out split unread
+    // (every held-out figure is absent, the speed study ran on validation).
+    line["validation_only"] = json!(ctx.validation_only);
     line["deviation_rel_error"] = summary(&metric(DEVIATION)).into();
     line["vorticity_rel_error"] = summary(&metric(VORTICITY)).into();
     line["saved_models"] = json!(args.out.join("models").display().to_string());
@@ -175,6 +178,9 @@ pub(crate) fn report(
     line["floors_apply"] = json!(!args.small);
     if args.small {
         println!("floors: not applied at --small (they are the full scene's)");
+    }
+    if ctx.validation_only {
+        println!("validation only: the held-out split was not read (no held-out figure, no floor measured; the speed study ran on validation)");
     }
     common::print_json_line(&line);
     let missed = missed_floors(&line["floors_met"]);

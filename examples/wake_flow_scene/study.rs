@@ -375,18 +375,22 @@ pub fn charts(
         .map(|(name, c)| Series::mean_per_step(name.clone(), c))
         .filter(|s| !s.points.is_empty())
         .collect();
-    line_chart_svg(
-        &out.join("relative_error.svg"),
-        &LineChart {
-            title: "Held-out rollouts: relative L2 error per step (mean over Re, starts, seeds)",
-            x_label: "step",
-            y_label: "|u - u_ref| / |u_ref|",
-            log_x: false,
-            log_y: true,
-            series: &series,
-        },
-    )
-    .map_err(e)?;
+    // Nothing to draw without held-out runs (`--validation-only`).
+    if !series.is_empty() {
+        line_chart_svg(
+            &out.join("relative_error.svg"),
+            &LineChart {
+                title:
+                    "Held-out rollouts: relative L2 error per step (mean over Re, starts, seeds)",
+                x_label: "step",
+                y_label: "|u - u_ref| / |u_ref|",
+                log_x: false,
+                log_y: true,
+                series: &series,
+            },
+        )
+        .map_err(e)?;
+    }
     let mut cap = Vec::new();
     for (variant, long, label) in [
         (Variant::Non, false, "non, 100 steps"),

@@ -17,7 +17,7 @@
 //!   channel coding each sample's viscosity), its corrections masked to the
 //!   free faces and its head starting at zero, so the hybrid starts as the
 //!   solver.
-//! - Reference trajectories ([`reference`]): a finer solver's states
+//! - Reference trajectories ([`mod@reference`]): a finer solver's states
 //!   restricted to the coarse grid, recorded after a skipped transient, in a
 //!   cache form; a hybrid's rollouts scored against one.
 //! - Speed against accuracy ([`speed`]): the corrected coarse solver and

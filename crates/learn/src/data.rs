@@ -191,6 +191,19 @@ impl<M, L> Selected<M, L> {
     pub fn model(&self) -> &M {
         &self.model
     }
+
+    /// The model released without its held-out evaluation (a run that
+    /// develops on validation only): the held-out split is not read, and the
+    /// result is `()`.
+    pub fn withhold(self) -> Evaluated<M, (), L> {
+        Evaluated {
+            label: self.label,
+            chosen: self.chosen,
+            validation: self.validation,
+            model: self.model,
+            result: (),
+        }
+    }
 }
 
 /// The outcome of [`select_best`]: which candidate validation chose, and every

@@ -5,7 +5,7 @@
 use std::fmt;
 
 use super::{run_jobs, select_groups, Job, Plan};
-use crate::data::{HeldOut, TrainSeed};
+use crate::data::{Evaluated, HeldOut, Selection, TrainSeed};
 use crate::LearnError;
 
 /// A `(variant, size)` of a plan: the typed label selection hands back,
@@ -39,6 +39,9 @@ impl fmt::Display for OneSize {
         Ok(())
     }
 }
+
+/// The selection of a plan's entries: each entry's trained models.
+type EntrySelection<V, S, M> = Selection<Vec<M>, Entry<V, S>>;
 
 /// One training of an [`Outcome`]: its seed, the trained model and its
 /// held-out result.
@@ -74,6 +77,27 @@ impl<V, S, M, R> Outcome<V, S, M, R> {
     /// unroll, say).
     pub fn selected(&self) -> bool {
         self.competed && self.chosen
+    }
+
+    /// The same outcome with `f` applied to each run's held-out result (a
+    /// scene that runs both [`Protocol::run`] and [`Protocol::select`] holds
+    /// their outcomes as one type, say `Option<R>`).
+    pub fn map_held_out<Q>(self, mut f: impl FnMut(R) -> Q) -> Outcome<V, S, M, Q> {
+        Outcome {
+            entry: self.entry,
+            competed: self.competed,
+            chosen: self.chosen,
+            validation: self.validation,
+            runs: self
+                .runs
+                .into_iter()
+                .map(|r| Run {
+                    seed: r.seed,
+                    model: r.model,
+                    held_out: f(r.held_out),
+                })
+                .collect(),
+        }
     }
 }
 
@@ -148,22 +172,8 @@ where
         M: Send,
         E: From<LearnError> + Send,
     {
-        let trained = run_jobs(&self.plan.jobs(), self.threads, train)?;
-        let groups = self
-            .plan
-            .groups(trained)?
-            .into_iter()
-            .map(|g| {
-                let entry = Entry {
-                    variant: g.variant,
-                    size: g.size,
-                };
-                (entry, g.runs)
-            })
-            .collect();
-        let selections = select_groups(groups, &competes, &validation)?;
         let mut outcomes = Vec::new();
-        for selection in selections {
+        for selection in self.train_and_select(train, validation, &competes)? {
             for selected in selection.models {
                 let entry = *selected.label();
                 let mut failure = None;
@@ -188,27 +198,101 @@ where
                     )
                     .into());
                 }
-                outcomes.push(Outcome {
-                    entry,
-                    competed: competes(&entry),
-                    chosen: evaluated.chosen,
-                    validation: evaluated.validation,
-                    runs: self
-                        .plan
-                        .seeds
-                        .iter()
-                        .zip(evaluated.model)
-                        .zip(evaluated.result)
-                        .map(|((&seed, model), held_out)| Run {
-                            seed,
-                            model,
-                            held_out,
-                        })
-                        .collect(),
-                });
+                outcomes.push(self.outcome(competes(&entry), evaluated));
             }
         }
         Ok(outcomes)
+    }
+
+    /// Steps 1 and 2 of [`Protocol::run`] without step 3: every job trained,
+    /// the entries selected on validation, and the held-out split not read
+    /// (a run that develops on validation only; each run's result is `()`).
+    ///
+    /// # Errors
+    /// As [`Protocol::run`]'s training and selection.
+    pub fn select<M, E>(
+        &self,
+        train: impl Fn(&Job<V, S>) -> Result<M, E> + Sync,
+        validation: impl Fn(&M) -> f64,
+        competes: impl Fn(&Entry<V, S>) -> bool,
+    ) -> Result<Vec<Outcome<V, S, M, ()>>, E>
+    where
+        M: Send,
+        E: From<LearnError> + Send,
+    {
+        let selections = self.train_and_select(train, validation, &competes)?;
+        Ok(selections
+            .into_iter()
+            .flat_map(|s| s.models)
+            .map(|selected| {
+                let competed = competes(selected.label());
+                let withheld = selected.withhold();
+                let n = withheld.model.len();
+                let evaluated = Evaluated {
+                    result: vec![(); n],
+                    label: withheld.label,
+                    chosen: withheld.chosen,
+                    validation: withheld.validation,
+                    model: withheld.model,
+                };
+                self.outcome(competed, evaluated)
+            })
+            .collect())
+    }
+
+    /// Every job of the plan trained, grouped per entry and selected on
+    /// validation.
+    fn train_and_select<M, E>(
+        &self,
+        train: impl Fn(&Job<V, S>) -> Result<M, E> + Sync,
+        validation: impl Fn(&M) -> f64,
+        competes: &impl Fn(&Entry<V, S>) -> bool,
+    ) -> Result<Vec<EntrySelection<V, S, M>>, E>
+    where
+        M: Send,
+        E: From<LearnError> + Send,
+    {
+        let trained = run_jobs(&self.plan.jobs(), self.threads, train)?;
+        let groups = self
+            .plan
+            .groups(trained)?
+            .into_iter()
+            .map(|g| {
+                let entry = Entry {
+                    variant: g.variant,
+                    size: g.size,
+                };
+                (entry, g.runs)
+            })
+            .collect();
+        Ok(select_groups(groups, competes, &validation)?)
+    }
+
+    /// The outcome of one entry: its models beside their results, in the
+    /// plan's seed order.
+    fn outcome<M, R>(
+        &self,
+        competed: bool,
+        evaluated: Evaluated<Vec<M>, Vec<R>, Entry<V, S>>,
+    ) -> Outcome<V, S, M, R> {
+        Outcome {
+            entry: evaluated.label,
+            competed,
+            chosen: evaluated.chosen,
+            validation: evaluated.validation,
+            runs: self
+                .plan
+                .seeds
+                .iter()
+                .zip(evaluated.model)
+                .zip(evaluated.result)
+                .map(|((&seed, model), held_out)| Run {
+                    seed,
+                    model,
+                    held_out,
+                })
+                .collect(),
+        }
     }
 }
 
@@ -302,5 +386,43 @@ mod tests {
         assert_eq!(seeds, [5, 6]);
         assert_eq!(outcomes[1].runs[1].held_out, 11.0);
         assert_eq!(s.held_out().readings(), (3, 0));
+    }
+
+    #[test]
+    fn selection_alone_reads_nothing_and_chooses_as_the_full_protocol() {
+        let plan = Plan::new(
+            vec![("non", 8), ("sol4", 8), ("sol4", 16)],
+            vec![TrainSeed(5), TrainSeed(6)],
+        );
+        let protocol = Protocol {
+            plan: &plan,
+            threads: 2,
+        };
+        let train =
+            |job: &Job<&str, i32>| Ok::<_, LearnError>((job.size as f64) + job.seed.0 as f64);
+        let competes = |e: &Entry<&str, i32>| e.variant.starts_with("sol");
+        let s = splits();
+        let full = protocol
+            .run(
+                s.held_out(),
+                train,
+                |&m| 1.0 / m,
+                competes,
+                |_, m, _| Ok(m.to_vec()),
+            )
+            .unwrap();
+        let alone = protocol.select(train, |&m| 1.0 / m, competes).unwrap();
+        fn summary<R>(o: &[Outcome<&str, i32, f64, R>]) -> Vec<(String, bool, Vec<f64>)> {
+            o.iter()
+                .map(|o| {
+                    let models = o.runs.iter().map(|r| r.model).collect();
+                    (o.entry.to_string(), o.selected(), models)
+                })
+                .collect()
+        }
+        assert_eq!(summary(&alone), summary(&full));
+        let s = splits();
+        protocol.select(train, |&m| 1.0 / m, competes).unwrap();
+        assert_eq!(s.held_out().readings(), (0, 0));
     }
 }

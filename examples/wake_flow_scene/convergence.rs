@@ -9,6 +9,7 @@
 //! and the Strouhal number from them.
 
 use diffphys::flow::diagnostics::obstacle_force;
+use diffphys::flow::validation::Shedding;
 use diffphys::flow::{FlowState, Scene};
 use diffphys::learn::study::run_jobs;
 use diffphys::learn::{DataSeed, Split};
@@ -80,20 +81,6 @@ fn window(
     })
 }
 
-/// The lift's periods (between up-crossings of its mean, interpolated
-/// linearly) over a window of coarse steps `dt` apart.
-fn lift_periods(forces: &[[f64; 2]], dt: f64) -> Vec<f64> {
-    let lift: Vec<f64> = forces.iter().map(|f| f[1]).collect();
-    let mean = lift.iter().sum::<f64>() / lift.len().max(1) as f64;
-    let crossings: Vec<f64> = lift
-        .windows(2)
-        .enumerate()
-        .filter(|(_, w)| w[0] < mean && w[1] >= mean)
-        .map(|(k, w)| (k as f64 + (mean - w[0]) / (w[1] - w[0])) * dt)
-        .collect();
-    crossings.windows(2).map(|c| c[1] - c[0]).collect()
-}
-
 /// A level's forces over the window: mean drag, lift amplitude, the lift's
 /// periods and the Strouhal number `D / (U T̄)` (null with fewer than two
 /// up-crossings).
@@ -102,13 +89,15 @@ fn forces_json(w: &Window, dt: f64) -> Value {
     let cl = w.forces.iter().map(|f| f[1]);
     let amplitude =
         0.5 * (cl.clone().fold(f64::NEG_INFINITY, f64::max) - cl.fold(f64::INFINITY, f64::min));
-    let periods = lift_periods(&w.forces, dt);
-    let strouhal = (!periods.is_empty())
-        .then(|| DIAMETER / (U_IN * periods.iter().sum::<f64>() / periods.len() as f64));
+    let times: Vec<f64> = (0..w.forces.len()).map(|k| k as f64 * dt).collect();
+    let lift: Vec<f64> = w.forces.iter().map(|f| f[1]).collect();
+    let shedding = Shedding::of(&times, &lift);
+    let strouhal = shedding.strouhal(DIAMETER, U_IN);
     json!({
         "mean_cd": w.forces.iter().map(|f| f[0]).sum::<f64>() / n,
         "cl_amplitude": amplitude,
-        "lift_periods": periods,
+        "lift_periods": shedding.periods,
+        "settled_to_1_percent": shedding.settled(0.01),
         "strouhal": strouhal,
     })
 }

@@ -42,7 +42,7 @@ use crate::diagnostics::obstacle_force;
 use crate::diffusion::ViscosityMode;
 use crate::{FlowError, FlowState, Result, Scene};
 
-use super::{control_volume_force, FaceBox};
+use super::{control_volume_force, FaceBox, Shedding};
 use super::{positive, run_to_steady, FloorCheck, Interval, Observer, SteadyRun, SteadyStop};
 
 /// The channel's length.
@@ -555,24 +555,18 @@ fn analyse(
     let cd_max = column(1).fold(f64::NEG_INFINITY, f64::max);
     let cl_max = column(2).fold(f64::NEG_INFINITY, f64::max);
     let cl_min = column(2).fold(f64::INFINITY, f64::min);
-    let mean = column(2).sum::<f64>() / history.len().max(1) as f64;
-    // up-crossings of the mean lift, interpolated linearly
-    let crossings: Vec<f64> = history
-        .windows(2)
-        .filter(|w| w[0][2] < mean && w[1][2] >= mean)
-        .map(|w| w[0][0] + (mean - w[0][2]) / (w[1][2] - w[0][2]) * (w[1][0] - w[0][0]))
-        .collect();
-    let periods: Vec<f64> = crossings.windows(2).map(|w| w[1] - w[0]).collect();
-    let strouhal = if crossings.len() >= 3 {
-        let p = (crossings[crossings.len() - 1] - crossings[0]) / periods.len() as f64;
-        DFG_DIAMETER / (p * DFG_2D2.ubar)
-    } else {
-        f64::NAN
+    let times: Vec<f64> = column(0).collect();
+    let lift: Vec<f64> = column(2).collect();
+    let shedding = Shedding::of(&times, &lift);
+    // At least three crossings (two periods) for a Strouhal number.
+    let strouhal = match shedding.crossings.len() {
+        0..=2 => f64::NAN,
+        _ => shedding
+            .strouhal(DFG_DIAMETER, DFG_2D2.ubar)
+            .unwrap_or(f64::NAN),
     };
-    let periodic = periods.len() >= 2 && {
-        let (a, b) = (periods[periods.len() - 1], periods[periods.len() - 2]);
-        (a - b).abs() / a < 0.01
-    };
+    let periodic = shedding.settled(0.01);
+    let Shedding { mean, periods, .. } = shedding;
     let errors = [
         DFG_2D2.strouhal.outside(strouhal),
         DFG_2D2.cd_max.outside(cd_max),

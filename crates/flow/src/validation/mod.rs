@@ -31,6 +31,7 @@ mod cavity;
 mod control_volume;
 mod cylinder;
 mod pbdl_wake;
+mod shedding;
 mod taylor_green;
 
 pub use cavity::{Cavity, CavityResult, GhiaTable, SuspectPoint, GHIA_1982, GHIA_X, GHIA_Y};
@@ -43,6 +44,7 @@ pub use cylinder::{
     DFG_NU,
 };
 pub use pbdl_wake::pbdl_wake;
+pub use shedding::Shedding;
 pub use taylor_green::{OrderStudy, TaylorGreen};
 
 use ndarray::Array2;

@@ -39,7 +39,7 @@ use std::time::Instant;
 use diffphys::flow::FlowState;
 use diffphys::flow::PressureSolver;
 use diffphys::learn::study::{
-    self as learn_study, pilot_learning_rates, run_jobs, Ledger, Plan, Protocol,
+    self as learn_study, pilot_learning_rates, run_jobs, Ledger, Plan, Protocol, Sweep, SweepRun,
 };
 use diffphys::learn::{
     rollout, Budget, DataSeed, Figures, Hybrid, LrSchedule, Report, SavedModel, Schedule, Split,
@@ -375,7 +375,9 @@ struct Record {
     selected_k: serde_json::Map<String, Value>,
     selected_size: serde_json::Map<String, Value>,
     chosen_lr: serde_json::Map<String, Value>,
-    capacity_runs: Vec<(NetSize, Variant, u64, f64, f64, usize)>,
+    /// The capacity sweep's held-out figures (100 steps, long) of `non` and
+    /// the first SOL variant (`sol`) at every size.
+    capacity: Sweep,
     train_seconds: BTreeMap<String, Vec<f64>>,
     /// Per training: its validation curve and the iteration early stopping kept.
     validation_curves: BTreeMap<String, Value>,
@@ -400,7 +402,10 @@ fn main() -> Result<(), BoxError> {
         None => {}
     }
     let ctx = Ctx::new(&cli)?;
-    let mut rec = Record::default();
+    let mut rec = Record {
+        capacity: Sweep::new(&["", "long"]),
+        ..Record::default()
+    };
     let mut speed_inputs = None;
     let mut params_count = serde_json::Map::new();
     for size in std::iter::once(MAIN_SIZE).chain(ctx.options.capacity.iter().copied()) {

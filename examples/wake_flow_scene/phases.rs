@@ -506,15 +506,19 @@ fn save_and_record(
         return Ok(());
     };
     let first_sol = options.unrolls().first().copied().map(Variant::Sol);
-    if m.variant == Variant::Non || Some(m.variant) == first_sol {
-        rec.capacity_runs.push((
-            m.size,
-            m.variant,
-            m.seed,
-            run.mean(),
-            run.long_mean(),
-            t.params.count(),
-        ));
+    let family = match m.variant {
+        Variant::Non => Some("non"),
+        v if Some(v) == first_sol => Some("sol"),
+        _ => None,
+    };
+    if let Some(variant) = family {
+        rec.capacity.add(SweepRun {
+            size: m.size.label(),
+            params: t.params.count(),
+            variant: variant.into(),
+            seed: m.seed,
+            figures: vec![run.mean(), run.long_mean()],
+        });
     }
     if m.size == MAIN_SIZE {
         rec.results

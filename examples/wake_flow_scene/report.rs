@@ -3,7 +3,6 @@
 //! itself (not by the scene module, which the tests include).
 
 use super::*;
-use wake_flow_scene::study::CapacityRun;
 
 /// The tables, charts, `--npy` arrays and the JSON line.
 pub(crate) fn report(
@@ -29,7 +28,7 @@ pub(crate) fn report(
         selected_k,
         selected_size,
         chosen_lr,
-        capacity_runs,
+        capacity: capacity_runs,
         train_seconds,
         validation_curves,
         validation_per_re,
@@ -209,7 +208,7 @@ fn missed_floors(floors: &Value) -> Vec<String> {
 
 /// The floors of the scene (docs/11) from the held-out figures, and the
 /// capacity sweep's JSON.
-fn floors(options: &Options, results: &Results, capacity_runs: &[CapacityRun]) -> (Value, Value) {
+fn floors(options: &Options, results: &Results, capacity_runs: &Sweep) -> (Value, Value) {
     let ratio = |re: &str| {
         let mean = |method: &str| results.figures.mean_at(re, method, STATE);
         Some(mean("sol_selected")? / mean("src")?)
@@ -224,19 +223,11 @@ fn floors(options: &Options, results: &Results, capacity_runs: &[CapacityRun]) -
     } else {
         json!(sol_src.values().all(|r| r.unwrap_or(f64::INFINITY) <= 0.3))
     };
-    let capacity = study::capacity_json(capacity_runs, options);
-    let smallest = study::ratio_at_size(
-        capacity_runs,
-        SIZES[0],
-        options.unrolls().first().copied(),
-        false,
-    );
-    let smallest_long = study::ratio_at_size(
-        capacity_runs,
-        SIZES[0],
-        options.unrolls().first().copied(),
-        true,
-    );
+    let sol = options.unrolls().first().map(|&k| Variant::Sol(k).name());
+    let mut capacity = capacity_runs.to_json(&["sol", "non"]);
+    capacity["variant_sol"] = json!(sol);
+    let smallest = |k| capacity_runs.ratio(&SIZES[0].label(), "sol", "non", k);
+    let (smallest, smallest_long) = (smallest(0), smallest(1));
     let floor_small = match smallest {
         Some(r) => json!(r <= 0.8),
         None => json!("not measured"),

@@ -10,7 +10,8 @@ use diffphys::flow::diagnostics::vorticity;
 use diffphys::flow::{FlowParams, FlowState, PressureSolver, Scene};
 use diffphys::hybrid::reference::{evaluate, Evaluation, Rollouts};
 use diffphys::hybrid::speed::{self, Case};
-use diffphys::learn::{Corrector, Hybrid, Summary};
+use diffphys::learn::study::Sweep;
+use diffphys::learn::{Corrector, Hybrid};
 use diffphys::nn::Params;
 use diffphys::report::chart::{
     heatmap_panels_svg, line_chart_svg, HeatmapPanels, LineChart, Outline, Series,
@@ -20,8 +21,8 @@ use serde_json::{json, Value};
 
 use super::data::Reference;
 use super::{
-    reference_scene_at, uncorrected, viscosity, Coarse, NetSize, Options, Result, Sizes, Variant,
-    WakeError, CENTRE, DIAMETER, FACTOR, U_IN,
+    reference_scene_at, uncorrected, viscosity, Coarse, Result, Sizes, WakeError, CENTRE, DIAMETER,
+    FACTOR, U_IN,
 };
 
 /// One model's held-out rollouts at every held-out Reynolds number.
@@ -267,60 +268,6 @@ pub fn pressure_solves(sizes: &Sizes, re: f64) -> Result<Value> {
     Ok(json!({"re": re, "rel_tol": tol, "steps": steps, "rows": out}))
 }
 
-/// One capacity run: size, variant, training seed, held-out errors (100
-/// steps, long) and the parameter count.
-pub type CapacityRun = (NetSize, Variant, u64, f64, f64, usize);
-
-/// The capacity table: per size, the parameter count and the held-out errors
-/// of `non` and the first SOL variant (mean, min, max over the runs).
-pub fn capacity_json(runs: &[CapacityRun], options: &Options) -> Value {
-    let sol = options.unrolls().first().copied().map(Variant::Sol);
-    let mut sizes: Vec<NetSize> = runs.iter().map(|r| r.0).collect();
-    sizes.sort_by_key(|s| (s.width, s.blocks));
-    sizes.dedup();
-    let rows: Vec<Value> = sizes
-        .iter()
-        .map(|&size| {
-            let of = |v: Option<Variant>, long: bool| {
-                let vals: Vec<f64> = runs
-                    .iter()
-                    .filter(|r| r.0 == size && Some(r.1) == v)
-                    .map(|r| if long { r.4 } else { r.3 })
-                    .collect();
-                json!(Summary::of(&vals))
-            };
-            let params = runs.iter().find(|r| r.0 == size).map_or(0, |r| r.5);
-            json!({
-                "size": size.label(),
-                "params": params,
-                "sol": of(sol, false),
-                "non": of(Some(Variant::Non), false),
-                "sol_long": of(sol, true),
-                "non_long": of(Some(Variant::Non), true),
-            })
-        })
-        .collect();
-    json!({"variant_sol": sol.map(|v| v.name()), "rows": rows})
-}
-
-/// `mean SOL / mean NON` over 100 steps at `size`, if both were run.
-pub fn ratio_at_size(
-    runs: &[CapacityRun],
-    size: NetSize,
-    sol: Option<usize>,
-    long: bool,
-) -> Option<f64> {
-    let mean = |v: Variant| {
-        let vals: Vec<f64> = runs
-            .iter()
-            .filter(|r| r.0 == size && r.1 == v)
-            .map(|r| if long { r.4 } else { r.3 })
-            .collect();
-        (!vals.is_empty()).then(|| vals.iter().sum::<f64>() / vals.len() as f64)
-    };
-    Some(mean(Variant::Sol(sol?))? / mean(Variant::Non)?)
-}
-
 /// The validation curves of every training (`{"curve": [[iteration, score],
 /// ...], ...}` per training) as one chart, `validation.svg`.
 ///
@@ -363,7 +310,7 @@ pub fn validation_chart(out: &Path, curves: &BTreeMap<String, Value>) -> Result<
 pub fn charts(
     out: &Path,
     curves: &BTreeMap<String, Vec<Vec<f64>>>,
-    runs: &[CapacityRun],
+    capacity: &Sweep,
     speed: &Value,
     last: &BTreeMap<String, FlowState<f64>>,
     coarse: &Scene,
@@ -391,30 +338,13 @@ pub fn charts(
         )
         .map_err(e)?;
     }
-    let mut cap = Vec::new();
-    for (variant, long, label) in [
-        (Variant::Non, false, "non, 100 steps"),
-        (Variant::Non, true, "non, long"),
-    ]
-    .into_iter()
-    .chain(sol.map(|k| (Variant::Sol(k), false, "sol, 100 steps")))
-    .chain(sol.map(|k| (Variant::Sol(k), true, "sol, long")))
-    {
-        let mut by_size: BTreeMap<usize, Vec<f64>> = BTreeMap::new();
-        for r in runs.iter().filter(|r| r.1 == variant) {
-            by_size
-                .entry(r.5)
-                .or_default()
-                .push(if long { r.4 } else { r.3 });
-        }
-        let points: Vec<(f64, f64)> = by_size
-            .iter()
-            .map(|(p, v)| (*p as f64, v.iter().sum::<f64>() / v.len() as f64))
-            .collect();
-        if !points.is_empty() {
-            cap.push(Series::new(label, points));
-        }
-    }
+    let cap: Vec<Series> = [("non", 0, "non, 100 steps"), ("non", 1, "non, long")]
+        .into_iter()
+        .chain(sol.map(|_| ("sol", 0, "sol, 100 steps")))
+        .chain(sol.map(|_| ("sol", 1, "sol, long")))
+        .map(|(variant, k, label)| Series::new(label, capacity.series(variant, k)))
+        .filter(|s| !s.points.is_empty())
+        .collect();
     if !cap.is_empty() {
         line_chart_svg(
             &out.join("capacity.svg"),

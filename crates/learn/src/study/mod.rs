@@ -31,9 +31,11 @@
 
 mod ledger;
 mod protocol;
+mod sweep;
 
 pub use ledger::{Ledger, Reading, Tally, LEDGER_FILE};
 pub use protocol::{Entry, OneSize, Outcome, Protocol, Run};
+pub use sweep::{Sweep, SweepRun};
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;

@@ -42,8 +42,9 @@ use diffphys::learn::study::{
     self as learn_study, pilot_learning_rates, run_jobs, Ledger, Plan, Protocol, Sweep, SweepRun,
 };
 use diffphys::learn::{
-    rollout, Budget, DataSeed, Figures, Hybrid, LrSchedule, Report, SavedModel, Schedule, Split,
-    Splits, Strategy, Summary, TrainSeed, Trained, TrainedCorrector, Trainer, Trajectory,
+    rollout, rollout_each, Budget, DataSeed, Figures, Hybrid, LrSchedule, Report, SavedModel,
+    Schedule, Split, Splits, Strategy, Summary, TrainSeed, Trained, TrainedCorrector, Trainer,
+    Trajectory,
 };
 use diffphys::nn::{Arithmetic, Params};
 use diffphys::report::{progress_bar, Progress};
@@ -187,7 +188,7 @@ fn train_one(setup: &Setup<'_>, job: &Job) -> Result<Model, BoxError> {
     )?;
     bar.finish_and_clear();
     let seconds = start.elapsed().as_secs_f64();
-    let validation_per_re = per_trajectory(
+    let validation_per_re = rollout_each(
         &hybrid,
         Some(&trained.model.params),
         setup.validation,
@@ -216,20 +217,6 @@ fn train_one(setup: &Setup<'_>, job: &Job) -> Result<Model, BoxError> {
         seconds,
         validation_per_re,
     })
-}
-
-/// The rollout error on each trajectory on its own (the validation split
-/// holds one per Reynolds number).
-fn per_trajectory(
-    hybrid: &Wake,
-    params: Option<&Params<f64>>,
-    trajectories: &[Trajectory],
-    steps: usize,
-) -> Result<Vec<f64>, BoxError> {
-    trajectories
-        .iter()
-        .map(|t| Ok(rollout(hybrid, params, std::slice::from_ref(t), steps)?.mean()))
-        .collect()
 }
 
 /// `wake_flow evaluate --model DIR [--held-out-re LIST] [--data-seed N]`

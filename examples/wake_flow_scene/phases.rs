@@ -137,7 +137,7 @@ pub(crate) fn untrained(
     let hybrid: Wake = Hybrid::new(coarse.clone(), net0);
     let src_val = rollout(&hybrid, None, &validation, sizes.rollout)?.mean();
     validation_report.add("src", ds, None, src_val);
-    let src_per_re = per_trajectory(&hybrid, None, &validation, sizes.rollout)?;
+    let src_per_re = rollout_each(&hybrid, None, &validation, sizes.rollout)?;
     for (re, e) in options.validation_re.iter().zip(&src_per_re) {
         validation_per_re
             .entry("src".into())

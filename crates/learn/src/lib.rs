@@ -123,8 +123,8 @@ pub use diffphys_tape::Schedule;
 pub use error::{LearnError, Result};
 pub use hybrid::{frozen, physical_fields, Corrector, Hybrid, Simulator};
 pub use metrics::{
-    batch_of, relative_l2, relative_l2_fields, rollout, rollout_measured, states_at, Metric,
-    Rollout, Trajectory,
+    batch_of, relative_l2, relative_l2_fields, rollout, rollout_each, rollout_measured, states_at,
+    Metric, Rollout, Trajectory,
 };
 pub use report::{Figures, Report, RunRecord, Summary};
 pub use saved::{ModelCard, SavedModel};

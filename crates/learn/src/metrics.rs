@@ -132,6 +132,24 @@ pub fn rollout<S: Simulator + 'static, C: Corrector + 'static>(
     rollout_measured(hybrid, params, trajectories, steps, &[])
 }
 
+/// [`rollout`] from each trajectory on its own: one mean relative L2 error
+/// per trajectory (per condition, when each trajectory holds one: a Reynolds
+/// number, a forcing).
+///
+/// # Errors
+/// As [`rollout`].
+pub fn rollout_each<S: Simulator + 'static, C: Corrector + 'static>(
+    hybrid: &Hybrid<S, C>,
+    params: Option<&Params<f64>>,
+    trajectories: &[Trajectory],
+    steps: usize,
+) -> Result<Vec<f64>> {
+    trajectories
+        .iter()
+        .map(|t| Ok(rollout(hybrid, params, std::slice::from_ref(t), steps)?.mean()))
+        .collect()
+}
+
 /// [`rollout`], measuring every metric of `metrics` too at every step: each
 /// the mean over the trajectories of `metric(predicted, reference)`.
 ///

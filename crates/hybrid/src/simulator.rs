@@ -166,7 +166,17 @@ impl Simulator for FlowSimulator {
             .forward_batch(&fields, viscosities(&state.params)?.view())?)
     }
 
+    /// Nothing is drawn for a state that is not a batch of velocity fields
+    /// (`[B, .., ..]` each): the trainer refuses such a state before it
+    /// perturbs one ([`diffphys_learn::Hybrid::check_shapes`]).
     fn perturb(&self, state: &mut State, sigma: f64, rng: &mut StdRng) {
+        let pair = &state.fields[..state.fields.len().min(2)];
+        if pair.len() < 2
+            || pair.iter().any(|f| f.ndim() != 3)
+            || pair[0].shape()[0] != pair[1].shape()[0]
+        {
+            return;
+        }
         let (a, b) = (self.free.shape()[1], self.free.shape()[2]);
         let (ux, rest) = state.fields.split_at_mut(1);
         let (ux, uy) = (&mut ux[0], &mut rest[0]);

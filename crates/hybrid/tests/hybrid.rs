@@ -94,6 +94,11 @@ fn noise_lands_on_free_faces_only_and_repeats_per_seed() {
     }
     assert!(moved > 50 && kept > 10, "moved {moved}, kept {kept}");
     assert_eq!(a.params, s.params, "the viscosity is not noised");
+    // A state that is not a batch of velocity pairs is left as it is (the
+    // trainer refuses it before it would perturb it), not a panic.
+    let mut odd = State::new(vec![ArrayD::zeros(vec![3, 3])], vec![]);
+    sim.perturb(&mut odd, 0.1, &mut rand::rngs::StdRng::seed_from_u64(1));
+    assert_eq!(odd.fields[0], ArrayD::<f64>::zeros(vec![3, 3]));
 }
 
 #[test]

@@ -146,7 +146,7 @@ impl PeriodicPoisson {
             let z = &packed[(a / 2) * ny..(a / 2 + 1) * ny];
             let odd = a % 2 == 1;
             for (l, h) in h.iter_mut().enumerate() {
-                let (zl, zc) = (z[l], z[(ny - l) % ny].conj());
+                let (zl, zc) = (z[l], z[if l == 0 { 0 } else { ny - l }].conj());
                 let d = if odd { zl - zc } else { zl + zc };
                 // (Z + Z̄)/2, or (Z − Z̄)/2i = (Im d, −Re d)/2
                 *h = if odd {
@@ -172,27 +172,29 @@ impl PeriodicPoisson {
         transpose(&cols, &mut half, m, nx);
         // the modes l = 0 and l = ny/2 of a real row are real: their
         // imaginary parts are rounding, which a c2r transform drops
-        let real_at = |l: usize| l == 0 || 2 * l == ny;
-        let spectrum = |a: usize, l: usize| -> Complex<f64> {
-            if a >= nx {
-                return Complex::default();
-            }
-            let h = &half[a * m..(a + 1) * m];
-            if l < m {
-                if real_at(l) {
-                    Complex::new(h[l].re, 0.0)
-                } else {
-                    h[l]
-                }
-            } else {
-                h[ny - l].conj()
-            }
-        };
+        let zero = vec![Complex::default(); m];
         for (p, z) in packed.chunks_exact_mut(ny).enumerate() {
-            for (l, z) in z.iter_mut().enumerate() {
-                let (u, w) = (spectrum(2 * p, l), spectrum(2 * p + 1, l));
-                // u + i w
-                *z = Complex::new(u.re - w.im, u.im + w.re);
+            let u = &half[2 * p * m..(2 * p + 1) * m];
+            let w = half.get((2 * p + 1) * m..(2 * p + 2) * m).unwrap_or(&zero);
+            // u + i w on the kept modes
+            z[..m]
+                .iter_mut()
+                .zip(u.iter().zip(w))
+                .for_each(|(z, (u, w))| *z = Complex::new(u.re - w.im, u.im + w.re));
+            // ū(ny − l) + i w̄(ny − l) on the others
+            z[m..]
+                .iter_mut()
+                .zip(
+                    u[1..]
+                        .iter()
+                        .rev()
+                        .zip(w[1..].iter().rev())
+                        .skip(usize::from(ny % 2 == 0)),
+                )
+                .for_each(|(z, (u, w))| *z = Complex::new(u.re + w.im, w.re - u.im));
+            z[0] = Complex::new(u[0].re, w[0].re);
+            if ny % 2 == 0 {
+                z[ny / 2] = Complex::new(u[ny / 2].re, w[ny / 2].re);
             }
         }
         each_row(&self.along_y_inv, &mut packed, ny);

@@ -25,14 +25,12 @@ use solver_in_the_loop_scene::study;
 use std::collections::BTreeMap;
 use std::time::Instant;
 
-use diffphys::learn::study::{Job, OneSize, Plan, Protocol};
+use diffphys::learn::study::{Job, OneSize, Plan, Protocol, TrainJob, Trainings, Variant};
 use diffphys::learn::{
-    rollout, states_at, Budget, DataSeed, Hybrid, LrSchedule, Report, Schedule, Split, Splits,
-    Strategy, TrainSeed, Trainer,
+    rollout, states_at, DataSeed, Hybrid, LrSchedule, Report, Split, Splits, TrainSeed,
 };
 use diffphys::nn::Params;
 use diffphys::prelude::{check_gradient, GradCheckOptions};
-use diffphys::report::progress_bar;
 use diffphys_compare::alloc::CountingAllocator;
 use serde_json::json;
 
@@ -75,18 +73,9 @@ fn main() -> Result<(), BoxError> {
     } = common::parse_args("solver_in_the_loop")?;
     let [train_n, validation_n, held_out_n] = args.pick([48, 16, 16], [4, 2, 2]);
     let steps = args.pick(128, 32);
-    let trainer = Trainer {
-        budget: Budget {
-            iterations,
-            evaluations_per_iteration: 64,
-        },
-        learning_rate: LEARNING_RATE,
-        schedule: LrSchedule::Exponential {
-            final_fraction: 0.1,
-        },
-        validate_every: args.pick(100, 4),
-        validation_steps: steps,
-    };
+    // Every variant: 64 network evaluations per Adam step (one window holds
+    // k of them, so sol_k draws 64 / k windows).
+    let evaluations_per_step = 64;
     let solver = Solver::coarse()?;
     let (net, untrained) = network(TrainSeed(0))?;
     let hybrid = Hybrid::new(solver.clone(), net);
@@ -126,45 +115,39 @@ fn main() -> Result<(), BoxError> {
         }
         let sigma = NOISE_FRACTION * one_step_rms(&solver, &splits.train)?;
         println!("data seed {ds}: {train_n}/{validation_n}/{held_out_n} trajectories of {steps} steps; {} parameters; noise σ = {sigma:.4}", untrained.count());
-        let mut strategies = vec![Strategy::NonInteracting, Strategy::Noise { sigma }];
-        strategies.extend(UNROLLS.map(|unroll| Strategy::SolverInTheLoop {
-            unroll,
-            schedule: Schedule::Full,
-        }));
-        // Train every strategy at every seed, select k on validation only,
+        let mut variants = vec![Variant::Non, Variant::Noise];
+        variants.extend(UNROLLS.map(Variant::Sol));
+        // Train every variant at every seed, select k on validation only,
         // then read the held-out split once per trained model.
         let plan = Plan::new(
-            strategies.into_iter().map(|s| (s, OneSize)).collect(),
+            variants.into_iter().map(|v| (v, OneSize)).collect(),
             seeds.train.iter().map(|&ts| TrainSeed(ts)).collect(),
         );
-        let train = |job: &Job<Strategy, OneSize>| {
-            let (strategy, ts) = (job.variant, job.seed);
-            // A hybrid of its own: the trainings may run on other threads.
-            let (net, params) = network(ts)?;
-            let hybrid = Hybrid::new(solver.clone(), net);
-            let bar = progress_bar(
-                trainer.budget.iterations,
-                &format!("data {ds} {strategy:>6} seed {}", ts.0),
-            );
-            let start = Instant::now();
-            let t = trainer.train(
-                &hybrid,
-                params,
-                strategy,
-                &splits.train,
-                &splits.validation,
-                ts,
-                &|| bar.inc(1),
-            )?;
-            bar.finish_and_clear();
-            println!(
-                "  {strategy:>6}, train seed {}: {:.1} s, validation {:.5} (kept iteration {})",
-                ts.0,
-                start.elapsed().as_secs_f64(),
-                t.model.validation,
-                t.model.best_iteration
-            );
-            Ok::<_, BoxError>(t)
+        let corrector = |_: OneSize, ts: TrainSeed| network(ts);
+        let trainings = Trainings {
+            simulator: &solver,
+            corrector: &corrector,
+            schedule: LrSchedule::Exponential {
+                final_fraction: 0.1,
+            },
+            step_evaluations: evaluations_per_step,
+            checkpoint: None,
+            validation_steps: steps,
+            validation_evaluations: args.pick(100, 4) * evaluations_per_step,
+            sigma,
+            train: &splits.train,
+            validation: &splits.validation,
+            label: format!("data {ds}"),
+        };
+        // A hybrid of its own per training: they may run on other threads.
+        let train = |job: &Job<Variant, OneSize>| {
+            trainings.train(&TrainJob {
+                variant: job.variant,
+                size: OneSize,
+                seed: job.seed,
+                lr: LEARNING_RATE,
+                evaluations: iterations * evaluations_per_step,
+            })
         };
         let coarse = splits
             .held_out()
@@ -176,12 +159,12 @@ fn main() -> Result<(), BoxError> {
         .run(
             splits.held_out(),
             train,
-            |t| t.model.validation,
-            |e| matches!(e.variant, Strategy::SolverInTheLoop { .. }),
+            |t| t.trained.model.validation,
+            |e| e.variant.is_sol(),
             |_, models, d| {
                 Ok(models
                     .iter()
-                    .map(|t| rollout(&hybrid, Some(&t.model.params), d, steps))
+                    .map(|t| rollout(&hybrid, Some(&t.trained.model.params), d, steps))
                     .collect::<Result<Vec<_>, _>>()?)
             },
         )?;
@@ -193,13 +176,18 @@ fn main() -> Result<(), BoxError> {
         if let Some(o) = outcomes.iter().find(|o| o.selected()) {
             println!("  selected by validation: {}", o.entry.variant);
             selected_k.insert(ds.to_string(), json!(o.entry.variant.unroll()));
-            probe_model.get_or_insert((ds, o.runs[0].model.model.params.clone()));
+            probe_model.get_or_insert((ds, o.runs[0].model.trained.model.params.clone()));
         }
         for o in &outcomes {
             let name = o.entry.variant.name();
             let names = [Some(name.as_str()), o.selected().then_some("sol_selected")];
             for run in &o.runs {
-                validation.add(&name, ds, Some(run.seed.0), run.model.model.validation);
+                validation.add(
+                    &name,
+                    ds,
+                    Some(run.seed.0),
+                    run.model.trained.model.validation,
+                );
                 for name in names.iter().flatten() {
                     held_out.add(name, ds, Some(run.seed.0), run.held_out.mean());
                     let curve = run.held_out.per_step.clone();
@@ -246,8 +234,8 @@ fn main() -> Result<(), BoxError> {
         "data_seeds": seeds.data,
         "train_seeds": seeds.train,
         "rollout_steps": steps,
-        "training_iterations": trainer.budget.iterations,
-        "network_evaluations_per_training": trainer.budget.iterations * trainer.budget.evaluations_per_iteration,
+        "training_iterations": iterations,
+        "network_evaluations_per_training": iterations * evaluations_per_step,
         "held_out_mean_rel_error": held_out.to_json(),
         "validation_mean_rel_error": validation.to_json(),
         "selected_k": selected_k,

@@ -39,12 +39,12 @@ use std::time::Instant;
 use diffphys::flow::FlowState;
 use diffphys::flow::PressureSolver;
 use diffphys::learn::study::{
-    self as learn_study, pilot_learning_rates, run_jobs, Ledger, Plan, Protocol, Sweep, SweepRun,
+    self as learn_study, run_jobs, Ledger, Plan, Protocol, Sweep, SweepRun, TrainJob, TrainedRun,
+    Trainings,
 };
 use diffphys::learn::{
-    rollout, rollout_each, Budget, DataSeed, Figures, Hybrid, LrSchedule, Report, SavedModel,
-    Schedule, Split, Splits, Strategy, Summary, TrainSeed, Trained, TrainedCorrector, Trainer,
-    Trajectory,
+    rollout, rollout_each, DataSeed, Figures, Hybrid, LrSchedule, Report, SavedModel, Split,
+    Splits, Summary, TrainSeed, Trajectory,
 };
 use diffphys::nn::{Arithmetic, Params};
 use diffphys::report::{progress_bar, Progress};
@@ -81,143 +81,8 @@ const PILOT_DIVISOR: usize = 4;
 /// full size.
 const VALIDATION_EVALUATIONS: usize = 1_600;
 
-fn strategy(variant: Variant, sigma: f64) -> Option<Strategy> {
-    match variant {
-        Variant::Src => None,
-        Variant::Non => Some(Strategy::NonInteracting),
-        Variant::Noise => Some(Strategy::Noise { sigma }),
-        Variant::Sol(unroll) => Some(Strategy::SolverInTheLoop {
-            unroll,
-            schedule: if unroll > 4 {
-                Schedule::Every(4)
-            } else {
-                Schedule::Full
-            },
-        }),
-    }
-}
-
-struct Model {
-    variant: Variant,
-    size: NetSize,
-    seed: u64,
-    lr: f64,
-    evaluations: usize,
-    trained: Trained<TrainedCorrector>,
-    seconds: f64,
-    /// The kept parameters' validation error at each validation Re.
-    validation_per_re: Vec<f64>,
-}
-
-/// One training: a variant at a corrector size, a training seed, a learning
-/// rate and an iteration count.
-#[derive(Debug, Clone, Copy)]
-struct Job {
-    variant: Variant,
-    size: NetSize,
-    seed: u64,
-    lr: f64,
-    /// The budget: corrector evaluations.
-    evaluations: usize,
-}
-
-/// What every training shares (each job's budget, steps and learning rate
-/// come from its [`Job`]).
-struct Setup<'a> {
-    /// How the learning rate changes over a training.
-    schedule: LrSchedule,
-    /// Steps of the validation rollouts.
-    validation_steps: usize,
-    /// Validate every this many corrector evaluations.
-    validation_evaluations: usize,
-    coarse: &'a Coarse,
-    /// The corrector's convolution arithmetic.
-    arithmetic: Arithmetic,
-    sigma: f64,
-    data_seed: u64,
-    train: &'a [Trajectory],
-    validation: &'a [Trajectory],
-}
-
-fn train_one(setup: &Setup<'_>, job: &Job) -> Result<Model, BoxError> {
-    let Job {
-        variant,
-        size,
-        seed,
-        lr,
-        evaluations,
-    } = *job;
-    let per_step = variant.step_evaluations();
-    let iterations = variant.adam_steps(evaluations);
-    let trainer = Trainer {
-        learning_rate: lr,
-        budget: Budget {
-            iterations,
-            evaluations_per_iteration: per_step,
-        },
-        schedule: setup.schedule,
-        validate_every: (setup.validation_evaluations / per_step).max(1),
-        validation_steps: setup.validation_steps,
-    };
-    let strategy = strategy(variant, setup.sigma).ok_or("src is not trained")?;
-    let (net, params) = net(
-        setup.coarse.scene(),
-        size,
-        setup.arithmetic,
-        &mut TrainSeed(seed).init_rng(),
-    )?;
-    let hybrid = Hybrid::new(setup.coarse.clone(), net);
-    let bar = progress_bar(
-        iterations,
-        &format!(
-            "data {} {:>6} {} seed {seed} (lr {lr:.0e})",
-            setup.data_seed,
-            variant.name(),
-            size.label(),
-        ),
-    );
-    let start = Instant::now();
-    let trained = trainer.train(
-        &hybrid,
-        params,
-        strategy,
-        setup.train,
-        setup.validation,
-        TrainSeed(seed),
-        &|| bar.inc(1),
-    )?;
-    bar.finish_and_clear();
-    let seconds = start.elapsed().as_secs_f64();
-    let validation_per_re = rollout_each(
-        &hybrid,
-        Some(&trained.model.params),
-        setup.validation,
-        setup.validation_steps,
-    )?;
-    println!(
-        "  {:>6} {} seed {seed}, lr {lr:.0e}: {:.1} s, validation {:.5} (kept iteration {} of {iterations}; per Re {})",
-        variant.name(),
-        size.label(),
-        seconds,
-        trained.model.validation,
-        trained.model.best_iteration,
-        validation_per_re
-            .iter()
-            .map(|e| format!("{e:.4}"))
-            .collect::<Vec<_>>()
-            .join(", "),
-    );
-    Ok(Model {
-        variant,
-        size,
-        seed,
-        lr,
-        evaluations,
-        trained,
-        seconds,
-        validation_per_re,
-    })
-}
+/// A trained corrector of the study.
+type Model = TrainedRun<NetSize>;
 
 /// `wake_flow evaluate --model DIR [--held-out-re LIST] [--data-seed N]`
 /// with the scene's options: a saved corrector rolled out at each Re.

@@ -13,7 +13,15 @@ const ALLOWED: &[(&str, &[&str])] = &[
     ("tape", &[]),
     ("ops", &["diffphys-tape"]),
     ("nn", &["diffphys-tape"]),
-    ("learn", &["diffphys-tape", "diffphys-ops", "diffphys-nn"]),
+    (
+        "learn",
+        &[
+            "diffphys-tape",
+            "diffphys-ops",
+            "diffphys-nn",
+            "diffphys-report",
+        ],
+    ),
     ("flow", &["diffphys-tape", "diffphys-ops"]),
     ("report", &["diffphys-tape"]),
     (

@@ -88,7 +88,7 @@ fn an_unknown_flag_and_evaluate_without_a_model_are_usage_errors() {
 #[test]
 fn an_unknown_variant_is_refused() {
     match options(&["--variants", "non,magic"]) {
-        Err(WakeError::UnknownVariant { name }) => assert_eq!(name, "magic"),
+        Err(WakeError::Learn(LearnError::UnknownVariant { name })) => assert_eq!(name, "magic"),
         other => panic!("expected an unknown variant, got {other:?}"),
     }
 }
@@ -391,38 +391,6 @@ fn the_inscribed_body_is_inside_the_reference_body() {
         let all = (0..FACTOR).all(|a| (0..FACTOR).all(|b| f[[FACTOR * i + a, FACTOR * j + b]]));
         assert_eq!(solid, all, "coarse cell ({i}, {j})");
     }
-}
-
-#[test]
-fn every_variant_steps_whole_windows_of_at_least_four_evaluations() {
-    for (variant, expected) in [
-        (Variant::Non, 4),
-        (Variant::Noise, 4),
-        (Variant::Sol(1), 4),
-        (Variant::Sol(2), 4),
-        (Variant::Sol(3), 6),
-        (Variant::Sol(4), 4),
-        (Variant::Sol(5), 5),
-        (Variant::Sol(16), 16),
-    ] {
-        let e = variant.step_evaluations();
-        assert_eq!(e, expected, "{}", variant.name());
-        if let Variant::Sol(k) = variant {
-            assert_eq!(e % k, 0, "{}: a step holds whole windows", variant.name());
-        }
-        assert!(e >= wake_flow_scene::STEP_EVALUATIONS);
-    }
-}
-
-#[test]
-fn a_budget_becomes_adam_steps_and_zero_stays_zero() {
-    assert_eq!(Variant::Sol(4).adam_steps(24_000), 6_000);
-    assert_eq!(Variant::Non.adam_steps(24_000), 6_000);
-    assert_eq!(Variant::Sol(16).adam_steps(24_000), 1_500);
-    // A budget smaller than one step still trains one step; none trains none
-    // (the trainer refuses 0 iterations with a typed error).
-    assert_eq!(Variant::Sol(16).adam_steps(4), 1);
-    assert_eq!(Variant::Sol(4).adam_steps(0), 0);
 }
 
 /// `wake_flow evaluate` refuses a saved corrector whose settings do not fit

@@ -194,7 +194,7 @@ impl Options {
     /// The typed options of a study's command line.
     ///
     /// # Errors
-    /// [`WakeError::UnknownVariant`]; [`diffphys::learn::LearnError::ZeroUnroll`]
+    /// [`diffphys::learn::LearnError::UnknownVariant`]; [`diffphys::learn::LearnError::ZeroUnroll`]
     /// for `sol0`; [`WakeError::ReOutOfRange`];
     /// [`diffphys::learn::LearnError::EmptySplit`] for an empty Re list;
     /// [`WakeError::Argument`] for an unknown name, an unparsable number, a
@@ -210,7 +210,7 @@ impl Options {
         if let Some(list) = &args.variants {
             let mut variants = vec![Variant::Src];
             for name in list.split(',').filter(|s| !s.trim().is_empty()) {
-                let variant = Variant::parse(name)?;
+                let variant: Variant = name.parse()?;
                 if !variants.contains(&variant) {
                     variants.push(variant);
                 }

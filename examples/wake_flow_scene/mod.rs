@@ -33,6 +33,7 @@ mod solvers;
 pub mod study;
 
 pub use diffphys::hybrid::NetSize;
+pub use diffphys::learn::study::Variant;
 pub use net::{net, Net, MAIN_SIZE, SIZES};
 pub use solvers::{reference_scene, reference_scene_at, uncorrected, Body, ReferenceScheme};
 
@@ -66,12 +67,6 @@ pub const RE_CENTRE: f64 = 400.0;
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum WakeError {
-    /// A variant name that is not one of `src, non, noise, solK`.
-    #[error("unknown variant {name:?}: choose from src, non, noise, sol4, sol16")]
-    UnknownVariant {
-        /// What was asked for.
-        name: String,
-    },
     /// A Reynolds number outside [`RE_RANGE`] (or not finite).
     #[error("Reynolds number {re} is outside the scene's range [50, 3200]")]
     ReOutOfRange {
@@ -153,89 +148,6 @@ pub fn re_code(nu: f64) -> f64 {
 /// 0.080 / 0.084 and 0.061 / 0.067: more, smaller steps buy more than larger
 /// batches (docs/11, "Smaller steps").
 pub const STEP_EVALUATIONS: usize = 4;
-
-/// One of the trained or untrained solvers.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub enum Variant {
-    /// The coarse solver alone.
-    Src,
-    /// Supervised on one-step pairs.
-    Non,
-    /// As `Non`, with input noise.
-    Noise,
-    /// Solver in the loop over `k` steps.
-    Sol(usize),
-}
-
-impl std::fmt::Display for Variant {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{}", self.name())
-    }
-}
-
-impl Variant {
-    /// Parses `src`, `non`, `noise`, `solK` (`sol4`, `sol16`, …).
-    ///
-    /// # Errors
-    /// [`WakeError::UnknownVariant`]; [`WakeError::Learn`] with
-    /// [`LearnError::ZeroUnroll`] for `sol0`.
-    pub fn parse(name: &str) -> Result<Self> {
-        let unknown = || WakeError::UnknownVariant {
-            name: name.to_string(),
-        };
-        match name.trim() {
-            "src" => Ok(Variant::Src),
-            "non" => Ok(Variant::Non),
-            "noise" => Ok(Variant::Noise),
-            s => {
-                let k: usize = s
-                    .strip_prefix("sol")
-                    .map(|k| k.trim_start_matches(['-', '_']))
-                    .and_then(|k| k.parse().ok())
-                    .ok_or_else(unknown)?;
-                if k == 0 {
-                    return Err(LearnError::ZeroUnroll {
-                        what: "solver in the loop",
-                    }
-                    .into());
-                }
-                Ok(Variant::Sol(k))
-            }
-        }
-    }
-
-    /// `src`, `non`, `noise`, `sol_k`.
-    pub fn name(&self) -> String {
-        match self {
-            Variant::Src => "src".into(),
-            Variant::Non => "non".into(),
-            Variant::Noise => "noise".into(),
-            Variant::Sol(k) => format!("sol_{k}"),
-        }
-    }
-
-    /// Corrector evaluations per Adam step: the smallest multiple of the
-    /// unroll (1 for `non` and `noise`) that is at least [`STEP_EVALUATIONS`],
-    /// so a step holds whole windows (`sol_16`: one window of 16).
-    pub fn step_evaluations(&self) -> usize {
-        let k = match *self {
-            Variant::Sol(k) => k.max(1),
-            _ => 1,
-        };
-        k * STEP_EVALUATIONS.div_ceil(k)
-    }
-
-    /// Adam steps of a training with a budget of `evaluations`: the budget
-    /// over [`Variant::step_evaluations`], at least one step for any budget
-    /// but 0 (which stays 0, for the trainer to refuse).
-    pub fn adam_steps(&self, evaluations: usize) -> usize {
-        if evaluations == 0 {
-            0
-        } else {
-            (evaluations / self.step_evaluations()).max(1)
-        }
-    }
-}
 
 /// A comma-separated list of Reynolds numbers, each checked.
 ///

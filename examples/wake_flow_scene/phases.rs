@@ -152,75 +152,6 @@ pub(crate) fn untrained(
     Ok((train, validation, sigma))
 }
 
-/// Trains a list of jobs on the workers (the first error).
-type Trainings<'a> = dyn Fn(&[Job]) -> Result<Vec<Model>, BoxError> + 'a;
-
-/// Phase 2: the learning rate of `non` (and `noise`) and of SOL, on
-/// validation: pilot runs at a quarter of the budget, first training seed
-/// (`run` trains a list of jobs); every pilot's score goes to `chosen_lr`.
-fn learning_rates(
-    ctx: &Ctx,
-    ds: u64,
-    run: &Trainings<'_>,
-    chosen_lr: &mut serde_json::Map<String, Value>,
-) -> Result<BTreeMap<&'static str, f64>, BoxError> {
-    let (options, seeds, evaluations) = (&ctx.options, &ctx.seeds, ctx.evaluations);
-    let families: Vec<(&'static str, Variant)> = [
-        ("non", Variant::Non),
-        (
-            "sol",
-            Variant::Sol(options.unrolls().first().copied().unwrap_or(4)),
-        ),
-    ]
-    .into_iter()
-    .filter(|(f, _)| {
-        if *f == "non" {
-            options
-                .variants
-                .iter()
-                .any(|v| matches!(v, Variant::Non | Variant::Noise))
-        } else {
-            !options.unrolls().is_empty()
-        }
-    })
-    .collect();
-    let pilots = pilot_learning_rates(&families, &options.learning_rates, |pilots| {
-        let first_seed = seeds.train[0];
-        let jobs: Vec<Job> = pilots
-            .iter()
-            .map(|&((_, variant), lr)| Job {
-                variant,
-                size: MAIN_SIZE,
-                seed: first_seed,
-                lr,
-                evaluations: evaluations.div_ceil(PILOT_DIVISOR),
-            })
-            .collect();
-        Ok::<_, BoxError>(
-            run(&jobs)?
-                .iter()
-                .map(|m| m.trained.model.validation)
-                .collect(),
-        )
-    })?;
-    let lr_of: BTreeMap<&str, f64> = pilots.chosen.iter().map(|&((f, _), lr)| (f, lr)).collect();
-    for ((family, _), scores) in &pilots.scores {
-        let best = lr_of[family];
-        println!("  learning rate for {family}: {best:.0e} (pilot validation {scores:?})");
-        chosen_lr.insert(
-            format!("{family}_pilots_data_{ds}"),
-            json!(scores
-                .iter()
-                .map(|(lr, v)| json!({"lr": lr, "validation": v}))
-                .collect::<Vec<_>>()),
-        );
-    }
-    for (f, lr) in &lr_of {
-        chosen_lr.insert(format!("{f}_data_{ds}"), json!(lr));
-    }
-    Ok(lr_of)
-}
-
 /// Phases 2 to 5 of data seed `ds`: the learning rates on validation, then
 /// the library's protocol over the plan (every entry at every training seed,
 /// selection on validation, each trained model once on the held-out split,
@@ -241,29 +172,37 @@ pub(crate) fn protocol(
         sizes,
         ..
     } = ctx;
-    let setup = Setup {
+    let corrector =
+        |size: NetSize, seed: TrainSeed| ctx.new_net(size, seed.0).map_err(BoxError::from);
+    let trainings = Trainings {
+        simulator: coarse,
+        corrector: &corrector,
         schedule: LrSchedule::Cosine {
             final_fraction: 0.1,
         },
+        step_evaluations: STEP_EVALUATIONS,
+        checkpoint: Some(4),
         validation_steps: sizes.rollout,
         validation_evaluations: args.pick(VALIDATION_EVALUATIONS, 32),
-        coarse,
-        arithmetic: ctx.arithmetic,
         sigma,
-        data_seed: ds,
         train,
         validation,
+        label: format!("data {ds}"),
     };
-    let run = |jobs: &[Job]| run_jobs(jobs, ctx.threads, |job| train_one(&setup, job));
-    let lr_of = learning_rates(ctx, ds, &run, &mut rec.chosen_lr)?;
-    let lr_for = |v: Variant| {
-        match v {
-            Variant::Sol(_) => lr_of.get("sol"),
-            _ => lr_of.get("non"),
-        }
-        .copied()
-        .unwrap_or(options.learning_rates[0])
-    };
+    // The learning rate of `non` (and `noise`) and of SOL, on validation:
+    // pilots at a quarter of the budget, first training seed.
+    let pilot = (
+        MAIN_SIZE,
+        TrainSeed(seeds.train[0]),
+        ctx.evaluations.div_ceil(PILOT_DIVISOR),
+    );
+    let lrs = trainings.learning_rates(
+        &options.variants,
+        &options.learning_rates,
+        pilot,
+        ctx.threads,
+    )?;
+    lrs.record(ds, &mut rec.chosen_lr);
     let plan = plan(options, seeds);
     let held_out_jobs = if ctx.validation_only {
         0
@@ -280,16 +219,13 @@ pub(crate) fn protocol(
             .or_insert(reference_last);
     }
     let train_job = |j: &learn_study::Job<Variant, NetSize>| {
-        train_one(
-            &setup,
-            &Job {
-                variant: j.variant,
-                size: j.size,
-                seed: j.seed.0,
-                lr: lr_for(j.variant),
-                evaluations: ctx.evaluations,
-            },
-        )
+        trainings.train(&TrainJob {
+            variant: j.variant,
+            size: j.size,
+            seed: j.seed,
+            lr: lrs.of(j.variant),
+            evaluations: ctx.evaluations,
+        })
     };
     // Selection on validation only: every SOL variant trained, at every
     // size, competes (the unroll and the corrector's size are both chosen
@@ -316,7 +252,7 @@ pub(crate) fn protocol(
             |_, models, refs| {
                 let models: Vec<_> = models
                     .iter()
-                    .map(|m| (Some(&m.trained.model.params), m.size, m.seed))
+                    .map(|m| (Some(&m.trained.model.params), m.job.size, m.job.seed.0))
                     .collect();
                 held_out_runs(ctx, &models, refs, &bar)
             },
@@ -448,10 +384,14 @@ fn record_training(
             rec.validation_report.add(
                 &variant.name(),
                 ds,
-                Some(m.seed),
+                Some(m.job.seed.0),
                 m.trained.model.validation,
             );
-            for (re, e) in options.validation_re.iter().zip(&m.validation_per_re) {
+            for (re, e) in options
+                .validation_re
+                .iter()
+                .zip(&m.validation_per_condition)
+            {
                 rec.validation_per_re
                     .entry(variant.name())
                     .or_default()
@@ -465,7 +405,7 @@ fn record_training(
         };
         let t = &m.trained.model;
         rec.validation_curves.insert(
-            format!("{key}_data_{ds}_seed_{}", m.seed),
+            format!("{key}_data_{ds}_seed_{}", m.job.seed.0),
             json!({"curve": t.validation_curve, "kept_iteration": t.best_iteration,
                    "failures": t.validation_failures}),
         );
@@ -486,13 +426,13 @@ fn save_and_record(
     let Ctx { options, sizes, .. } = ctx;
     let m = &r.model;
     let t = &m.trained.model;
-    let mut card = model::card(sizes, m.size, ctx.arithmetic)
-        .provenance("variant", m.variant.name())
+    let mut card = model::card(sizes, m.job.size, ctx.arithmetic)
+        .provenance("variant", m.job.variant.name())
         .provenance("chosen_on_validation", o.chosen)
         .provenance("data_seed", ds)
-        .provenance("train_seed", m.seed)
-        .provenance("learning_rate", m.lr)
-        .provenance("corrector_evaluations", m.evaluations)
+        .provenance("train_seed", m.job.seed.0)
+        .provenance("learning_rate", m.job.lr)
+        .provenance("corrector_evaluations", m.job.evaluations)
         .provenance("kept_iteration", t.best_iteration)
         .provenance("validation", t.validation)
         .provenance("train_re", &options.train_re)
@@ -500,32 +440,33 @@ fn save_and_record(
     if let Some(run) = &r.held_out {
         card = card.provenance("held_out_per_re", model::per_re_json(run));
     }
-    let name = model::dir_name(&m.variant.name(), m.size, ds, m.seed);
+    let name = model::dir_name(&m.job.variant.name(), m.job.size, ds, m.job.seed.0);
     SavedModel::save(ctx.args.out.join("models").join(name), &t.params, &card)?;
     let Some(run) = &r.held_out else {
         return Ok(());
     };
     let first_sol = options.unrolls().first().copied().map(Variant::Sol);
-    let family = match m.variant {
+    let family = match m.job.variant {
         Variant::Non => Some("non"),
         v if Some(v) == first_sol => Some("sol"),
         _ => None,
     };
     if let Some(variant) = family {
         rec.capacity.add(SweepRun {
-            size: m.size.label(),
+            size: m.job.size.label(),
             params: t.params.count(),
             variant: variant.into(),
-            seed: m.seed,
+            seed: m.job.seed.0,
             figures: vec![run.mean(), run.long_mean()],
         });
     }
-    if m.size == MAIN_SIZE {
+    if m.job.size == MAIN_SIZE {
         rec.results
-            .record(&m.variant.name(), ds, Some(m.seed), run)?;
+            .record(&m.job.variant.name(), ds, Some(m.job.seed.0), run)?;
     }
     if o.selected() {
-        rec.results.record("sol_selected", ds, Some(m.seed), run)?;
+        rec.results
+            .record("sol_selected", ds, Some(m.job.seed.0), run)?;
     }
     Ok(())
 }

@@ -88,7 +88,7 @@ pub(crate) fn report(
         .variants
         .iter()
         .filter(|v| **v != Variant::Src)
-        .map(|&v| (v.name(), json!(v.adam_steps(evaluations))))
+        .map(|&v| (v.name(), json!(v.adam_steps(evaluations, STEP_EVALUATIONS))))
         .collect();
     let held_split: (Vec<f64>, Vec<f64>) = options
         .held_out_re

@@ -114,6 +114,12 @@ pub enum LearnError {
         /// What went wrong.
         message: String,
     },
+    /// A variant name that is not one of `src`, `non`, `noise`, `solK`.
+    #[error("unknown variant {name:?}: choose from src, non, noise, solK (sol4, sol16, ...)")]
+    UnknownVariant {
+        /// What was asked for.
+        name: String,
+    },
     /// Any other invalid argument.
     #[error("invalid {what}: {message}")]
     Invalid {

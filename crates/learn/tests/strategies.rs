@@ -2,6 +2,7 @@
 //! differences, checkpointed against stored unrolls, training that helps and
 //! repeats per seed, and the typed errors of bad input.
 
+use diffphys_learn::study::Variant;
 use diffphys_learn::*;
 use diffphys_nn::{Activation, Bound, Layer, Padding, Params, UNet, UNetConfig};
 use diffphys_tape::{check_gradient, ArrayD, GradCheckOptions, Tape, Var};
@@ -585,4 +586,80 @@ fn a_rollout_measures_the_scene_metrics_beside_the_relative_error() {
     let undefined = |_: Fields<'_, '_>, _: Fields<'_, '_>| f64::NAN;
     let refused = rollout_measured(&hybrid, Some(&params), &s.validation, 5, &[&undefined]);
     assert!(matches!(refused, Err(LearnError::Invalid { .. })));
+}
+
+#[test]
+fn every_variant_steps_whole_windows_of_at_least_the_asked_evaluations() {
+    for (variant, expected) in [
+        (Variant::Non, 4),
+        (Variant::Noise, 4),
+        (Variant::Sol(1), 4),
+        (Variant::Sol(2), 4),
+        (Variant::Sol(3), 6),
+        (Variant::Sol(4), 4),
+        (Variant::Sol(5), 5),
+        (Variant::Sol(16), 16),
+    ] {
+        let e = variant.step_evaluations(4);
+        assert_eq!(e, expected, "{}", variant.name());
+        if let Variant::Sol(k) = variant {
+            assert_eq!(e % k, 0, "{}: a step holds whole windows", variant.name());
+        }
+        assert!(e >= 4);
+    }
+}
+
+#[test]
+fn a_budget_becomes_adam_steps_and_zero_stays_zero() {
+    assert_eq!(Variant::Sol(4).adam_steps(24_000, 4), 6_000);
+    assert_eq!(Variant::Non.adam_steps(24_000, 4), 6_000);
+    assert_eq!(Variant::Sol(16).adam_steps(24_000, 4), 1_500);
+    // A budget smaller than one step still trains one step; none trains none
+    // (the trainer refuses 0 iterations with a typed error).
+    assert_eq!(Variant::Sol(16).adam_steps(4, 4), 1);
+    assert_eq!(Variant::Sol(4).adam_steps(0, 4), 0);
+}
+
+#[test]
+fn variants_parse_by_name_and_refuse_the_unknown_and_sol0() {
+    for (text, v) in [
+        ("src", Variant::Src),
+        ("non", Variant::Non),
+        ("noise", Variant::Noise),
+        ("sol4", Variant::Sol(4)),
+        ("sol_16", Variant::Sol(16)),
+        ("sol-2", Variant::Sol(2)),
+    ] {
+        assert_eq!(text.parse::<Variant>().unwrap(), v);
+        assert_eq!(
+            v.name().parse::<Variant>().unwrap(),
+            v,
+            "the name parses back"
+        );
+    }
+    assert!(
+        matches!("magic".parse::<Variant>(), Err(LearnError::UnknownVariant { name }) if name == "magic")
+    );
+    assert!(matches!(
+        "sol0".parse::<Variant>(),
+        Err(LearnError::ZeroUnroll { .. })
+    ));
+    assert_eq!(Variant::Src.strategy(0.1, Some(4)), None);
+    assert_eq!(
+        Variant::Sol(16).strategy(0.1, Some(4)).unwrap().schedule(),
+        diffphys_learn::Schedule::Every(4)
+    );
+    assert_eq!(
+        Variant::Sol(4).strategy(0.1, Some(4)).unwrap().schedule(),
+        diffphys_learn::Schedule::Full
+    );
+    assert_eq!(Variant::Noise.strategy(0.1, None).unwrap().sigma(), 0.1);
+    assert_eq!(
+        (
+            Variant::Noise.family(),
+            Variant::Sol(8).family(),
+            Variant::Src.family()
+        ),
+        (Some("non"), Some("sol"), None)
+    );
 }

@@ -32,10 +32,14 @@
 mod ledger;
 mod protocol;
 mod sweep;
+mod training;
+mod variant;
 
 pub use ledger::{Ledger, Reading, Tally, LEDGER_FILE};
 pub use protocol::{Entry, OneSize, Outcome, Protocol, Run};
 pub use sweep::{Sweep, SweepRun};
+pub use training::{LearningRates, NewCorrector, TrainJob, TrainedRun, Trainings};
+pub use variant::Variant;
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;

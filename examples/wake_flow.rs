@@ -39,12 +39,12 @@ use std::time::Instant;
 use diffphys::flow::FlowState;
 use diffphys::flow::PressureSolver;
 use diffphys::learn::study::{
-    self as learn_study, run_jobs, Ledger, Plan, Protocol, Sweep, SweepRun, TrainJob, TrainedRun,
+    self as learn_study, run_jobs, Log, Plan, Protocol, Sweep, SweepRun, TrainJob, TrainedRun,
     Trainings,
 };
 use diffphys::learn::{
-    rollout, rollout_each, DataSeed, Figures, Hybrid, LrSchedule, Report, SavedModel, Split,
-    Splits, Summary, TrainSeed, Trajectory,
+    rollout, rollout_each, DataSeed, Figures, Hybrid, LrSchedule, SavedModel, Split, Splits,
+    TrainSeed, Trajectory,
 };
 use diffphys::nn::{Arithmetic, Params};
 use diffphys::report::{progress_bar, Progress};
@@ -219,30 +219,17 @@ impl Ctx {
 /// The selected SOL corrector of the first data seed: its parameters and size.
 type Probe = (Params<f64>, NetSize);
 
-/// What the phases record for the report.
+/// What the phases record for the report: the study's log, the held-out
+/// figures and the scene's own measurements.
 #[derive(Default)]
 struct Record {
+    log: Log,
     results: Results,
-    validation_report: Report,
-    selected_k: serde_json::Map<String, Value>,
-    selected_size: serde_json::Map<String, Value>,
-    chosen_lr: serde_json::Map<String, Value>,
     /// The capacity sweep's held-out figures (100 steps, long) of `non` and
     /// the first SOL variant (`sol`) at every size.
     capacity: Sweep,
-    train_seconds: BTreeMap<String, Vec<f64>>,
-    /// Per training: its validation curve and the iteration early stopping kept.
-    validation_curves: BTreeMap<String, Value>,
-    /// Variant → validation Re → the error of every training (main size).
-    validation_per_re: BTreeMap<String, BTreeMap<String, Vec<f64>>>,
     sigma_used: f64,
     pinned_face_error: serde_json::Map<String, Value>,
-    /// How often each data seed's held-out split was read in this run,
-    /// `(trained models, baseline readings)` (each trained model once; the
-    /// baselines: src, the reference's last state, the speed study).
-    held_out_readings: BTreeMap<u64, (usize, usize)>,
-    /// Each split's tally in the output folder's ledger, over every run.
-    held_out_evaluations: serde_json::Map<String, Value>,
 }
 
 fn main() -> Result<(), BoxError> {
@@ -283,7 +270,6 @@ fn main() -> Result<(), BoxError> {
 /// the held-out Re, the thread count and the speed study; the budget; the
 /// training seeds).
 fn count_readings(ctx: &Ctx, rec: &mut Record) -> Result<(), BoxError> {
-    let ledger = Ledger::open(&ctx.args.out)?;
     let shaping = Options {
         held_out_re: Vec::new(),
         threads: 0,
@@ -294,25 +280,16 @@ fn count_readings(ctx: &Ctx, rec: &mut Record) -> Result<(), BoxError> {
         "{shaping:?} | {:?} | corrector evaluations {} | training seeds {:?}",
         ctx.sizes, ctx.evaluations, ctx.seeds.train
     );
-    for (&ds, &readings) in &rec.held_out_readings {
-        let split = format!(
+    let split = |ds| {
+        format!(
             "{} | held-out Re {:?} | data seed {ds}",
             ctx.cache.settings(),
             ctx.options.held_out_re
-        );
-        let tally = ledger.record(&split, &configuration, readings)?;
-        println!(
-            "data seed {ds}: held-out split read by {} run(s) of this configuration, {} of any ({} configuration(s), {} trained models in all; {})",
-            tally.runs_of_this_configuration,
-            tally.runs_of_any_configuration,
-            tally.configurations,
-            tally.trained_models,
-            ledger.path().display()
-        );
-        rec.held_out_evaluations
-            .insert(format!("data_{ds}"), json!(tally));
-    }
-    Ok(())
+        )
+    };
+    Ok(rec
+        .log
+        .count_readings(&ctx.args.out, split, &configuration)?)
 }
 
 /// Prints the peak resident memory so far (the tapes' buffer pools are freed

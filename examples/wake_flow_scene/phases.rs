@@ -77,8 +77,7 @@ pub(crate) fn untrained(
         ..
     } = ctx;
     let Record {
-        validation_report,
-        validation_per_re,
+        log,
         sigma_used,
         pinned_face_error,
         ..
@@ -136,16 +135,12 @@ pub(crate) fn untrained(
     let (net0, _) = new_net(MAIN_SIZE, 0)?;
     let hybrid: Wake = Hybrid::new(coarse.clone(), net0);
     let src_val = rollout(&hybrid, None, &validation, sizes.rollout)?.mean();
-    validation_report.add("src", ds, None, src_val);
     let src_per_re = rollout_each(&hybrid, None, &validation, sizes.rollout)?;
-    for (re, e) in options.validation_re.iter().zip(&src_per_re) {
-        validation_per_re
-            .entry("src".into())
-            .or_default()
-            .entry(re.to_string())
-            .or_default()
-            .push(*e);
-    }
+    let per_re: Vec<(String, f64)> = (options.validation_re.iter())
+        .map(|re| re.to_string())
+        .zip(src_per_re.iter().copied())
+        .collect();
+    log.baseline("src", ds, src_val, &per_re);
     println!("  noise sigma (one-step RMS error of the coarse solver) {sigma:.2e}; src validation {src_val:.4} (per Re {src_per_re:.4?})");
 
     mem("src");
@@ -202,7 +197,7 @@ pub(crate) fn protocol(
         pilot,
         ctx.threads,
     )?;
-    lrs.record(ds, &mut rec.chosen_lr);
+    lrs.record(ds, &mut rec.log.learning_rates);
     let plan = plan(options, seeds);
     let held_out_jobs = if ctx.validation_only {
         0
@@ -264,19 +259,19 @@ pub(crate) fn protocol(
     };
     bar.finish_and_clear();
     mem("held-out");
+    let conditions: Vec<String> = options.validation_re.iter().map(f64::to_string).collect();
     for &(variant, size) in &plan.entries {
         let entry = learn_study::Entry { variant, size };
-        if let Some(o) = outcomes.iter().find(|o| o.entry == entry) {
-            record_training(options, ds, o, rec);
+        for o in outcomes.iter().filter(|o| o.entry == entry) {
+            for r in &o.runs {
+                rec.log.training(ds, &r.model, MAIN_SIZE, &conditions);
+            }
         }
     }
     let mut probe = None;
     for o in &outcomes {
-        if let (true, Variant::Sol(k)) = (o.selected(), o.entry.variant) {
-            println!("  selected by validation: {}", o.entry);
-            rec.selected_k.insert(ds.to_string(), json!(k));
-            rec.selected_size
-                .insert(ds.to_string(), json!(o.entry.size.label()));
+        if o.selected() && o.entry.variant.is_sol() {
+            rec.log.selected(ds, o.entry.variant, o.entry.size);
         }
         for r in &o.runs {
             save_and_record(ctx, ds, o, r, rec)?;
@@ -286,7 +281,8 @@ pub(crate) fn protocol(
         }
     }
     if !ctx.validation_only {
-        rec.held_out_readings
+        rec.log
+            .held_out_readings
             .insert(ds, splits.held_out().readings());
     }
     Ok(probe)
@@ -367,50 +363,6 @@ fn baselines(
         .held_out()
         .evaluate_baseline(|refs| Ok(refs[0].states[ctx.sizes.long].clone()))?;
     Ok((src, last))
-}
-
-/// What a training leaves in the report: its validation score and curve
-/// (per validation Re at the main size) and its time.
-fn record_training(
-    options: &Options,
-    ds: u64,
-    o: &learn_study::Outcome<Variant, NetSize, Model, Option<HeldOutRun>>,
-    rec: &mut Record,
-) {
-    let (variant, size) = (o.entry.variant, o.entry.size);
-    for r in &o.runs {
-        let m = &r.model;
-        let key = if size == MAIN_SIZE {
-            rec.validation_report.add(
-                &variant.name(),
-                ds,
-                Some(m.job.seed.0),
-                m.trained.model.validation,
-            );
-            for (re, e) in options
-                .validation_re
-                .iter()
-                .zip(&m.validation_per_condition)
-            {
-                rec.validation_per_re
-                    .entry(variant.name())
-                    .or_default()
-                    .entry(re.to_string())
-                    .or_default()
-                    .push(*e);
-            }
-            variant.name()
-        } else {
-            format!("{}_{}", variant.name(), size.label())
-        };
-        let t = &m.trained.model;
-        rec.validation_curves.insert(
-            format!("{key}_data_{ds}_seed_{}", m.job.seed.0),
-            json!({"curve": t.validation_curve, "kept_iteration": t.best_iteration,
-                   "failures": t.validation_failures}),
-        );
-        rec.train_seconds.entry(key).or_default().push(m.seconds);
-    }
 }
 
 /// What a trained model leaves: its saved model (with the settings and
@@ -502,7 +454,8 @@ pub(crate) fn speed_study(
                     message: e.to_string(),
                 })
             })?;
-            rec.held_out_readings
+            rec.log
+                .held_out_readings
                 .insert(splits.seed.0, splits.held_out().readings());
             result
         };

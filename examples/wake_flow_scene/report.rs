@@ -23,26 +23,12 @@ pub(crate) fn report(
     } = ctx;
     let (arithmetic, evaluations) = (ctx.arithmetic, ctx.evaluations);
     let Record {
+        log,
         results,
-        validation_report,
-        selected_k,
-        selected_size,
-        chosen_lr,
         capacity: capacity_runs,
-        train_seconds,
-        validation_curves,
-        validation_per_re,
         sigma_used,
         pinned_face_error,
-        held_out_readings,
-        held_out_evaluations,
     } = rec;
-    // Report.
-    let summary = |r: &Report| -> serde_json::Map<String, Value> {
-        r.methods()
-            .filter_map(|m| r.summary(m).map(|s| (m.to_string(), json!(s))))
-            .collect()
-    };
     println!(
         "\nheld-out mean relative L2 error over {} steps (data seeds {:?} x train seeds {:?}):",
         sizes.rollout, seeds.data, seeds.train
@@ -52,10 +38,10 @@ pub(crate) fn report(
     println!("long rollout ({} steps):", sizes.long);
     print!("{}", metric(LONG).table(Some("src")));
     let (floors, capacity) = floors(options, &results, &capacity_runs);
-    study::validation_chart(&args.out, &validation_curves)?;
+    log.validation_chart(&args.out.join("validation.svg"), "|u - u_ref| / |u_ref|")?;
     study::charts(
         &args.out,
-        results.figures.curves(),
+        &results.figures,
         &capacity_runs,
         &speed,
         &results.last,
@@ -127,50 +113,26 @@ pub(crate) fn report(
         "corrector_evaluations_per_training": evaluations,
         "noise_sigma": sigma_used,
         "setup": setup_json,
-        "learning_rate": chosen_lr,
         "params": params_count,
         "main_size": MAIN_SIZE.label(),
-        "mean_rel_error": summary(&metric(STATE)),
-        "long_rel_error": summary(&metric(LONG)),
-        "validation_rel_error": summary(&validation_report),
+        "mean_rel_error": metric(STATE).summaries(),
+        "long_rel_error": metric(LONG).summaries(),
         "per_re": results.figures.per_condition_json(),
         "capacity": capacity,
-        "selected_k": selected_k,
-        "selected_size": selected_size,
-        "selected_by": "validation",
-        "train_seconds": train_seconds,
-        "validation_curves": validation_curves,
-        "validation_per_re": validation_per_re
-            .iter()
-            .map(|(v, per)| {
-                let stats: serde_json::Map<String, Value> = per
-                    .iter()
-                    .map(|(re, e)| (re.clone(), json!(Summary::of(e))))
-                    .collect();
-                (v.clone(), Value::Object(stats))
-            })
-            .collect::<serde_json::Map<String, Value>>(),
         "speed": speed,
         "pressure": pressure,
         "floors_met": floors,
         "peak_rss_bytes": common::peak_rss_bytes(),
         "wall_s": run_start.elapsed().as_secs_f64(),
     });
-    // Beside the macro: its recursion is deep already.
-    line["held_out_readings"] = held_out_readings
-        .iter()
-        .map(|(ds, (models, baselines))| {
-            let reading = json!({"trained_models": models, "baseline_readings": baselines});
-            (format!("data_{ds}"), reading)
-        })
-        .collect::<serde_json::Map<_, _>>()
-        .into();
-    line["held_out_evaluations"] = held_out_evaluations.into();
+    for (key, value) in log.to_json("re") {
+        line[key] = value;
+    }
     // `--validation-only`: trained and selected, the held-out split unread
     // (every held-out figure is absent, the speed study ran on validation).
     line["validation_only"] = json!(ctx.validation_only);
-    line["deviation_rel_error"] = summary(&metric(DEVIATION)).into();
-    line["vorticity_rel_error"] = summary(&metric(VORTICITY)).into();
+    line["deviation_rel_error"] = metric(DEVIATION).summaries().into();
+    line["vorticity_rel_error"] = metric(VORTICITY).summaries().into();
     line["saved_models"] = json!(args.out.join("models").display().to_string());
     // The floors are the full scene's (docs/11): `--small`'s budgets and grids
     // measure that the study runs, not what it reaches.

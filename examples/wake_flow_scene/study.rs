@@ -11,7 +11,7 @@ use diffphys::flow::{FlowParams, FlowState, PressureSolver, Scene};
 use diffphys::hybrid::reference::{evaluate, Evaluation, Rollouts};
 use diffphys::hybrid::speed::{self, Case};
 use diffphys::learn::study::Sweep;
-use diffphys::learn::{Corrector, Hybrid};
+use diffphys::learn::{Corrector, Figures, Hybrid};
 use diffphys::nn::Params;
 use diffphys::report::chart::{
     heatmap_panels_svg, line_chart_svg, HeatmapPanels, LineChart, Outline, Series,
@@ -268,48 +268,13 @@ pub fn pressure_solves(sizes: &Sizes, re: f64) -> Result<Value> {
     Ok(json!({"re": re, "rel_tol": tol, "steps": steps, "rows": out}))
 }
 
-/// The validation curves of every training (`{"curve": [[iteration, score],
-/// ...], ...}` per training) as one chart, `validation.svg`.
-///
-/// # Errors
-/// [`WakeError::Output`] if the chart cannot be written.
-pub fn validation_chart(out: &Path, curves: &BTreeMap<String, Value>) -> Result<()> {
-    let series: Vec<Series> = curves
-        .iter()
-        .filter_map(|(name, v)| {
-            let points: Vec<(f64, f64)> = v["curve"]
-                .as_array()?
-                .iter()
-                .filter_map(|p| Some((p[0].as_f64()?, p[1].as_f64()?)))
-                .filter(|(_, y)| y.is_finite())
-                .collect();
-            (!points.is_empty()).then(|| Series::new(name.clone(), points))
-        })
-        .collect();
-    if series.is_empty() {
-        return Ok(());
-    }
-    line_chart_svg(
-        &out.join("validation.svg"),
-        &LineChart {
-            title: "Validation error during training (mean relative L2 over the rollout)",
-            x_label: "Adam iteration",
-            y_label: "|u - u_ref| / |u_ref|",
-            log_x: false,
-            log_y: true,
-            series: &series,
-        },
-    )
-    .map_err(|e| WakeError::Output(e.to_string()))
-}
-
 /// The charts: `relative_error.svg` (held-out error per step), `capacity.svg`
 /// (error against corrector size, 100 steps and long), `speed_accuracy.svg`,
 /// and `vorticity_{name}.svg` of the long rollouts' last states at the first
 /// held-out Re.
 pub fn charts(
     out: &Path,
-    curves: &BTreeMap<String, Vec<Vec<f64>>>,
+    figures: &Figures,
     capacity: &Sweep,
     speed: &Value,
     last: &BTreeMap<String, FlowState<f64>>,
@@ -317,48 +282,21 @@ pub fn charts(
     sol: Option<usize>,
 ) -> Result<()> {
     let e = |e: diffphys::report::ReportError| WakeError::Output(e.to_string());
-    let series: Vec<Series> = curves
-        .iter()
-        .map(|(name, c)| Series::mean_per_step(name.clone(), c))
-        .filter(|s| !s.points.is_empty())
-        .collect();
     // Nothing to draw without held-out runs (`--validation-only`).
-    if !series.is_empty() {
-        line_chart_svg(
-            &out.join("relative_error.svg"),
-            &LineChart {
-                title:
-                    "Held-out rollouts: relative L2 error per step (mean over Re, starts, seeds)",
-                x_label: "step",
-                y_label: "|u - u_ref| / |u_ref|",
-                log_x: false,
-                log_y: true,
-                series: &series,
-            },
-        )
-        .map_err(e)?;
+    figures.curves_chart(
+        &out.join("relative_error.svg"),
+        "Held-out rollouts: relative L2 error per step (mean over Re, starts, seeds)",
+        "|u - u_ref| / |u_ref|",
+    )?;
+    let mut lines = vec![("non", 0, "non, 100 steps"), ("non", 1, "non, long")];
+    if sol.is_some() {
+        lines.extend([("sol", 0, "sol, 100 steps"), ("sol", 1, "sol, long")]);
     }
-    let cap: Vec<Series> = [("non", 0, "non, 100 steps"), ("non", 1, "non, long")]
-        .into_iter()
-        .chain(sol.map(|_| ("sol", 0, "sol, 100 steps")))
-        .chain(sol.map(|_| ("sol", 1, "sol, long")))
-        .map(|(variant, k, label)| Series::new(label, capacity.series(variant, k)))
-        .filter(|s| !s.points.is_empty())
-        .collect();
-    if !cap.is_empty() {
-        line_chart_svg(
-            &out.join("capacity.svg"),
-            &LineChart {
-                title: "Held-out error against corrector size (mean over Re and seeds)",
-                x_label: "parameters",
-                y_label: "mean relative L2 error",
-                log_x: true,
-                log_y: true,
-                series: &cap,
-            },
-        )
-        .map_err(e)?;
-    }
+    capacity.chart(
+        &out.join("capacity.svg"),
+        "Held-out error against corrector size (mean over Re and seeds)",
+        &lines,
+    )?;
     if let Some(rows) = speed["rows"].as_array() {
         let series: Vec<Series> = rows
             .iter()

@@ -120,6 +120,9 @@ pub enum LearnError {
         /// What was asked for.
         name: String,
     },
+    /// A chart or a file of a report could not be written.
+    #[error(transparent)]
+    Report(#[from] diffphys_report::ReportError),
     /// Any other invalid argument.
     #[error("invalid {what}: {message}")]
     Invalid {

@@ -5,6 +5,7 @@
 
 use std::collections::BTreeMap;
 
+use diffphys_report::chart::{line_chart_svg, LineChart, Series};
 use serde::Serialize;
 use serde_json::{json, Value};
 
@@ -103,6 +104,14 @@ impl Report {
         by_seed
             .into_iter()
             .map(|(s, v)| (s, v.iter().sum::<f64>() / v.len() as f64))
+            .collect()
+    }
+
+    /// Every method's [`Summary`] over its runs, by name (a method without
+    /// runs left out).
+    pub fn summaries(&self) -> serde_json::Map<String, Value> {
+        self.methods()
+            .filter_map(|m| self.summary(m).map(|s| (m.to_string(), json!(s))))
             .collect()
     }
 
@@ -239,6 +248,34 @@ impl Figures {
     /// Per method, every run's per-step curve.
     pub fn curves(&self) -> &BTreeMap<String, Vec<Vec<f64>>> {
         &self.curves
+    }
+
+    /// Each method's per-step curve, mean over its runs, as one chart at
+    /// `path` (log y; nothing is written without curves).
+    ///
+    /// # Errors
+    /// [`LearnError::Report`] if the chart cannot be written.
+    pub fn curves_chart(&self, path: &std::path::Path, title: &str, y_label: &str) -> Result<()> {
+        let series: Vec<Series> = self
+            .curves
+            .iter()
+            .map(|(name, c)| Series::mean_per_step(name.clone(), c))
+            .filter(|s| !s.points.is_empty())
+            .collect();
+        if series.is_empty() {
+            return Ok(());
+        }
+        Ok(line_chart_svg(
+            path,
+            &LineChart {
+                title,
+                x_label: "step",
+                y_label,
+                log_x: false,
+                log_y: true,
+                series: &series,
+            },
+        )?)
     }
 
     /// The conditions, in order.

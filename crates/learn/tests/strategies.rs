@@ -2,7 +2,7 @@
 //! differences, checkpointed against stored unrolls, training that helps and
 //! repeats per seed, and the typed errors of bad input.
 
-use diffphys_learn::study::Variant;
+use diffphys_learn::study::{Log, OneSize, TrainJob, Trainings, Variant};
 use diffphys_learn::*;
 use diffphys_nn::{Activation, Bound, Layer, Padding, Params, UNet, UNetConfig};
 use diffphys_tape::{check_gradient, ArrayD, GradCheckOptions, Tape, Var};
@@ -11,6 +11,7 @@ use rand::Rng;
 const CELLS: usize = 8;
 
 /// A nonlinear, smooth step: `u ↦ 0.9 u − 0.05 u³`.
+#[derive(Clone)]
 struct Cubic;
 
 impl Simulator for Cubic {
@@ -662,4 +663,94 @@ fn variants_parse_by_name_and_refuse_the_unknown_and_sol0() {
         ),
         (Some("non"), Some("sol"), None)
     );
+}
+
+/// A study's training is the library's `Trainer` with the budget shared into
+/// whole windows (80 evaluations of `sol_4`: 20 steps of one window,
+/// validated every 40 evaluations, checkpointed every 2 steps): the same
+/// losses to the bit. Its log keeps the validation score, the per-condition
+/// errors and the curve; the pilots keep each family's best rate.
+#[test]
+fn a_study_training_is_the_trainer_and_its_log_and_pilots_record_it() {
+    let s = splits(7, [4, 2, 2], 8);
+    let new_net = |_: OneSize, seed: TrainSeed| Ok::<_, LearnError>(net(seed.0, 1));
+    let trainings = Trainings {
+        simulator: &Cubic,
+        corrector: &new_net,
+        schedule: LrSchedule::Exponential {
+            final_fraction: 0.1,
+        },
+        step_evaluations: 4,
+        checkpoint: Some(2),
+        validation_steps: 8,
+        validation_evaluations: 40,
+        sigma: 0.05,
+        train: &s.train,
+        validation: &s.validation,
+        label: "test".into(),
+    };
+    let job = TrainJob {
+        variant: Variant::Sol(4),
+        size: OneSize,
+        seed: TrainSeed(3),
+        lr: 1e-2,
+        evaluations: 80,
+    };
+    let run = trainings.train(&job).unwrap();
+    let (n, p) = net(3, 1);
+    let direct = trainer(20, 4)
+        .train(
+            &Hybrid::new(Cubic, n),
+            p,
+            Strategy::SolverInTheLoop {
+                unroll: 4,
+                schedule: Schedule::Every(2),
+            },
+            &s.train,
+            &s.validation,
+            TrainSeed(3),
+            &|| {},
+        )
+        .unwrap();
+    assert_eq!(run.trained.model.losses, direct.model.losses);
+    assert_eq!(run.trained.model.losses.len(), 20);
+    assert_eq!(run.trained.model.validation, direct.model.validation);
+    assert_eq!(run.validation_per_condition.len(), s.validation.len());
+    assert!(matches!(
+        trainings.train(&TrainJob {
+            variant: Variant::Src,
+            ..job
+        }),
+        Err(LearnError::Invalid { .. })
+    ));
+
+    let mut log = Log::default();
+    log.training(1, &run, OneSize, &["a".into(), "b".into()]);
+    let j = log.to_json("case");
+    assert_eq!(j["validation_rel_error"]["sol_4"]["runs"], 1);
+    assert_eq!(
+        j["validation_per_case"]["sol_4"]["a"]["mean"],
+        run.validation_per_condition[0]
+    );
+    assert_eq!(
+        j["validation_curves"]["sol_4_data_1_seed_3"]["kept_iteration"],
+        run.trained.model.best_iteration
+    );
+
+    let lrs = trainings
+        .learning_rates(
+            &[Variant::Src, Variant::Sol(4), Variant::Noise, Variant::Non],
+            &[1e-3, 3e-2],
+            (OneSize, TrainSeed(3), 40),
+            2,
+        )
+        .unwrap();
+    let families: Vec<&str> = lrs.pilots.scores.iter().map(|(f, _)| *f).collect();
+    assert_eq!(families, ["non", "sol"]);
+    for (family, scores) in &lrs.pilots.scores {
+        let best = scores.iter().min_by(|a, b| a.1.total_cmp(&b.1)).unwrap().0;
+        assert_eq!(lrs.pilots.rate(family), Some(best));
+    }
+    assert_eq!(lrs.of(Variant::Noise), lrs.of(Variant::Non));
+    assert_eq!(lrs.of(Variant::Sol(16)), lrs.pilots.rate("sol").unwrap());
 }

@@ -30,12 +30,14 @@
 //! ```
 
 mod ledger;
+mod log;
 mod protocol;
 mod sweep;
 mod training;
 mod variant;
 
 pub use ledger::{Ledger, Reading, Tally, LEDGER_FILE};
+pub use log::Log;
 pub use protocol::{Entry, OneSize, Outcome, Protocol, Run};
 pub use sweep::{Sweep, SweepRun};
 pub use training::{LearningRates, NewCorrector, TrainJob, TrainedRun, Trainings};

@@ -1,9 +1,11 @@
 //! A capacity sweep: the same variants trained at several model sizes, each
 //! run scored by one or more figures.
 
+use diffphys_report::chart::{line_chart_svg, LineChart, Series};
 use serde_json::{json, Map, Value};
 
 use crate::report::Summary;
+use crate::Result;
 
 /// One trained model of a sweep.
 #[derive(Debug, Clone, PartialEq)]
@@ -126,5 +128,38 @@ impl Sweep {
             })
             .collect();
         json!({ "rows": rows })
+    }
+
+    /// Error against model size (parameters, log-log) at `path`: one line
+    /// per `(variant, figure, label)` of `lines` ([`Sweep::series`]); lines
+    /// without runs are left out, and nothing is written without any.
+    ///
+    /// # Errors
+    /// [`crate::LearnError::Report`] if the chart cannot be written.
+    pub fn chart(
+        &self,
+        path: &std::path::Path,
+        title: &str,
+        lines: &[(&str, usize, &str)],
+    ) -> Result<()> {
+        let series: Vec<Series> = lines
+            .iter()
+            .map(|&(variant, k, label)| Series::new(label, self.series(variant, k)))
+            .filter(|s| !s.points.is_empty())
+            .collect();
+        if series.is_empty() {
+            return Ok(());
+        }
+        Ok(line_chart_svg(
+            path,
+            &LineChart {
+                title,
+                x_label: "parameters",
+                y_label: "mean relative L2 error",
+                log_x: true,
+                log_y: true,
+                series: &series,
+            },
+        )?)
     }
 }

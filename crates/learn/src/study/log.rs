@@ -18,8 +18,8 @@ use serde_json::{json, Map, Value};
 use super::{Ledger, TrainedRun, Variant};
 use crate::{Report, Result, Summary};
 
-/// A study's record of its trainings and selections (see the
-/// [module docs](self)).
+/// A study's record of its trainings and selections: what it leaves for
+/// the report beside the scene's own held-out figures.
 #[derive(Debug, Clone, Default)]
 pub struct Log {
     /// Validation score per variant at the main size (and the untrained

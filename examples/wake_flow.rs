@@ -36,30 +36,25 @@ mod wake_flow_scene;
 use std::collections::BTreeMap;
 use std::time::Instant;
 
-use diffphys::flow::FlowState;
 use diffphys::flow::PressureSolver;
-use diffphys::learn::study::{
-    self as learn_study, run_jobs, Log, Plan, Protocol, Sweep, SweepRun, TrainJob, TrainedRun,
-    Trainings,
-};
-use diffphys::learn::{
-    rollout, rollout_each, DataSeed, Figures, Hybrid, LrSchedule, SavedModel, Split, Splits,
-    TrainSeed, Trajectory,
-};
+use diffphys::hybrid::reference::Evaluation;
+use diffphys::hybrid::study::{Probe, Record, Results, Setup, DEVIATION, LONG, STATE, VORTICITY};
+use diffphys::learn::study::{run_jobs, Sweep};
+use diffphys::learn::{DataSeed, Hybrid, LrSchedule, ModelCard, Split, Splits, TrainSeed};
 use diffphys::nn::{Arithmetic, Params};
-use diffphys::report::{progress_bar, Progress};
+use diffphys::report::progress_bar;
 use serde_json::{json, Value};
 
 use diffphys::learn::cache::Cache;
-use phases::{protocol, references, speed_study, untrained};
-use report::{report, Results};
+use phases::{references, speed_study};
+use report::report;
 use wake_flow_scene::cli::{self, Cli, Command, ConvergenceArgs, EvaluateArgs};
 use wake_flow_scene::data::{self, base_state, reference, Bump, Reference};
 use wake_flow_scene::model;
-use wake_flow_scene::study::{self, HeldOutRun};
+use wake_flow_scene::study;
 use wake_flow_scene::{
     net, reference_scene, uncorrected, Body, Coarse, Net, NetSize, Options, Sizes, Variant,
-    WakeError, MAIN_SIZE, SIZES, STEP_EVALUATIONS,
+    MAIN_SIZE, SIZES, STEP_EVALUATIONS,
 };
 
 type BoxError = Box<dyn std::error::Error + Send + Sync>;
@@ -80,9 +75,6 @@ const PILOT_DIVISOR: usize = 4;
 /// Validate (for early stopping) every this many corrector evaluations at
 /// full size.
 const VALIDATION_EVALUATIONS: usize = 1_600;
-
-/// A trained corrector of the study.
-type Model = TrainedRun<NetSize>;
 
 /// `wake_flow evaluate --model DIR [--held-out-re LIST] [--data-seed N]`
 /// with the scene's options: a saved corrector rolled out at each Re.
@@ -204,6 +196,44 @@ impl Ctx {
         })
     }
 
+    /// The study of the scene's options (see [`Setup`]); `card` gives the
+    /// settings a saved corrector of a size must match.
+    fn setup<'a>(&'a self, card: &'a (dyn Fn(NetSize) -> ModelCard + Sync)) -> Setup<'a> {
+        let (options, sizes) = (&self.options, &self.sizes);
+        Setup {
+            coarse: &self.coarse,
+            code: wake_flow_scene::re_code,
+            arithmetic: self.arithmetic,
+            variants: &options.variants,
+            main_size: MAIN_SIZE,
+            capacity: &options.capacity,
+            learning_rates: &options.learning_rates,
+            train_seeds: &self.seeds.train,
+            evaluations: self.evaluations,
+            step_evaluations: STEP_EVALUATIONS,
+            pilot_divisor: PILOT_DIVISOR,
+            validation_evaluations: self.args.pick(VALIDATION_EVALUATIONS, 32),
+            schedule: LrSchedule::Cosine {
+                final_fraction: 0.1,
+            },
+            checkpoint: Some(4),
+            evaluation: Evaluation {
+                starts: &sizes.starts,
+                rollout: sizes.rollout,
+                long: sizes.long,
+                free_stream: [wake_flow_scene::U_IN, 0.0],
+            },
+            held_out_conditions: options.held_out_re.len(),
+            threads: self.threads,
+            validation_only: self.validation_only,
+            models: self.args.out.join("models"),
+            card,
+            // The staircase and inscribed bodies make the pinned faces'
+            // error zero by construction.
+            pinned_must_vanish: (sizes.body != Body::Cylinder).then(|| sizes.body.label()),
+        }
+    }
+
     /// A corrector of `size` on the coarse scene, drawn from training seed
     /// `seed`.
     fn new_net(&self, size: NetSize, seed: u64) -> wake_flow_scene::Result<(Net, Params<f64>)> {
@@ -216,22 +246,6 @@ impl Ctx {
     }
 }
 
-/// The selected SOL corrector of the first data seed: its parameters and size.
-type Probe = (Params<f64>, NetSize);
-
-/// What the phases record for the report: the study's log, the held-out
-/// figures and the scene's own measurements.
-#[derive(Default)]
-struct Record {
-    log: Log,
-    results: Results,
-    /// The capacity sweep's held-out figures (100 steps, long) of `non` and
-    /// the first SOL variant (`sol`) at every size.
-    capacity: Sweep,
-    sigma_used: f64,
-    pinned_face_error: serde_json::Map<String, Value>,
-}
-
 fn main() -> Result<(), BoxError> {
     let run_start = Instant::now();
     let cli: Cli = common::parse_args("wake_flow")?;
@@ -241,10 +255,9 @@ fn main() -> Result<(), BoxError> {
         None => {}
     }
     let ctx = Ctx::new(&cli)?;
-    let mut rec = Record {
-        capacity: Sweep::new(&["", "long"]),
-        ..Record::default()
-    };
+    let mut rec = Record::default();
+    let card = |size| model::card(&ctx.sizes, size, ctx.arithmetic);
+    let setup = ctx.setup(&card);
     let mut speed_inputs = None;
     let mut params_count = serde_json::Map::new();
     for size in std::iter::once(MAIN_SIZE).chain(ctx.options.capacity.iter().copied()) {
@@ -253,8 +266,10 @@ fn main() -> Result<(), BoxError> {
     }
     for &ds in &ctx.seeds.data {
         let splits = references(&ctx, ds)?;
-        let (train, validation, sigma) = untrained(&ctx, ds, &splits, &mut rec)?;
-        let probe = protocol(&ctx, ds, &splits, (&train, &validation), sigma, &mut rec)?;
+        let (train, validation, sigma) = setup.untrained(ds, &splits, &mut rec)?;
+        mem("src");
+        let probe = setup.protocol(ds, &splits, (&train, &validation), sigma, &mut rec)?;
+        mem("held-out");
         if speed_inputs.is_none() {
             speed_inputs = Some((splits, probe));
         }

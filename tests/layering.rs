@@ -31,6 +31,7 @@ const ALLOWED: &[(&str, &[&str])] = &[
             "diffphys-nn",
             "diffphys-learn",
             "diffphys-flow",
+            "diffphys-report",
         ],
     ),
     (

@@ -81,18 +81,6 @@ pub enum WakeError {
         /// What is wrong.
         message: String,
     },
-    /// The reference carries flow on faces the coarse solver pins although
-    /// the body was built so that it cannot ([`Body::Staircase`],
-    /// [`Body::Inscribed`]).
-    #[error("the reference carries flow on faces the coarse solver pins (relative {error:.3e} at Re {re}) although the {body} body was built to rule that out")]
-    PinnedFaces {
-        /// The body.
-        body: &'static str,
-        /// The Reynolds number.
-        re: f64,
-        /// The pinned-face error.
-        error: f64,
-    },
     /// The learning library refused (empty split, unroll 0, corrector shape, …).
     #[error(transparent)]
     Learn(#[from] LearnError),

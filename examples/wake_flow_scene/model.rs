@@ -12,7 +12,7 @@ use diffphys::nn::Arithmetic;
 use serde_json::{json, Map, Value};
 
 use super::data::{self, base_state, reference, Bump, Reference};
-use super::study::{held_out_re, HeldOutRun};
+use super::study::held_out_re;
 use super::{
     advection_label, arithmetic_label, net, reference_scene, splitting_label, uncorrected, Coarse,
     NetSize, Result, Sizes, WakeError, RE_CENTRE,
@@ -41,25 +41,6 @@ pub fn card(sizes: &Sizes, size: NetSize, arithmetic: Arithmetic) -> ModelCard {
         .setting("corrector", size.label())
         .setting("network_arithmetic", arithmetic_label(arithmetic))
         .setting("re_centre", RE_CENTRE)
-}
-
-/// Per Reynolds number, the held-out figures of one run:
-/// `{"Re": {"mean": .., "long": ..}}`.
-pub fn per_re_json(run: &HeldOutRun) -> Value {
-    run.per_re
-        .iter()
-        .map(|r| {
-            let errors = json!({"mean": r.mean, "long": r.long, "deviation": r.deviation,
-                                "vorticity": r.vorticity});
-            (r.re.to_string(), errors)
-        })
-        .collect::<Map<String, Value>>()
-        .into()
-}
-
-/// A saved model's directory name: `sol_4_w16b2_data1_seed2`.
-pub fn dir_name(variant: &str, size: NetSize, data_seed: u64, seed: u64) -> String {
-    format!("{variant}_{}_data{data_seed}_seed{seed}", size.label())
 }
 
 /// What `wake_flow evaluate` is asked.

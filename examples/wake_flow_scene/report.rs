@@ -26,7 +26,7 @@ pub(crate) fn report(
         log,
         results,
         capacity: capacity_runs,
-        sigma_used,
+        sigma: sigma_used,
         pinned_face_error,
     } = rec;
     println!(
@@ -204,56 +204,4 @@ fn floors(options: &Options, results: &Results, capacity_runs: &Sweep) -> (Value
         "peak_rss_under_2_gib": common::peak_rss_bytes().map(|b| b < 2 << 30),
     });
     (floors, capacity)
-}
-
-/// The held-out metrics: the state's relative L2 error over the rollouts
-/// (the primary one), over the long rollout, the deviation's and the
-/// vorticity's.
-const STATE: &str = "state";
-const LONG: &str = "long";
-const DEVIATION: &str = "deviation";
-const VORTICITY: &str = "vorticity";
-
-/// The held-out figures of every run, and the long rollouts' last states
-/// at the first held-out Re (one per method).
-pub(crate) struct Results {
-    pub(crate) figures: Figures,
-    pub(crate) last: BTreeMap<String, FlowState<f64>>,
-}
-
-impl Default for Results {
-    fn default() -> Self {
-        Results {
-            figures: Figures::new(&[STATE, LONG, DEVIATION, VORTICITY]),
-            last: BTreeMap::new(),
-        }
-    }
-}
-
-impl Results {
-    pub(crate) fn record(
-        &mut self,
-        name: &str,
-        ds: u64,
-        ts: Option<u64>,
-        run: &HeldOutRun,
-    ) -> Result<(), BoxError> {
-        let per_re: Vec<(String, Vec<f64>)> = run
-            .per_re
-            .iter()
-            .map(|r| {
-                (
-                    format!("{}", r.re),
-                    vec![r.mean, r.long, r.deviation, r.vorticity],
-                )
-            })
-            .collect();
-        self.figures.add(name, (ds, ts), &per_re, run.curve())?;
-        if let Some(r) = run.per_re.first() {
-            self.last
-                .entry(name.to_string())
-                .or_insert_with(|| r.last.clone());
-        }
-        Ok(())
-    }
 }

@@ -25,34 +25,6 @@ use super::{
     FACTOR, U_IN,
 };
 
-/// One model's held-out rollouts at every held-out Reynolds number.
-#[derive(Debug, Clone)]
-pub struct HeldOutRun {
-    /// Per Reynolds number.
-    pub per_re: Vec<Rollouts>,
-}
-
-impl HeldOutRun {
-    /// The mean over the Reynolds numbers of the rollout error.
-    pub fn mean(&self) -> f64 {
-        self.per_re.iter().map(|r| r.mean).sum::<f64>() / self.per_re.len().max(1) as f64
-    }
-
-    /// The same for the long rollout.
-    pub fn long_mean(&self) -> f64 {
-        self.per_re.iter().map(|r| r.long).sum::<f64>() / self.per_re.len().max(1) as f64
-    }
-
-    /// The per-step error, mean over the Reynolds numbers.
-    pub fn curve(&self) -> Vec<f64> {
-        let n = self.per_re.len().max(1) as f64;
-        let steps = self.per_re.first().map_or(0, |r| r.curve.len());
-        (0..steps)
-            .map(|t| self.per_re.iter().map(|r| r.curve[t]).sum::<f64>() / n)
-            .collect()
-    }
-}
-
 /// The rollouts of the hybrid (`params = None`: the coarse solver alone) on
 /// one held-out reference ([`evaluate`]): `rollout` steps from each start,
 /// and the long rollout from step 0.

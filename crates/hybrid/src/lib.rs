@@ -50,6 +50,7 @@ pub mod metrics;
 pub mod reference;
 mod simulator;
 pub mod speed;
+pub mod study;
 
 pub use corrector::{LatticeNet, NetSize, ParamCode};
 pub use simulator::{free_faces, sample, FlowSimulator};
@@ -76,6 +77,17 @@ pub enum HybridError {
         what: &'static str,
         /// What is wrong.
         message: String,
+    },
+    /// The reference carries flow on faces the coarse solver pins although
+    /// the body was built so that it cannot.
+    #[error("the reference carries flow on faces the coarse solver pins (relative {error:.3e} at Re {re}) although the {body} body was built to rule that out")]
+    PinnedFaces {
+        /// The body.
+        body: &'static str,
+        /// The Reynolds number.
+        re: f64,
+        /// The pinned-face error.
+        error: f64,
     },
     /// The learning library refused.
     #[error(transparent)]

@@ -1,0 +1,156 @@
+//! What a hybrid flow study keeps for its report: each model's held-out
+//! rollouts per Reynolds number ([`HeldOutRun`]), every run's figures under
+//! the four held-out metrics ([`Results`]), and the whole record of a run
+//! ([`Record`]: the study's log, the results, the capacity sweep, the noise
+//! scale and the pinned-face error).
+
+use std::collections::BTreeMap;
+
+use diffphys_flow::FlowState;
+use diffphys_learn::study::{Log, Sweep};
+use diffphys_learn::Figures;
+use serde_json::{json, Map, Value};
+
+use crate::reference::Rollouts;
+use crate::{NetSize, Result};
+
+/// The held-out metrics: the state's relative L2 error over the rollouts
+/// (the first, primary one), over the long rollout, the deviation's from the
+/// free stream and the vorticity's.
+pub const METRICS: [&str; 4] = [STATE, LONG, DEVIATION, VORTICITY];
+/// The state's relative L2 error over the short rollouts.
+pub const STATE: &str = "state";
+/// The state's relative L2 error over the long rollout.
+pub const LONG: &str = "long";
+/// The relative L2 error of the velocity's deviation from the free stream.
+pub const DEVIATION: &str = "deviation";
+/// The vorticity's relative L2 error.
+pub const VORTICITY: &str = "vorticity";
+
+/// One model's held-out rollouts at every held-out Reynolds number.
+#[derive(Debug, Clone)]
+pub struct HeldOutRun {
+    /// Per Reynolds number.
+    pub per_re: Vec<Rollouts>,
+}
+
+impl HeldOutRun {
+    /// The mean over the Reynolds numbers of the rollout error.
+    pub fn mean(&self) -> f64 {
+        self.per_re.iter().map(|r| r.mean).sum::<f64>() / self.per_re.len().max(1) as f64
+    }
+
+    /// The same for the long rollout.
+    pub fn long_mean(&self) -> f64 {
+        self.per_re.iter().map(|r| r.long).sum::<f64>() / self.per_re.len().max(1) as f64
+    }
+
+    /// The per-step error, mean over the Reynolds numbers.
+    pub fn curve(&self) -> Vec<f64> {
+        let n = self.per_re.len().max(1) as f64;
+        let steps = self.per_re.first().map_or(0, |r| r.curve.len());
+        (0..steps)
+            .map(|t| self.per_re.iter().map(|r| r.curve[t]).sum::<f64>() / n)
+            .collect()
+    }
+
+    /// Per Reynolds number, the four figures:
+    /// `{"Re": {"mean": .., "long": .., "deviation": .., "vorticity": ..}}`.
+    pub fn per_re_json(&self) -> Value {
+        self.per_re
+            .iter()
+            .map(|r| {
+                let errors = json!({"mean": r.mean, "long": r.long, "deviation": r.deviation,
+                                    "vorticity": r.vorticity});
+                (r.re.to_string(), errors)
+            })
+            .collect::<Map<String, Value>>()
+            .into()
+    }
+}
+
+/// The held-out figures of every run under [`METRICS`], and the long
+/// rollouts' last states at the first held-out Re (one per method).
+#[derive(Debug, Clone)]
+pub struct Results {
+    /// Every run's figures, overall and per Reynolds number.
+    pub figures: Figures,
+    /// Method → the long rollout's last state at the first held-out Re.
+    pub last: BTreeMap<String, FlowState<f64>>,
+}
+
+impl Default for Results {
+    fn default() -> Self {
+        Results {
+            figures: Figures::new(&METRICS),
+            last: BTreeMap::new(),
+        }
+    }
+}
+
+impl Results {
+    /// Records `run` of `name` from data seed `ds` and training seed `ts`.
+    ///
+    /// # Errors
+    /// [`crate::HybridError::Learn`] for a run without a Reynolds number.
+    pub fn record(&mut self, name: &str, ds: u64, ts: Option<u64>, run: &HeldOutRun) -> Result<()> {
+        let per_re: Vec<(String, Vec<f64>)> = run
+            .per_re
+            .iter()
+            .map(|r| {
+                (
+                    format!("{}", r.re),
+                    vec![r.mean, r.long, r.deviation, r.vorticity],
+                )
+            })
+            .collect();
+        self.figures.add(name, (ds, ts), &per_re, run.curve())?;
+        if let Some(r) = run.per_re.first() {
+            self.last
+                .entry(name.to_string())
+                .or_insert_with(|| r.last.clone());
+        }
+        Ok(())
+    }
+
+    /// The summary over its runs of every method under `metric`.
+    pub fn summaries(&self, metric: &str) -> Map<String, Value> {
+        self.figures
+            .report(metric)
+            .map(|r| r.summaries())
+            .unwrap_or_default()
+    }
+}
+
+/// A study's record over every data seed.
+#[derive(Debug, Clone)]
+pub struct Record {
+    /// The trainings, selections and held-out readings.
+    pub log: Log,
+    /// The held-out figures.
+    pub results: Results,
+    /// The capacity sweep's held-out figures (100 steps, long) of `non` and
+    /// the first SOL variant (`sol`) at every size.
+    pub capacity: Sweep,
+    /// The input noise of `noise` (the last data seed's).
+    pub sigma: f64,
+    /// Data seed → Re → the error on the faces the coarse step pins.
+    pub pinned_face_error: Map<String, Value>,
+}
+
+impl Default for Record {
+    fn default() -> Self {
+        Record {
+            log: Log::default(),
+            results: Results::default(),
+            capacity: Sweep::new(&["", "long"]),
+            sigma: 0.0,
+            pinned_face_error: Map::new(),
+        }
+    }
+}
+
+/// A saved model's directory name: `sol_4_w16b2_data1_seed2`.
+pub fn dir_name(variant: &str, size: NetSize, data_seed: u64, seed: u64) -> String {
+    format!("{variant}_{}_data{data_seed}_seed{seed}", size.label())
+}

@@ -83,7 +83,8 @@ pub(crate) fn speed_study(
         let (net0, _) = new_net(size, 0)?;
         let hybrid: Wake = Hybrid::new(coarse.clone(), net0);
         let params = probe.as_ref().map(|p| &p.0);
-        let speed_on = |refs: &[Reference]| study::speed(&hybrid, params, refs, sizes);
+        let speed_on =
+            |refs: &[Reference]| study::speed(&hybrid, params, refs, sizes, &ctx.args.out);
         speed = if ctx.validation_only {
             speed_on(&splits.validation)?
         } else {

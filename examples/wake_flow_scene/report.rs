@@ -43,7 +43,6 @@ pub(crate) fn report(
         &args.out,
         &results.figures,
         &capacity_runs,
-        &speed,
         &results.last,
         coarse.scene(),
         options.unrolls().first().copied(),

@@ -9,13 +9,11 @@ use std::time::Instant;
 use diffphys::flow::diagnostics::vorticity;
 use diffphys::flow::{FlowParams, FlowState, PressureSolver, Scene};
 use diffphys::hybrid::reference::{evaluate, Evaluation, Rollouts};
-use diffphys::hybrid::speed::{self, Case};
+use diffphys::hybrid::speed;
 use diffphys::learn::study::Sweep;
 use diffphys::learn::{Corrector, Figures, Hybrid};
 use diffphys::nn::Params;
-use diffphys::report::chart::{
-    heatmap_panels_svg, line_chart_svg, HeatmapPanels, LineChart, Outline, Series,
-};
+use diffphys::report::chart::{heatmap_panels_svg, HeatmapPanels, Outline};
 use ndarray::Array2;
 use serde_json::{json, Value};
 
@@ -46,34 +44,11 @@ pub fn held_out_re<C: Corrector + 'static>(
     Ok(evaluate(hybrid, params, r, &e)?)
 }
 
-/// The speed study's rollouts: from each speed start of each reference,
-/// the rollout's steps.
-fn speed_cases<'a>(refs: &'a [Reference], sizes: &Sizes) -> Result<Vec<Case<'a>>> {
-    let mut cases = Vec::new();
-    for r in refs {
-        for &start in &sizes.speed_starts {
-            let k = sizes
-                .starts
-                .iter()
-                .position(|&s| s == start)
-                .ok_or_else(|| WakeError::Output(format!("speed start {start} is not a start")))?;
-            let (fx, fy) = &r.fine_starts[k];
-            cases.push(Case {
-                viscosity: viscosity(r.re),
-                fine_start: (fx.view(), fy.view()),
-                fine_factor: FACTOR,
-                coarse_start: &r.states[start],
-                targets: &r.states[start + 1..=start + sizes.rollout],
-            });
-        }
-    }
-    Ok(cases)
-}
-
 /// Speed against accuracy on the held-out references: the uncorrected solver
 /// at 1×, 2× and 4× the coarse resolution, the reference's scheme at 1×, 2×
 /// and 4× (the honest "just run a finer grid"), and the corrected coarse
-/// solver (the selected SOL corrector of the first training seed).
+/// solver (the selected SOL corrector of the first training seed); the chart
+/// `speed_accuracy.svg` in `out`.
 ///
 /// # Errors
 /// Whatever the solvers return.
@@ -82,62 +57,53 @@ pub fn speed<C: Corrector + 'static>(
     corrector: Option<&Params<f64>>,
     refs: &[Reference],
     sizes: &Sizes,
+    out: &Path,
 ) -> Result<Value> {
-    let cases = speed_cases(refs, sizes)?;
+    let starts = (&sizes.starts[..], &sizes.speed_starts[..]);
+    let cases = speed::cases(refs, starts, FACTOR, sizes.rollout)?;
     let coarse = hybrid.simulator().scene().grid();
-    let row = |solver: String, level: usize, t: speed::Timed| json!({"solver": solver, "level": level, "rel_error": t.rel_error, "ms_per_step": t.seconds_per_step * 1e3});
     let cells = |level: usize| format!("{} x {}", level * sizes.ny, level * sizes.nx);
-    let mut rows = vec![row(
-        format!("uncorrected {}", cells(1)),
-        1,
-        speed::corrected(hybrid, None, &cases)?,
-    )];
+    let mut table = speed::Table::default();
+    let uncorrected_1 = format!("uncorrected {}", cells(1));
+    table.push(&uncorrected_1, 1, speed::corrected(hybrid, None, &cases)?);
     for level in [2, 4] {
         let scene = uncorrected(sizes, level, PressureSolver::Cholesky)?;
         let t = speed::finer(&scene, level, coarse, &cases)?;
-        rows.push(row(format!("uncorrected {}", cells(level)), level, t));
+        table.push(format!("uncorrected {}", cells(level)), level, t);
     }
     for level in [1, 2, 4] {
         let scene = reference_scene_at(sizes, level)?;
         let t = speed::finer(&scene, level, coarse, &cases)?;
-        rows.push(row(format!("reference scheme {}", cells(level)), level, t));
+        table.push(format!("reference scheme {}", cells(level)), level, t);
     }
-    if let Some(p) = corrector {
-        let t = speed::corrected(hybrid, Some(p), &cases)?;
-        rows.push(row(format!("corrected {} (selected SOL)", cells(1)), 1, t));
-    }
-    for r in &rows {
-        println!(
-            "  speed: {:<40} error {:.4}, {:.2} ms per step",
-            r["solver"].as_str().unwrap_or(""),
-            r["rel_error"].as_f64().unwrap_or(f64::NAN),
-            r["ms_per_step"].as_f64().unwrap_or(f64::NAN)
-        );
-    }
-    let figures = |r: &Value| {
-        (
-            r["rel_error"].as_f64().unwrap_or(f64::NAN),
-            r["ms_per_step"].as_f64().unwrap_or(f64::NAN),
-        )
+    let verdict = match corrector {
+        Some(p) => {
+            let c = speed::corrected(hybrid, Some(p), &cases)?;
+            table.push(format!("corrected {} (selected SOL)", cells(1)), 1, c);
+            let of = |label: String| table.get(&label).map(|r| r.timed);
+            let (t, r) = (
+                of(format!("uncorrected {}", cells(2))),
+                of(format!("reference scheme {}", cells(2))),
+            );
+            let matched = (table.rows[..3].iter())
+                .find(|r| r.timed.rel_error <= c.rel_error)
+                .map(|r| r.solver.clone());
+            json!({
+                "corrected_beats_2x_in_error": t.map(|t| c.rel_error < t.rel_error),
+                "corrected_beats_2x_in_time": t.map(|t| c.seconds_per_step < t.seconds_per_step),
+                "corrected_beats_reference_scheme_2x_in_error": r.map(|r| c.rel_error < r.rel_error),
+                "corrected_beats_reference_scheme_2x_in_time": r.map(|r| c.seconds_per_step < r.seconds_per_step),
+                "first_uncorrected_resolution_at_or_below_corrected_error": matched,
+            })
+        }
+        None => Value::Null,
     };
-    let verdict = corrector.map(|_| {
-        let (ce, ct) = figures(&rows[rows.len() - 1]);
-        let (te, tt) = figures(&rows[1]);
-        let (re, rt) = figures(&rows[4]);
-        let matched = rows[..3]
-            .iter()
-            .find(|r| r["rel_error"].as_f64().unwrap_or(f64::INFINITY) <= ce)
-            .map(|r| r["solver"].clone());
-        json!({
-            "corrected_beats_2x_in_error": ce < te,
-            "corrected_beats_2x_in_time": ct < tt,
-            "corrected_beats_reference_scheme_2x_in_error": ce < re,
-            "corrected_beats_reference_scheme_2x_in_time": ct < rt,
-            "first_uncorrected_resolution_at_or_below_corrected_error": matched,
-        })
-    });
+    table.chart(
+        &out.join("speed_accuracy.svg"),
+        "Held-out error against wall time per step",
+    )?;
     Ok(json!({
-        "rows": rows,
+        "rows": table.rows_json(),
         "verdict": verdict,
         "rollout_steps": sizes.rollout,
         "starts": sizes.speed_starts,
@@ -241,14 +207,12 @@ pub fn pressure_solves(sizes: &Sizes, re: f64) -> Result<Value> {
 }
 
 /// The charts: `relative_error.svg` (held-out error per step), `capacity.svg`
-/// (error against corrector size, 100 steps and long), `speed_accuracy.svg`,
-/// and `vorticity_{name}.svg` of the long rollouts' last states at the first
+/// (error against corrector size, 100 steps and long), and `vorticity_{name}.svg` of the long rollouts' last states at the first
 /// held-out Re.
 pub fn charts(
     out: &Path,
     figures: &Figures,
     capacity: &Sweep,
-    speed: &Value,
     last: &BTreeMap<String, FlowState<f64>>,
     coarse: &Scene,
     sol: Option<usize>,
@@ -269,34 +233,6 @@ pub fn charts(
         "Held-out error against corrector size (mean over Re and seeds)",
         &lines,
     )?;
-    if let Some(rows) = speed["rows"].as_array() {
-        let series: Vec<Series> = rows
-            .iter()
-            .map(|r| {
-                Series::new(
-                    r["solver"].as_str().unwrap_or("?").to_string(),
-                    vec![(
-                        r["ms_per_step"].as_f64().unwrap_or(f64::NAN),
-                        r["rel_error"].as_f64().unwrap_or(f64::NAN),
-                    )],
-                )
-            })
-            .collect();
-        if !series.is_empty() {
-            line_chart_svg(
-                &out.join("speed_accuracy.svg"),
-                &LineChart {
-                    title: "Held-out error against wall time per step",
-                    x_label: "ms per step (network included)",
-                    y_label: "mean relative L2 error over the rollout",
-                    log_x: true,
-                    log_y: true,
-                    series: &series,
-                },
-            )
-            .map_err(e)?;
-        }
-    }
     write_vorticity(out, last, coarse).map_err(e)?;
     Ok(())
 }

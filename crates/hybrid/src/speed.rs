@@ -20,7 +20,11 @@ use diffphys_learn::{Corrector, Hybrid, State};
 use diffphys_nn::Params;
 use ndarray::{ArrayView2, Axis, Ix2};
 
+use diffphys_report::chart::{line_chart_svg, LineChart, Series};
+use serde_json::{json, Value};
+
 use crate::metrics::velocity_error;
+use crate::reference::Reference;
 use crate::{FlowSimulator, HybridError, Result};
 
 /// One rollout of the study.
@@ -140,5 +144,130 @@ fn shape(e: ndarray::ShapeError) -> HybridError {
     HybridError::Trajectory {
         what: "speed study",
         message: format!("a velocity field that is not 2-D: {e}"),
+    }
+}
+
+/// The cases of a study on `refs`: from each of `speed_starts` (each one of
+/// the references' recorded `starts`, whose fine states they keep, on a grid
+/// `factor` × the coarse one), `rollout` coarse steps.
+///
+/// # Errors
+/// [`HybridError::Trajectory`] for a speed start that is not a recorded
+/// start, or a reference too short for the rollout.
+pub fn cases<'a>(
+    refs: &'a [Reference],
+    (starts, speed_starts): (&[usize], &[usize]),
+    factor: usize,
+    rollout: usize,
+) -> Result<Vec<Case<'a>>> {
+    let trajectory = |message: String| HybridError::Trajectory {
+        what: "speed study",
+        message,
+    };
+    let mut cases = Vec::new();
+    for r in refs {
+        for &start in speed_starts {
+            let k = (starts.iter().position(|&s| s == start))
+                .filter(|&k| k < r.fine_starts.len())
+                .ok_or_else(|| {
+                    trajectory(format!("speed start {start} is not a recorded start"))
+                })?;
+            let targets = r.states.get(start + 1..=start + rollout).ok_or_else(|| {
+                trajectory(format!(
+                    "a reference of {} states has no {rollout} steps from {start}",
+                    r.states.len()
+                ))
+            })?;
+            let (fx, fy) = &r.fine_starts[k];
+            cases.push(Case {
+                viscosity: r.viscosity,
+                fine_start: (fx.view(), fy.view()),
+                fine_factor: factor,
+                coarse_start: &r.states[start],
+                targets,
+            });
+        }
+    }
+    Ok(cases)
+}
+
+/// One solver's row of a speed study.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Row {
+    /// What the solver is (`"uncorrected 64 x 128"`).
+    pub solver: String,
+    /// Its resolution over the coarse one.
+    pub level: usize,
+    /// What it measured.
+    pub timed: Timed,
+}
+
+/// A speed study's rows, in the order they were measured.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Table {
+    /// The rows.
+    pub rows: Vec<Row>,
+}
+
+impl Table {
+    /// Adds a row and prints it.
+    pub fn push(&mut self, solver: impl Into<String>, level: usize, timed: Timed) {
+        let solver = solver.into();
+        println!(
+            "  speed: {solver:<40} error {:.4}, {:.2} ms per step",
+            timed.rel_error,
+            timed.seconds_per_step * 1e3
+        );
+        self.rows.push(Row {
+            solver,
+            level,
+            timed,
+        });
+    }
+
+    /// The row of `solver`.
+    pub fn get(&self, solver: &str) -> Option<&Row> {
+        self.rows.iter().find(|r| r.solver == solver)
+    }
+
+    /// The rows as JSON: `[{"solver", "level", "rel_error", "ms_per_step"}]`.
+    pub fn rows_json(&self) -> Value {
+        self.rows
+            .iter()
+            .map(|r| {
+                json!({"solver": r.solver, "level": r.level, "rel_error": r.timed.rel_error,
+                       "ms_per_step": r.timed.seconds_per_step * 1e3})
+            })
+            .collect()
+    }
+
+    /// Error against wall time per step, one point per row (log-log), at
+    /// `path`; nothing is written without rows.
+    ///
+    /// # Errors
+    /// [`HybridError::Learn`] (a report error) if the chart cannot be
+    /// written.
+    pub fn chart(&self, path: &std::path::Path, title: &str) -> Result<()> {
+        let series: Vec<Series> = (self.rows.iter())
+            .map(|r| {
+                let point = (r.timed.seconds_per_step * 1e3, r.timed.rel_error);
+                Series::new(r.solver.clone(), vec![point])
+            })
+            .collect();
+        if series.is_empty() {
+            return Ok(());
+        }
+        line_chart_svg(
+            path,
+            &LineChart {
+                title,
+                x_label: "ms per step (network included)",
+                y_label: "mean relative L2 error over the rollout",
+                log_x: true,
+                log_y: true,
+                series: &series,
+            },
+        )
+        .map_err(|e| HybridError::Learn(e.into()))
     }
 }

@@ -375,6 +375,30 @@ fn a_reference_records_restricts_round_trips_and_scores_a_rollout() {
     assert_eq!((alone.mean, alone.long, alone.deviation), (0.0, 0.0, 0.0));
     assert_eq!(alone.curve.len(), 3);
     assert_eq!(alone.last.ux, r.states[6].ux);
+    // The speed study's cases come from the recorded starts; the solver alone
+    // is exact on them, and a start that was not recorded, or a rollout past
+    // the record, is refused.
+    use diffphys_hybrid::speed::{cases, corrected, Table};
+    let c = cases(std::slice::from_ref(&r), (&[0, 2], &[2]), 1, 3).unwrap();
+    assert_eq!((c.len(), c[0].targets.len()), (1, 3));
+    assert_eq!(c[0].targets[0], r.states[3]);
+    let timed = corrected(&hybrid, None, &c).unwrap();
+    assert_eq!(timed.rel_error, 0.0);
+    for (speed_starts, rollout) in [(&[1][..], 3), (&[2][..], 5)] {
+        assert!(matches!(
+            cases(
+                std::slice::from_ref(&r),
+                (&[0, 2], speed_starts),
+                1,
+                rollout
+            ),
+            Err(HybridError::Trajectory { .. })
+        ));
+    }
+    let mut table = Table::default();
+    table.push("alone", 1, timed);
+    assert_eq!(table.get("alone").map(|row| row.level), Some(1));
+    assert_eq!(table.rows_json()[0]["rel_error"], 0.0);
     // A corrector that moves the state scores above zero.
     let mut moved = Params::new();
     for (name, v) in params.names().iter().zip(params.values()) {

@@ -8,9 +8,7 @@
 //! the mean drag coefficient, the lift's periods (has the shedding settled?)
 //! and the Strouhal number from them.
 
-use diffphys::flow::diagnostics::obstacle_force;
-use diffphys::flow::validation::Shedding;
-use diffphys::flow::{FlowState, Scene};
+use diffphys::hybrid::convergence::{Level, Windows};
 use diffphys::learn::study::run_jobs;
 use diffphys::learn::{DataSeed, Split};
 use diffphys::report::progress_bar;
@@ -18,89 +16,10 @@ use serde_json::{json, Value};
 
 use super::data::{start_state, Bump};
 use super::{
-    reference_scene_at, uncorrected, viscosity, Options, Result, Sizes, WakeError, DIAMETER,
-    FACTOR, U_IN,
+    reference_scene_at, uncorrected, viscosity, Options, Result, Sizes, DIAMETER, FACTOR, U_IN,
 };
 use diffphys::flow::PressureSolver;
-use diffphys::hybrid::metrics::{deviation_error, velocity_error};
-use diffphys::hybrid::reference::{advance, Recorder};
-
-/// One level's recorded window at one Re: the velocities restricted to the
-/// coarse grid, and the force coefficients after each coarse step.
-struct Window {
-    states: Vec<FlowState<f64>>,
-    /// `(c_D, c_L)` at each recorded state, `2 F / (U² D)`.
-    forces: Vec<[f64; 2]>,
-}
-
-/// Views of a sample's fields.
-fn views(fields: &[ndarray::ArrayD<f64>]) -> Vec<ndarray::ArrayViewD<'_, f64>> {
-    fields.iter().map(|a| a.view()).collect()
-}
-
-/// The scenes of one level: its factor and its solver.
-struct Level {
-    factor: usize,
-    fine: Scene,
-}
-
-/// `record` coarse steps of `level` at `re` after `warm` from `base`.
-fn window(
-    sizes: &Sizes,
-    coarse: &Scene,
-    level: &Level,
-    base: &FlowState<f64>,
-    re: f64,
-    tick: &(dyn Fn(u64) + Sync),
-) -> Result<Window> {
-    let nu = viscosity(re);
-    let scale = 2.0 / (U_IN * U_IN * DIAMETER);
-    let mut forces = Vec::new();
-    let recorder = Recorder {
-        fine: &level.fine,
-        coarse,
-        factor: level.factor,
-        warm: sizes.warm,
-        record: sizes.record,
-        starts: &[],
-    };
-    let reference = recorder.record(base, (re, nu), tick, &mut |s| {
-        let f = obstacle_force(
-            level.fine.force_weights(),
-            s.ux.view(),
-            s.uy.view(),
-            s.pressure.view(),
-            nu,
-        )?;
-        forces.push([scale * f[0], scale * f[1]]);
-        Ok(())
-    })?;
-    Ok(Window {
-        states: reference.states,
-        forces,
-    })
-}
-
-/// A level's forces over the window: mean drag, lift amplitude, the lift's
-/// periods and the Strouhal number `D / (U T̄)` (null with fewer than two
-/// up-crossings).
-fn forces_json(w: &Window, dt: f64) -> Value {
-    let n = w.forces.len().max(1) as f64;
-    let cl = w.forces.iter().map(|f| f[1]);
-    let amplitude =
-        0.5 * (cl.clone().fold(f64::NEG_INFINITY, f64::max) - cl.fold(f64::INFINITY, f64::min));
-    let times: Vec<f64> = (0..w.forces.len()).map(|k| k as f64 * dt).collect();
-    let lift: Vec<f64> = w.forces.iter().map(|f| f[1]).collect();
-    let shedding = Shedding::of(&times, &lift);
-    let strouhal = shedding.strouhal(DIAMETER, U_IN);
-    json!({
-        "mean_cd": w.forces.iter().map(|f| f[0]).sum::<f64>() / n,
-        "cl_amplitude": amplitude,
-        "lift_periods": shedding.periods,
-        "settled_to_1_percent": shedding.settled(0.01),
-        "strouhal": strouhal,
-    })
-}
+use diffphys::hybrid::reference::advance;
 
 /// The convergence check of `options`' train, validation and held-out Re
 /// (data seed `data_seed`'s draws), on `options.threads` workers.
@@ -158,40 +77,23 @@ pub fn check(options: &Options, sizes: &Sizes, data_seed: u64) -> Result<Value> 
                 .flat_map(move |&re| (0..n).map(move |l| (i, re, l)))
         })
         .collect();
+    let w = Windows {
+        coarse: &coarse,
+        warm: sizes.warm,
+        record: sizes.record,
+        free_stream: [U_IN, 0.0],
+        length: DIAMETER,
+    };
     let windows = run_jobs(&jobs, options.threads, |&(i, re, l)| {
         let base = &base_states[i * levels.len() + l];
-        window(sizes, &coarse, &levels[l], base, re, &tick)
+        w.window(&levels[l], base, (re, viscosity(re)), &tick)
     })?;
     bar.finish_and_clear();
     let mut per_re = Vec::new();
     for (pair, level_windows) in jobs.chunks(levels.len()).zip(windows.chunks(levels.len())) {
         let (i, re, _) = pair[0];
         let (ours, finer) = (&level_windows[0], &level_windows[1]);
-        let steps = 1..ours.states.len();
-        let state: f64 = steps
-            .clone()
-            .map(|t| {
-                let s = &ours.states[t];
-                velocity_error((&s.ux, &s.uy), &finer.states[t])
-            })
-            .sum::<f64>()
-            / steps.len() as f64;
-        let deviation: f64 = steps
-            .clone()
-            .map(|t| {
-                let (p, r) = (
-                    coarse.sample_of(&ours.states[t]),
-                    coarse.sample_of(&finer.states[t]),
-                );
-                deviation_error(&coarse, [U_IN, 0.0], &views(&p), &views(&r))
-            })
-            .sum::<f64>()
-            / steps.len() as f64;
-        if !(state.is_finite() && deviation.is_finite()) {
-            return Err(WakeError::Output(format!(
-                "the reference at Re {re} and one level finer differ by a non-finite amount"
-            )));
-        }
+        let (state, deviation) = w.difference(ours, finer, re)?;
         println!(
             "  {:?} Re {re:>6}: reference against one level finer, state {state:.4}, deviation {deviation:.4}",
             splits[i].0
@@ -201,8 +103,8 @@ pub fn check(options: &Options, sizes: &Sizes, data_seed: u64) -> Result<Value> 
             "re": re,
             "state_difference": state,
             "deviation_difference": deviation,
-            format!("forces_{}x", levels[0].factor): forces_json(ours, sizes.dt),
-            format!("forces_{}x", levels[1].factor): forces_json(finer, sizes.dt),
+            format!("forces_{}x", levels[0].factor): ours.forces_json(sizes.dt, DIAMETER, U_IN),
+            format!("forces_{}x", levels[1].factor): finer.forces_json(sizes.dt, DIAMETER, U_IN),
         }));
     }
     Ok(json!({

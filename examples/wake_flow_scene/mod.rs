@@ -96,9 +96,6 @@ pub enum WakeError {
     /// The hybrid library refused (a corrector size, a trajectory).
     #[error(transparent)]
     Hybrid(#[from] diffphys::hybrid::HybridError),
-    /// Writing a chart or a file failed.
-    #[error("output: {0}")]
-    Output(String),
 }
 
 /// The scene's result type.

@@ -6,21 +6,20 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::time::Instant;
 
-use diffphys::flow::diagnostics::vorticity;
 use diffphys::flow::{FlowParams, FlowState, PressureSolver, Scene};
+use diffphys::hybrid::metrics::vorticity_chart;
 use diffphys::hybrid::reference::{evaluate, Evaluation, Rollouts};
 use diffphys::hybrid::speed;
 use diffphys::learn::study::Sweep;
 use diffphys::learn::{Corrector, Figures, Hybrid};
 use diffphys::nn::Params;
-use diffphys::report::chart::{heatmap_panels_svg, HeatmapPanels, Outline};
 use ndarray::Array2;
 use serde_json::{json, Value};
 
 use super::data::Reference;
 use super::{
-    reference_scene_at, uncorrected, viscosity, Coarse, Result, Sizes, WakeError, CENTRE, DIAMETER,
-    FACTOR, U_IN,
+    reference_scene_at, uncorrected, viscosity, Coarse, Result, Sizes, CENTRE, DIAMETER, FACTOR,
+    U_IN,
 };
 
 /// The rollouts of the hybrid (`params = None`: the coarse solver alone) on
@@ -217,7 +216,6 @@ pub fn charts(
     coarse: &Scene,
     sol: Option<usize>,
 ) -> Result<()> {
-    let e = |e: diffphys::report::ReportError| WakeError::Output(e.to_string());
     // Nothing to draw without held-out runs (`--validation-only`).
     figures.curves_chart(
         &out.join("relative_error.svg"),
@@ -233,52 +231,13 @@ pub fn charts(
         "Held-out error against corrector size (mean over Re and seeds)",
         &lines,
     )?;
-    write_vorticity(out, last, coarse).map_err(e)?;
-    Ok(())
-}
-
-/// The vorticity after the long rollout at the first held-out Re: the
-/// reference and every solver side by side on one colour scale, streamwise to
-/// the right, the cylinder outlined (`vorticity.svg`).
-fn write_vorticity(
-    out: &Path,
-    last: &BTreeMap<String, FlowState<f64>>,
-    coarse: &Scene,
-) -> std::result::Result<(), diffphys::report::ReportError> {
-    let chart = |e: WakeError| diffphys::report::ReportError::Chart(e.to_string());
     // The reference first, then the solvers in the order of the report.
     let order = ["reference", "src", "non", "noise", "sol_selected"];
-    let mut names: Vec<&String> = last
-        .keys()
-        .filter(|n| order.contains(&n.as_str()))
+    let states: Vec<(&str, &FlowState<f64>)> = (order.iter())
+        .filter_map(|&n| Some((n, last.get(n)?)))
         .collect();
-    names.sort_by_key(|n| order.iter().position(|o| o == n));
-    let mut fields = Vec::new();
-    for name in names {
-        let s = &last[name];
-        let w = vorticity(coarse, s.ux.view(), s.uy.view()).map_err(|e| chart(e.into()))?;
-        fields.push((name.as_str(), w));
-    }
-    if fields.is_empty() {
-        return Ok(());
-    }
-    let g = coarse.grid();
-    // Vorticity lives on the inner nodes: index k is the node at (k + 1) h,
-    // drawn as the square [k, k + 1].
-    let outline = Outline {
-        centre: (CENTRE[0] / g.dx - 0.5, CENTRE[1] / g.dy - 0.5),
-        radius: 0.5 * DIAMETER / g.dx,
-    };
-    let panels: Vec<(&str, ndarray::ArrayView2<'_, f64>)> =
-        fields.iter().map(|(n, w)| (*n, w.view())).collect();
-    heatmap_panels_svg(
-        &out.join("vorticity.svg"),
-        &HeatmapPanels {
-            title: "Vorticity after the long rollout, first held-out Re",
-            panels: &panels,
-            axes: ["x (streamwise, node)", "y (node)"],
-            outline: Some(outline),
-            columns: 2,
-        },
-    )
+    let title = "Vorticity after the long rollout, first held-out Re";
+    let body = (CENTRE, 0.5 * DIAMETER);
+    vorticity_chart(&out.join("vorticity.svg"), title, &states, coarse, body)?;
+    Ok(())
 }

@@ -45,6 +45,7 @@
 //! ```
 #![warn(missing_docs)]
 
+pub mod convergence;
 mod corrector;
 pub mod metrics;
 pub mod reference;

@@ -81,3 +81,49 @@ pub fn velocity_error(u: (&Array2<f64>, &Array2<f64>), r: &FlowState<f64>) -> f6
     let one = |a: &Array2<f64>| a.clone().insert_axis(Axis(0)).into_dyn();
     relative_l2_fields(&[one(u.0), one(u.1)], &[one(&r.ux), one(&r.uy)])
 }
+
+/// The vorticity of `states` (each a label and a state of `scene`) side by
+/// side on one colour scale, streamwise to the right, two to a row, with a
+/// circle of `(centre, radius)` outlined (the body), at `path`;
+/// nothing is written without states.
+///
+/// # Errors
+/// [`crate::HybridError::Flow`] for a state of another grid;
+/// [`crate::HybridError::Learn`] (a report error) if the chart cannot be
+/// written.
+pub fn vorticity_chart(
+    path: &std::path::Path,
+    title: &str,
+    states: &[(&str, &FlowState<f64>)],
+    scene: &Scene,
+    (centre, radius): ([f64; 2], f64),
+) -> crate::Result<()> {
+    use diffphys_report::chart::{heatmap_panels_svg, HeatmapPanels, Outline};
+    let mut fields = Vec::new();
+    for (name, s) in states {
+        fields.push((*name, vorticity(scene, s.ux.view(), s.uy.view())?));
+    }
+    if fields.is_empty() {
+        return Ok(());
+    }
+    let g = scene.grid();
+    // Vorticity lives on the inner nodes: index k is the node at (k + 1) h,
+    // drawn as the square [k, k + 1].
+    let outline = Outline {
+        centre: (centre[0] / g.dx - 0.5, centre[1] / g.dy - 0.5),
+        radius: radius / g.dx,
+    };
+    let panels: Vec<(&str, ndarray::ArrayView2<'_, f64>)> =
+        fields.iter().map(|(n, w)| (*n, w.view())).collect();
+    heatmap_panels_svg(
+        path,
+        &HeatmapPanels {
+            title,
+            panels: &panels,
+            axes: ["x (streamwise, node)", "y (node)"],
+            outline: Some(outline),
+            columns: 2,
+        },
+    )
+    .map_err(|e| crate::HybridError::Learn(e.into()))
+}

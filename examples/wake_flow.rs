@@ -33,13 +33,12 @@ mod phases;
 mod report;
 mod wake_flow_scene;
 
-use std::collections::BTreeMap;
 use std::time::Instant;
 
 use diffphys::flow::PressureSolver;
 use diffphys::hybrid::reference::Evaluation;
-use diffphys::hybrid::study::{Probe, Record, Results, Setup, DEVIATION, LONG, STATE, VORTICITY};
-use diffphys::learn::study::{run_jobs, Sweep};
+use diffphys::hybrid::study::{Probe, Record, Setup};
+use diffphys::learn::study::run_jobs;
 use diffphys::learn::{DataSeed, Hybrid, LrSchedule, ModelCard, Split, Splits, TrainSeed};
 use diffphys::nn::{Arithmetic, Params};
 use diffphys::report::progress_bar;

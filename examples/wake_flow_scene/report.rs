@@ -22,33 +22,20 @@ pub(crate) fn report(
         ..
     } = ctx;
     let (arithmetic, evaluations) = (ctx.arithmetic, ctx.evaluations);
-    let Record {
-        log,
-        results,
-        capacity: capacity_runs,
-        sigma: sigma_used,
-        pinned_face_error,
-    } = rec;
     println!(
-        "\nheld-out mean relative L2 error over {} steps (data seeds {:?} x train seeds {:?}):",
-        sizes.rollout, seeds.data, seeds.train
+        "\nheld-out figures over {} steps, long rollout {} steps (data seeds {:?} x train seeds {:?}):",
+        sizes.rollout, sizes.long, seeds.data, seeds.train
     );
-    let metric = |m: &str| results.figures.report(m).cloned().unwrap_or_default();
-    print!("{}", metric(STATE).table(Some("src")));
-    println!("long rollout ({} steps):", sizes.long);
-    print!("{}", metric(LONG).table(Some("src")));
-    let (floors, capacity) = floors(options, &results, &capacity_runs);
-    log.validation_chart(&args.out.join("validation.svg"), "|u - u_ref| / |u_ref|")?;
-    study::charts(
+    rec.print_tables();
+    let (floors, capacity) = floors(options, &rec);
+    let sol = !options.unrolls().is_empty();
+    rec.charts(
         &args.out,
-        &results.figures,
-        &capacity_runs,
-        &results.last,
         coarse.scene(),
-        options.unrolls().first().copied(),
+        (wake_flow_scene::CENTRE, 0.5 * wake_flow_scene::DIAMETER),
+        sol,
     )?;
-    let npy: Vec<(String, ndarray::ArrayViewD<'_, f64>)> = results
-        .last
+    let npy: Vec<(String, ndarray::ArrayViewD<'_, f64>)> = (rec.results.last)
         .iter()
         .flat_map(|(name, s)| {
             [
@@ -87,7 +74,7 @@ pub(crate) fn report(
         "coarse_advection": wake_flow_scene::advection_label(sizes.advection),
         "coarse_splitting": wake_flow_scene::splitting_label(sizes.splitting),
         "network_arithmetic": wake_flow_scene::arithmetic_label(arithmetic),
-        "pinned_face_error": pinned_face_error,
+        "pinned_face_error": rec.pinned_face_error,
     });
     let mut line = json!({
         "example": "wake_flow",
@@ -110,13 +97,9 @@ pub(crate) fn report(
         "held_out_re": {"inside": held_split.0, "outside": held_split.1},
         "training_iterations": training_iterations,
         "corrector_evaluations_per_training": evaluations,
-        "noise_sigma": sigma_used,
         "setup": setup_json,
         "params": params_count,
         "main_size": MAIN_SIZE.label(),
-        "mean_rel_error": metric(STATE).summaries(),
-        "long_rel_error": metric(LONG).summaries(),
-        "per_re": results.figures.per_condition_json(),
         "capacity": capacity,
         "speed": speed,
         "pressure": pressure,
@@ -124,14 +107,12 @@ pub(crate) fn report(
         "peak_rss_bytes": common::peak_rss_bytes(),
         "wall_s": run_start.elapsed().as_secs_f64(),
     });
-    for (key, value) in log.to_json("re") {
+    for (key, value) in rec.to_json() {
         line[key] = value;
     }
     // `--validation-only`: trained and selected, the held-out split unread
     // (every held-out figure is absent, the speed study ran on validation).
     line["validation_only"] = json!(ctx.validation_only);
-    line["deviation_rel_error"] = metric(DEVIATION).summaries().into();
-    line["vorticity_rel_error"] = metric(VORTICITY).summaries().into();
     line["saved_models"] = json!(args.out.join("models").display().to_string());
     // The floors are the full scene's (docs/11): `--small`'s budgets and grids
     // measure that the study runs, not what it reaches.
@@ -143,42 +124,18 @@ pub(crate) fn report(
         println!("validation only: the held-out split was not read (no held-out figure, no floor measured; the speed study ran on validation)");
     }
     common::print_json_line(&line);
-    let missed = missed_floors(&line["floors_met"]);
+    let missed = diffphys::learn::missed_floors(&line["floors_met"]);
     if !args.small && !missed.is_empty() {
         return Err(format!("a floor of the scene is not met: {}", missed.join(", ")).into());
     }
     Ok(())
 }
 
-/// The floors (the `bool` entries of `floors_met` that are not goals) that
-/// are `false`. A floor a run did not measure (`"not measured"`, with
-/// `--no-capacity` say) neither holds nor fails it.
-fn missed_floors(floors: &Value) -> Vec<String> {
-    let Some(entries) = floors.as_object() else {
-        return vec!["floors_met (not reported)".into()];
-    };
-    entries
-        .iter()
-        .filter(|(name, _)| !name.starts_with("goal_"))
-        .filter_map(|(name, v)| match v {
-            Value::Bool(false) => Some(name.clone()),
-            _ => None,
-        })
-        .collect()
-}
-
 /// The floors of the scene (docs/11) from the held-out figures, and the
 /// capacity sweep's JSON.
-fn floors(options: &Options, results: &Results, capacity_runs: &Sweep) -> (Value, Value) {
-    let ratio = |re: &str| {
-        let mean = |method: &str| results.figures.mean_at(re, method, STATE);
-        Some(mean("sol_selected")? / mean("src")?)
-    };
-    let sol_src: BTreeMap<String, Option<f64>> = results
-        .figures
-        .conditions()
-        .map(|re| (re.to_string(), ratio(re)))
-        .collect();
+fn floors(options: &Options, rec: &Record) -> (Value, Value) {
+    let capacity_runs = &rec.capacity;
+    let sol_src = rec.ratio_per_re("sol_selected", "src");
     let floor_sol_src = if sol_src.values().any(Option::is_none) || sol_src.is_empty() {
         json!("not measured")
     } else {

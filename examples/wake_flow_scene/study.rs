@@ -2,25 +2,19 @@
 //! speed-against-accuracy study, the pressure solves, the capacity table and
 //! the charts.
 
-use std::collections::BTreeMap;
 use std::path::Path;
 use std::time::Instant;
 
-use diffphys::flow::{FlowParams, FlowState, PressureSolver, Scene};
-use diffphys::hybrid::metrics::vorticity_chart;
+use diffphys::flow::{FlowParams, FlowState, PressureSolver};
 use diffphys::hybrid::reference::{evaluate, Evaluation, Rollouts};
 use diffphys::hybrid::speed;
-use diffphys::learn::study::Sweep;
-use diffphys::learn::{Corrector, Figures, Hybrid};
+use diffphys::learn::{Corrector, Hybrid};
 use diffphys::nn::Params;
 use ndarray::Array2;
 use serde_json::{json, Value};
 
 use super::data::Reference;
-use super::{
-    reference_scene_at, uncorrected, viscosity, Coarse, Result, Sizes, CENTRE, DIAMETER, FACTOR,
-    U_IN,
-};
+use super::{reference_scene_at, uncorrected, viscosity, Coarse, Result, Sizes, FACTOR, U_IN};
 
 /// The rollouts of the hybrid (`params = None`: the coarse solver alone) on
 /// one held-out reference ([`evaluate`]): `rollout` steps from each start,
@@ -203,41 +197,4 @@ pub fn pressure_solves(sizes: &Sizes, re: f64) -> Result<Value> {
         }
     }
     Ok(json!({"re": re, "rel_tol": tol, "steps": steps, "rows": out}))
-}
-
-/// The charts: `relative_error.svg` (held-out error per step), `capacity.svg`
-/// (error against corrector size, 100 steps and long), and `vorticity_{name}.svg` of the long rollouts' last states at the first
-/// held-out Re.
-pub fn charts(
-    out: &Path,
-    figures: &Figures,
-    capacity: &Sweep,
-    last: &BTreeMap<String, FlowState<f64>>,
-    coarse: &Scene,
-    sol: Option<usize>,
-) -> Result<()> {
-    // Nothing to draw without held-out runs (`--validation-only`).
-    figures.curves_chart(
-        &out.join("relative_error.svg"),
-        "Held-out rollouts: relative L2 error per step (mean over Re, starts, seeds)",
-        "|u - u_ref| / |u_ref|",
-    )?;
-    let mut lines = vec![("non", 0, "non, 100 steps"), ("non", 1, "non, long")];
-    if sol.is_some() {
-        lines.extend([("sol", 0, "sol, 100 steps"), ("sol", 1, "sol, long")]);
-    }
-    capacity.chart(
-        &out.join("capacity.svg"),
-        "Held-out error against corrector size (mean over Re and seeds)",
-        &lines,
-    )?;
-    // The reference first, then the solvers in the order of the report.
-    let order = ["reference", "src", "non", "noise", "sol_selected"];
-    let states: Vec<(&str, &FlowState<f64>)> = (order.iter())
-        .filter_map(|&n| Some((n, last.get(n)?)))
-        .collect();
-    let title = "Vorticity after the long rollout, first held-out Re";
-    let body = (CENTRE, 0.5 * DIAMETER);
-    vorticity_chart(&out.join("vorticity.svg"), title, &states, coarse, body)?;
-    Ok(())
 }

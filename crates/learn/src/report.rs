@@ -315,6 +315,25 @@ impl Figures {
     }
 }
 
+/// The floors of a `floors_met` JSON object that are not met: its `false`
+/// entries whose name does not start with `goal_` (a goal is reported, not
+/// required). A floor a run did not measure (a string such as `"not
+/// measured"`) neither holds nor fails; a value that is not an object is one
+/// missed floor (`floors_met (not reported)`).
+pub fn missed_floors(floors: &Value) -> Vec<String> {
+    let Some(entries) = floors.as_object() else {
+        return vec!["floors_met (not reported)".into()];
+    };
+    entries
+        .iter()
+        .filter(|(name, _)| !name.starts_with("goal_"))
+        .filter_map(|(name, v)| match v {
+            Value::Bool(false) => Some(name.clone()),
+            _ => None,
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -367,5 +386,15 @@ mod tests {
         assert!(f.add("non", (1, Some(1)), &[], vec![]).is_err());
         let short = vec![("71".to_string(), vec![0.1])];
         assert!(f.add("non", (1, Some(1)), &short, vec![]).is_err());
+    }
+
+    #[test]
+    fn missed_floors_are_the_false_non_goals_and_unmeasured_ones_pass() {
+        let floors = json!({"a": true, "b": false, "goal_c": false, "d": "not measured"});
+        assert_eq!(missed_floors(&floors), vec!["b".to_string()]);
+        assert_eq!(
+            missed_floors(&json!(null)),
+            vec!["floors_met (not reported)".to_string()]
+        );
     }
 }

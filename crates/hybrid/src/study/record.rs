@@ -150,6 +150,96 @@ impl Default for Record {
     }
 }
 
+impl Record {
+    /// Prints the held-out tables (the rollouts' error and the long
+    /// rollout's, against `src`).
+    pub fn print_tables(&self) {
+        for (title, metric) in [
+            ("held-out mean relative L2 error over the rollouts:", STATE),
+            ("long rollout:", LONG),
+        ] {
+            if let Some(r) = self.results.figures.report(metric) {
+                println!("{title}");
+                print!("{}", r.table(Some("src")));
+            }
+        }
+    }
+
+    /// The charts in `out`: `validation.svg` (every training's validation
+    /// curve), `relative_error.svg` (held-out error per step),
+    /// `capacity.svg` (error against corrector size, 100 steps and long, of
+    /// `non` and, with `sol`, the first SOL) and `vorticity.svg` (the long
+    /// rollouts' last states at the first held-out Re on `scene`, with the
+    /// body's circle `(centre, radius)` outlined). A chart without data is
+    /// not written.
+    ///
+    /// # Errors
+    /// [`crate::HybridError::Learn`] if a chart cannot be written.
+    pub fn charts(
+        &self,
+        out: &std::path::Path,
+        scene: &diffphys_flow::Scene,
+        body: ([f64; 2], f64),
+        sol: bool,
+    ) -> Result<()> {
+        let u = "|u - u_ref| / |u_ref|";
+        self.log.validation_chart(&out.join("validation.svg"), u)?;
+        self.results.figures.curves_chart(
+            &out.join("relative_error.svg"),
+            "Held-out rollouts: relative L2 error per step (mean over Re, starts, seeds)",
+            u,
+        )?;
+        let mut lines = vec![("non", 0, "non, 100 steps"), ("non", 1, "non, long")];
+        if sol {
+            lines.extend([("sol", 0, "sol, 100 steps"), ("sol", 1, "sol, long")]);
+        }
+        self.capacity.chart(
+            &out.join("capacity.svg"),
+            "Held-out error against corrector size (mean over Re and seeds)",
+            &lines,
+        )?;
+        // The reference first, then the solvers in the order of the report.
+        let order = ["reference", "src", "non", "noise", "sol_selected"];
+        let states: Vec<(&str, &FlowState<f64>)> = (order.iter())
+            .filter_map(|&n| Some((n, self.results.last.get(n)?)))
+            .collect();
+        let title = "Vorticity after the long rollout, first held-out Re";
+        crate::metrics::vorticity_chart(&out.join("vorticity.svg"), title, &states, scene, body)
+    }
+
+    /// Per held-out Re, the mean of method `a` over that of `b` under the
+    /// primary metric (`None` where either was not measured).
+    pub fn ratio_per_re(&self, a: &str, b: &str) -> BTreeMap<String, Option<f64>> {
+        let f = &self.results.figures;
+        (f.conditions())
+            .map(|re| {
+                let mean = |m: &str| f.mean_at(re, m, STATE);
+                let ratio = mean(a).zip(mean(b)).map(|(a, b)| a / b);
+                (re.to_string(), ratio)
+            })
+            .collect()
+    }
+
+    /// The record's JSON keys: the held-out summaries under every metric
+    /// (`mean_rel_error`, `long_rel_error`, `deviation_rel_error`,
+    /// `vorticity_rel_error`), `per_re`, `noise_sigma` and the log's
+    /// ([`Log::to_json`], conditions named `re`).
+    pub fn to_json(&self) -> Map<String, Value> {
+        let mut out = self.log.to_json("re");
+        for (key, metric) in [
+            ("mean_rel_error", STATE),
+            ("long_rel_error", LONG),
+            ("deviation_rel_error", DEVIATION),
+            ("vorticity_rel_error", VORTICITY),
+        ] {
+            out.insert(key.into(), self.results.summaries(metric).into());
+        }
+        out.insert("per_re".into(), self.results.figures.per_condition_json());
+        out.insert("noise_sigma".into(), json!(self.sigma));
+        out
+    }
+}
+
 /// A saved model's directory name: `sol_4_w16b2_data1_seed2`.
 pub fn dir_name(variant: &str, size: NetSize, data_seed: u64, seed: u64) -> String {
     format!("{variant}_{}_data{data_seed}_seed{seed}", size.label())

@@ -17,8 +17,11 @@
 //! u'_f = (1/n_f) Σ_links w u_next            n_f links of face f (averaged)
 //! ```
 //!
-//! and `u'_f = u_f` on every other face. A face point inside the circle gets
-//! `δ = 0`, so `u'_f = 0`; a grazing line that misses the circle takes the
+//! and `u'_f = u_f` on every other face. The body is the solid faces and
+//! the free faces whose point lies inside the circle (those are set to zero);
+//! the forced faces are the free faces outside it with a neighbour in the
+//! body, each linked along every such neighbour's line. A face point that
+//! moves inside the circle gets `δ = 0`; a grazing line that misses the circle takes the
 //! closest approach, `δ = −b`. A link needs a free face outward; a forced
 //! face without one (a gap of one cell between the body and a wall) is set
 //! to zero, as the staircase would. The set of forced faces and their links is
@@ -161,12 +164,16 @@ struct ForcedFace {
     links: Vec<Link>,
 }
 
-/// The forced faces of one component.
+/// The forced faces of one component: the free faces inside the circle
+/// (no links: set to zero), and the free faces outside it with a neighbour
+/// in the body (a solid face, or a free face inside the circle), linked to it
+/// through the next fluid face outward.
 fn forced_faces(
     grid: &FlowGrid,
     lattice: Lattice,
     kinds: &[FaceKind],
     solid: &Array2<bool>,
+    circle: Circle,
 ) -> Vec<ForcedFace> {
     let [na, nb] = grid.shape(lattice);
     let touches_solid = |a: usize, b: usize| match lattice {
@@ -179,46 +186,58 @@ fn forced_faces(
             [lo, hi].into_iter().flatten().any(|j| solid[[a, j]])
         }
     };
-    let at = |a: isize, b: isize| {
+    let inside = |a: usize, b: usize| {
+        let [x, y] = grid.position(lattice, a, b);
+        let [cx, cy] = circle.center;
+        (x - cx).powi(2) + (y - cy).powi(2) < circle.radius * circle.radius
+    };
+    let free = |a: usize, b: usize| kinds[a * nb + b] == FaceKind::Free;
+    let in_body = |a: usize, b: usize| {
+        (kinds[a * nb + b] == FaceKind::Zero && touches_solid(a, b)) || (free(a, b) && inside(a, b))
+    };
+    let at = |a: usize, b: usize, (da, db): (isize, isize)| {
+        let (a, b) = (a as isize + da, b as isize + db);
         (a >= 0 && b >= 0 && (a as usize) < na && (b as usize) < nb)
             .then_some((a as usize, b as usize))
     };
     let mut out = Vec::new();
     for a in 0..na {
         for b in 0..nb {
-            if kinds[a * nb + b] != FaceKind::Free {
+            if !free(a, b) {
+                continue;
+            }
+            let point = grid.position(lattice, a, b);
+            let face = a * nb + b;
+            if inside(a, b) {
+                out.push(ForcedFace {
+                    face,
+                    point,
+                    links: Vec::new(),
+                });
                 continue;
             }
             let mut links = Vec::new();
-            let mut pinned = false;
+            let mut near = false;
             for (da, db) in [(1isize, 0isize), (-1, 0), (0, 1), (0, -1)] {
-                let (ai, bi) = (a as isize, b as isize);
-                let Some((ta, tb)) = at(ai + da, bi + db) else {
-                    continue;
-                };
-                if kinds[ta * nb + tb] != FaceKind::Zero || !touches_solid(ta, tb) {
+                if !at(a, b, (da, db)).is_some_and(|(ta, tb)| in_body(ta, tb)) {
                     continue;
                 }
-                pinned = true;
-                let Some((na_, nb_)) = at(ai - da, bi - db) else {
+                near = true;
+                let Some((oa, ob)) = at(a, b, (-da, -db)) else {
                     continue;
                 };
-                if kinds[na_ * nb + nb_] != FaceKind::Free {
+                if !free(oa, ob) || inside(oa, ob) {
                     continue;
                 }
                 let h = if da != 0 { grid.dx } else { grid.dy };
                 links.push(Link {
-                    next: na_ * nb + nb_,
+                    next: oa * nb + ob,
                     e: [da as f64, db as f64],
                     h,
                 });
             }
-            if pinned {
-                out.push(ForcedFace {
-                    face: a * nb + b,
-                    point: grid.position(lattice, a, b),
-                    links,
-                });
+            if near {
+                out.push(ForcedFace { face, point, links });
             }
         }
     }
@@ -270,8 +289,20 @@ impl ImmersedCircle {
         Ok(ImmersedCircle {
             grid: grid.clone(),
             circle,
-            x: forced_faces(grid, Lattice::FaceX, faces.of(Lattice::FaceX), solid),
-            y: forced_faces(grid, Lattice::FaceY, faces.of(Lattice::FaceY), solid),
+            x: forced_faces(
+                grid,
+                Lattice::FaceX,
+                faces.of(Lattice::FaceX),
+                solid,
+                circle,
+            ),
+            y: forced_faces(
+                grid,
+                Lattice::FaceY,
+                faces.of(Lattice::FaceY),
+                solid,
+                circle,
+            ),
         })
     }
 

@@ -140,7 +140,8 @@ pub struct DfgChannel {
     /// (0.1, one diameter).
     pub cv_half_width: f64,
     /// The body as an immersed circle ([`crate::SceneBuilder::immersed`])
-    /// instead of the staircase (default false).
+    /// instead of the staircase (default false). [`DfgChannel::force`] stays
+    /// the staircase's surface formula: read the control volume then.
     pub immersed: bool,
 }
 

@@ -45,9 +45,14 @@
 //! within 5 % of the published interval) at the finest grid of the `2d1` case;
 //! the example exits non-zero after that line when the floor is missed.
 //!
+//! `--immersed` runs the same cases with the body as an immersed circle
+//! (`diffphys::flow::immersed`, issue 42 item 2): the step's exchange then has
+//! a fifth piece, the momentum the forcing takes out of the faces next to the
+//! body, and the surface figure to read is the step's exchange plus it.
+//!
 //! `cargo run --release --example cylinder_forces -- [--cpd 10,20,40]
 //! [--cases 2d1,symmetric] [--tol 1e-4] [--max-time 40] [--courant 0.4]
-//! [--small] [--out DIR]` (`--small`: 10 cells across only)
+//! [--immersed] [--small] [--out DIR]` (`--small`: 10 cells across only)
 
 mod common;
 mod flow_common;
@@ -58,6 +63,7 @@ use diffphys::flow::advection::advect_velocity;
 use diffphys::flow::boundaries::enforce_boundaries;
 use diffphys::flow::diagnostics::{obstacle_force, ForceWeights};
 use diffphys::flow::diffusion::diffuse;
+use diffphys::flow::immersed::immersed_forcing;
 use diffphys::flow::pressure::{project, subtract_pressure_gradient};
 use diffphys::flow::validation::{
     control_volume_force, Dfg2d1, DfgChannel, FaceBox, FloorCheck, CONTROL_VOLUME_CLEARANCE,
@@ -161,9 +167,11 @@ fn pressure_extrapolated(scene: &Scene, s: &FlowState<f64>) -> [f64; 2] {
 /// term brings in; the rest is what the piece takes out of the fluid at the
 /// body: `body_k = edge_k − ΔM_k / dt`. The pressure pieces are set against
 /// the pressure term, advection against the momentum flux, viscosity against
-/// the viscous term; the pieces sum to the control-volume force. Returns
-/// `[pressure, viscous, convective, boundaries]`, each `[F_x, F_y]`.
-fn step_budget(scene: &Scene, s: &FlowState<f64>, b: FaceBox) -> Result<[[f64; 2]; 4]> {
+/// the viscous term, the immersed circle's forcing (if any) against nothing
+/// (its faces lie inside the box); the pieces sum to the control-volume force.
+/// Returns `[pressure, viscous, convective, boundaries, immersed forcing]`,
+/// each `[F_x, F_y]`.
+fn step_budget(scene: &Scene, s: &FlowState<f64>, b: FaceBox) -> Result<[[f64; 2]; 5]> {
     let params = scene.params::<f64>();
     let (g, faces, set, dt) = (scene.grid(), scene.faces(), scene.settings(), scene.dt());
     let (next, info) = scene.forward(s, &params)?;
@@ -197,11 +205,19 @@ fn step_budget(scene: &Scene, s: &FlowState<f64>, b: FaceBox) -> Result<[[f64; 2
         params.viscosity,
         params.wall_speed.view(),
     )?;
+    // the immersed circle's forcing, if any (the identity on the staircase)
+    let f = match scene.immersed() {
+        Some(body) => {
+            let shape = ndarray::arr1(&body.circle().shape());
+            immersed_forcing(body, d.0.view(), d.1.view(), shape.view())?
+        }
+        None => d.clone(),
+    };
     let p = project(
         scene.pressure_system(),
         dt / 2.0,
-        d.0.view(),
-        d.1.view(),
+        f.0.view(),
+        f.1.view(),
         Some(s.pressure.view()),
     )?;
     if p.ux != next.ux || p.uy != next.uy {
@@ -222,16 +238,18 @@ fn step_budget(scene: &Scene, s: &FlowState<f64>, b: FaceBox) -> Result<[[f64; 2
         momentum(&q.0, &q.1)?,
         momentum(&a.0, &a.1)?,
         momentum(&d.0, &d.1)?,
+        momentum(&f.0, &f.1)?,
         momentum(&p.ux, &p.uy)?,
     ];
     let gain = |from: usize, to: usize| [0, 1].map(|k| (m[to][k] - m[from][k]) / dt);
     let cv = control_volume_force(scene, b, s, Some(&next), DFG_NU)?;
-    let (old_p, new_p) = (gain(1, 2), gain(4, 5));
+    let (old_p, new_p) = (gain(1, 2), gain(5, 6));
     Ok([
         [0, 1].map(|k| cv.pressure[k] - old_p[k] - new_p[k]),
         [0, 1].map(|k| cv.viscous[k] - gain(3, 4)[k]),
         [0, 1].map(|k| cv.convective[k] - gain(2, 3)[k]),
         [0, 1].map(|k| -gain(0, 1)[k]),
+        [0, 1].map(|k| -gain(4, 5)[k]),
     ])
 }
 
@@ -279,6 +297,7 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
     let mut case = Dfg2d1::new(cpd)?;
     (case.channel.height, case.channel.courant) = (height, opt.courant);
     (case.tol, case.max_time) = (opt.tol, opt.max_time);
+    case.channel.immersed = opt.immersed;
     let t0 = Instant::now();
     let result = case.run(&mut |_, _, _| Ok(()))?;
     let seconds = t0.elapsed().as_secs_f64();
@@ -341,6 +360,7 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
         links[1]
     );
     let mut boxes = Vec::new();
+    let mut forcing_exchange = [0.0; 2];
     for a in BOXES {
         let b = FaceBox::around(g, DFG_CENTRE, a);
         let clearance = b.clearance(scene.solid());
@@ -359,13 +379,15 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
             c(f.unsteady)[1]
         );
         let budget = step_budget(scene, s, b)?.map(c);
+        forcing_exchange = budget[4];
         println!(
-            "      exchanged with the body by the step's pieces: pressure cD {:.4} cL {:+.5}, viscosity cD {:.4} cL {:+.5}, advection cD {:.4} cL {:+.5}, boundaries cL {:+.1e}",
-            budget[0][0], budget[0][1], budget[1][0], budget[1][1], budget[2][0], budget[2][1], budget[3][1]
+            "      exchanged with the body by the step's pieces: pressure cD {:.4} cL {:+.5}, viscosity cD {:.4} cL {:+.5}, advection cD {:.4} cL {:+.5}, immersed forcing cD {:.4} cL {:+.5}, boundaries cL {:+.1e}",
+            budget[0][0], budget[0][1], budget[1][0], budget[1][1], budget[2][0], budget[2][1], budget[4][0], budget[4][1], budget[3][1]
         );
         boxes.push(json!({
             "exchanged_with_body": {"pressure": budget[0], "viscosity": budget[1],
-                                    "advection": budget[2], "boundaries": budget[3]},
+                                    "advection": budget[2], "boundaries": budget[3],
+                                    "immersed_forcing": budget[4]},
             "half_width": a, "faces": [b.i0, b.i1, b.j0, b.j1], "clearance_cells": clearance,
             "cd": t[0], "cl": t[1],
             "parts_cd": {"pressure": c(f.pressure)[0], "viscous": c(f.viscous)[0],
@@ -373,6 +395,13 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
             "parts_cl": {"pressure": c(f.pressure)[1], "viscous": c(f.viscous)[1],
                          "convective": c(f.convective)[1], "unsteady": c(f.unsteady)[1]},
         }));
+    }
+    let with_forcing = [0, 1].map(|k| exchange[k] + forcing_exchange[k]);
+    if scene.immersed().is_some() {
+        println!(
+            "  surface, the step's exchange + the immersed forcing's: cD {:.4} cL {:+.5}",
+            with_forcing[0], with_forcing[1]
+        );
     }
     let geo = geometry(scene);
     println!(
@@ -384,7 +413,7 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
         geo["cells_without_mirror_image_about_y0.2"]
     );
     let row = json!({
-        "cpd": cpd, "height": height, "nx": g.nx, "ny": g.ny, "h": g.dx, "dt": dt,
+        "cpd": cpd, "height": height, "immersed": opt.immersed, "nx": g.nx, "ny": g.ny, "h": g.dx, "dt": dt,
         "courant": opt.courant, "steps": steps, "time": steps as f64 * dt, "steady": rate < tol, "tol": tol,
         "rate_at_end": rate, "wall_s": seconds,
         "surface": {"cd": st[0], "cl": st[1],
@@ -392,6 +421,7 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
                     "pressure_extrapolated_to_face": c(variants[0]),
                     "shear_over_h": c(variants[1]),
                     "momentum_exchange": exchange,
+                    "momentum_exchange_plus_immersed_forcing": with_forcing,
                     "momentum_exchange_viscous_cl_tangential_normal": links},
         "control_volume": boxes,
         "geometry": geo,
@@ -431,6 +461,10 @@ struct Options {
     /// Courant number at the mean inflow speed.
     #[arg(long, default_value_t = 0.4)]
     courant: f64,
+    /// The body as an immersed circle (direct forcing on the faces next to
+    /// it) instead of the staircase.
+    #[arg(long)]
+    immersed: bool,
 }
 
 fn parse() -> Result<(common::ExampleArgs, Options)> {

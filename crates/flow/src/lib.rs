@@ -14,6 +14,7 @@
 //! | [`diffusion`] | explicit and implicit viscosity ([`diffusion::Diffusion`]) |
 //! | [`pressure`] | projection with the obstacle, implicit adjoint, warm start ([`pressure::PressureSystem`]) |
 //! | [`forcing`] | Boussinesq buoyancy |
+//! | [`immersed`] | a circle as a direct-forcing immersed boundary on the faces ([`immersed::ImmersedCircle`]) |
 //! | [`diagnostics`] | divergence, vorticity, drag and lift |
 //! | [`step`] | the [`Scene`] and the step composed of the above |
 //! | [`batch`] | batches of states as fields `[batch, …]`, a viscosity per sample (a learning library's state) |
@@ -70,6 +71,7 @@ pub mod diffusion;
 mod error;
 pub mod forcing;
 pub mod grid;
+pub mod immersed;
 pub mod pressure;
 pub mod restrict;
 pub mod sides;
@@ -85,6 +87,7 @@ pub use diffusion::ViscosityMode;
 pub use error::{FlowError, Result};
 pub use forcing::{Buoyancy, Forced, Forcing};
 pub use grid::{FlowGrid, Lattice};
+pub use immersed::{Circle, ImmersedCircle};
 pub use pressure::PressureSolver;
 pub use restrict::{restrict_pressure, restrict_velocity};
 pub use sides::{Boundary, Side, Sides};

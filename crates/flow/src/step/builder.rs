@@ -14,6 +14,7 @@ use crate::diagnostics::ForceWeights;
 use crate::diffusion::{default_viscosity_solver, Diffusion, ViscosityMode};
 use crate::forcing::{Buoyancy, Forcing};
 use crate::grid::FlowGrid;
+use crate::immersed::{Circle, ImmersedCircle};
 use crate::pressure::{PressureSolver, PressureSystem};
 use crate::sides::{Boundary, Side, Sides};
 use crate::spectral::PeriodicPoisson;
@@ -76,6 +77,7 @@ impl Scene {
             inflow: None,
             buoyancy: None,
             forcing: None,
+            immersed: None,
             scalars: 0,
             settings: Settings::default(),
         }
@@ -96,6 +98,7 @@ pub struct SceneBuilder {
     inflow: Option<Vec<f64>>,
     buoyancy: Option<Buoyancy>,
     forcing: Option<Arc<dyn Forcing>>,
+    immersed: Option<Circle>,
     scalars: usize,
     settings: Settings,
 }
@@ -110,6 +113,15 @@ impl SceneBuilder {
     /// The obstacle (default none).
     pub fn obstacle(mut self, obstacle: Obstacle) -> Self {
         self.obstacle = obstacle;
+        self
+    }
+
+    /// The obstacle as an immersed circle ([`crate::immersed`]): the cells
+    /// of [`Obstacle::cylinder`] of the same circle stay solid, and the free
+    /// faces next to them are forced by interpolation to the true wall after
+    /// the viscosity, before the projection. Replaces [`SceneBuilder::obstacle`].
+    pub fn immersed(mut self, circle: Circle) -> Self {
+        self.immersed = Some(circle);
         self
     }
 
@@ -243,9 +255,11 @@ impl SceneBuilder {
             inflow,
             buoyancy,
             forcing,
+            immersed,
             scalars,
             settings,
         } = self;
+        let obstacle = immersed.map_or(obstacle, |c| Obstacle::cylinder(c.center, c.radius));
         if nx < 2 || ny < 2 {
             return Err(FlowError::scene(
                 "resolution",
@@ -400,6 +414,9 @@ impl SceneBuilder {
             spectral.as_ref(),
         )?;
         let forces = ForceWeights::new(&grid, &solid);
+        let immersed = immersed
+            .map(|c| ImmersedCircle::new(&grid, &faces, &solid, c).map(Arc::new))
+            .transpose()?;
         Ok(Scene(Arc::new(SceneInner {
             grid,
             solid,
@@ -413,6 +430,7 @@ impl SceneBuilder {
             inflow_side,
             buoyancy,
             forcing,
+            immersed,
             scalars,
             settings,
             buffers: BufferPool::new(),

@@ -10,6 +10,7 @@ use crate::advection::{AdvectScalar, AdvectVelocity};
 use crate::boundaries::EnforceBoundaries;
 use crate::diffusion::Diffuse;
 use crate::forcing::{Buoyant, Forced};
+use crate::immersed::ImmersedForcing;
 use crate::pressure::{Project, SolveCounter, SubtractPressureGradient};
 use crate::{FlowError, Result};
 
@@ -26,6 +27,8 @@ pub(super) struct ParamsOf<V> {
     pub(super) viscosity: V,
     pub(super) wall_speed: V,
     pub(super) inflow: V,
+    /// The immersed body's shape `(c_x, c_y, r)`, on a scene with one.
+    pub(super) body: Option<V>,
 }
 
 /// Runs ops: recorded on a tape, or their forwards directly.
@@ -156,6 +159,15 @@ pub(super) fn substep<T: Real, E: Exec<T>>(
         },
         &[&ux, &uy, &p.viscosity, &p.wall_speed],
     )?);
+    let (ux, uy) = match (&scene.0.immersed, &p.body) {
+        (Some(body), Some(shape)) => two(e.run(
+            ImmersedForcing {
+                body: Arc::clone(body),
+            },
+            &[&ux, &uy, shape],
+        )?),
+        _ => (ux, uy),
+    };
     let tau = if incremental { dt / 2.0 } else { dt };
     let mut out = e.run(
         Project {

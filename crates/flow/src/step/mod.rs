@@ -12,6 +12,7 @@
 //! u ← advect_velocity(u; traced by uⁿ)           semi-Lagrangian or MacCormack
 //! u ← u + dt β s̄ ŷ                               buoyancy, if any
 //! u ← diffuse(u; ν)                               explicit or implicit
+//! u ← immersed_forcing(u; c, r)                  an immersed circle, if any
 //! (u, P) ← project(u; guess P)                   τ = dt (plain) or dt/2 (incremental)
 //! ```
 //!
@@ -41,7 +42,7 @@ use std::sync::Arc;
 
 use diffphys_tape::pool::BufferPool;
 use diffphys_tape::{
-    checkpointed_steps, parallel, ArrayD, Real, Schedule, StepFn, Tape, TapeError,
+    checkpointed_steps, parallel, ArrayD, Real, Schedule, StepFn, Tape, TapeError, Var,
 };
 use ndarray::{Array1, Array2, ArrayView2, Ix2, IxDyn};
 
@@ -50,6 +51,7 @@ use crate::diagnostics::ForceWeights;
 use crate::diffusion::{explicit_diffusion_number, Diffusion, ViscosityMode};
 use crate::forcing::{Buoyancy, Forcing};
 use crate::grid::FlowGrid;
+use crate::immersed::ImmersedCircle;
 use crate::pressure::{PressureSystem, SolveCounter};
 use crate::sides::{Boundary, Side};
 use crate::{FlowError, Result};
@@ -80,6 +82,7 @@ pub(super) struct SceneInner {
     pub(super) buoyancy: Option<Buoyancy>,
     /// The user's body force, if any.
     pub(super) forcing: Option<Arc<dyn Forcing>>,
+    pub(super) immersed: Option<Arc<ImmersedCircle>>,
     pub(super) scalars: usize,
     pub(super) settings: Settings,
     /// The plain forward's buffers, where its caller has no pool current.
@@ -275,6 +278,56 @@ impl Scene {
         state: &FlowVars<'t, T>,
         params: &ParamVars<'t, T>,
     ) -> Result<(FlowVars<'t, T>, StepInfo)> {
+        let body = self.body_shape().map(|b| tape.constant(b));
+        self.step_shaped(tape, state, params, body)
+    }
+
+    /// [`Scene::step`] on a scene with an immersed body
+    /// ([`SceneBuilder::immersed`]) whose shape `(c_x, c_y, r)` (`[3]`) is
+    /// `body`, a tape value: the gradient with respect to the body's centre
+    /// and radius is then `tape.backward`'s (see [`crate::immersed`]).
+    ///
+    /// # Errors
+    /// Those of [`Scene::step`]; [`FlowError::InvalidParameter`] on a scene
+    /// without an immersed body; those of [`crate::immersed::Circle::from_shape`]
+    /// for the body's value.
+    pub fn step_with_body<'t, T: Real>(
+        &self,
+        tape: &'t Tape<T>,
+        state: &FlowVars<'t, T>,
+        params: &ParamVars<'t, T>,
+        body: Var<'t, T>,
+    ) -> Result<(FlowVars<'t, T>, StepInfo)> {
+        if self.0.immersed.is_none() {
+            return Err(FlowError::parameter(
+                "flow step",
+                "body",
+                "the scene has no immersed body (SceneBuilder::immersed)",
+            ));
+        }
+        self.step_shaped(tape, state, params, Some(body))
+    }
+
+    /// The immersed body, if the scene has one.
+    pub fn immersed(&self) -> Option<&Arc<ImmersedCircle>> {
+        self.0.immersed.as_ref()
+    }
+
+    /// The immersed body's shape `(c_x, c_y, r)` as an array `[3]`.
+    fn body_shape<T: Real>(&self) -> Option<ArrayD<T>> {
+        self.0.immersed.as_ref().map(|b| {
+            let s = b.circle().shape().map(T::from_f64);
+            ArrayD::from_shape_vec(IxDyn(&[3]), s.to_vec()).expect("three values")
+        })
+    }
+
+    fn step_shaped<'t, T: Real>(
+        &self,
+        tape: &'t Tape<T>,
+        state: &FlowVars<'t, T>,
+        params: &ParamVars<'t, T>,
+        body: Option<Var<'t, T>>,
+    ) -> Result<(FlowVars<'t, T>, StepInfo)> {
         // the tape's values, viewed (not copied) for the checks
         let held: Vec<_> = [state.ux, state.uy, state.pressure]
             .iter()
@@ -332,6 +385,7 @@ impl Scene {
             viscosity: params.viscosity,
             wall_speed: params.wall_speed,
             inflow: params.inflow,
+            body,
         };
         for _ in 0..n {
             st = substep(&exec, self, st, &pv, self.dt() / n as f64, &counter)?;
@@ -413,6 +467,7 @@ impl Scene {
             viscosity: ArrayD::from_elem(IxDyn(&[]), params.viscosity),
             wall_speed: params.wall_speed.clone().into_dyn(),
             inflow: params.inflow.clone().into_dyn(),
+            body: self.body_shape(),
         };
         for _ in 0..n {
             st = substep(&Plain, self, st, &pv, self.dt() / n as f64, &counter)?;

@@ -40,6 +40,7 @@ use crate::advection::Advection;
 use crate::boundaries::{Obstacle, Sides};
 use crate::diagnostics::obstacle_force;
 use crate::diffusion::ViscosityMode;
+use crate::immersed::Circle;
 use crate::{FlowError, FlowState, Result, Scene};
 
 use super::{control_volume_force, FaceBox, Shedding};
@@ -138,6 +139,10 @@ pub struct DfgChannel {
     /// The half-width of the control volume of [`DfgChannel::control_box`]
     /// (0.1, one diameter).
     pub cv_half_width: f64,
+    /// The body as an immersed circle ([`crate::SceneBuilder::immersed`])
+    /// instead of the staircase (default false). [`DfgChannel::force`] stays
+    /// the staircase's surface formula: read the control volume then.
+    pub immersed: bool,
 }
 
 impl DfgChannel {
@@ -158,6 +163,7 @@ impl DfgChannel {
             height: DFG_HEIGHT,
             courant: 0.4,
             cv_half_width: DFG_DIAMETER,
+            immersed: false,
         })
     }
 
@@ -176,20 +182,25 @@ impl DfgChannel {
         let dt = self.courant * h / um;
         let (dx, dy) = (DFG_LENGTH / nx as f64, self.height / ny as f64);
         let explicit = DFG_NU * dt * (1.0 / (dx * dx) + 1.0 / (dy * dy)) <= 0.45;
-        Scene::builder(nx, ny, [DFG_LENGTH, self.height])
-            .sides(Sides::channel())
-            .obstacle(Obstacle::cylinder(DFG_CENTRE, DFG_DIAMETER / 2.0))
-            .parabolic_inflow(um)
-            .viscosity(DFG_NU)
-            .dt(dt)
-            .advection(Advection::MacCormack { limiter: true })
-            .viscosity_mode(if explicit {
-                ViscosityMode::Explicit
-            } else {
-                ViscosityMode::Implicit
-            })
-            .substepping(true)
-            .build()
+        let circle = Circle::new(DFG_CENTRE, DFG_DIAMETER / 2.0)?;
+        let builder = Scene::builder(nx, ny, [DFG_LENGTH, self.height]);
+        if self.immersed {
+            builder.immersed(circle)
+        } else {
+            builder.obstacle(Obstacle::cylinder(circle.center, circle.radius))
+        }
+        .sides(Sides::channel())
+        .parabolic_inflow(um)
+        .viscosity(DFG_NU)
+        .dt(dt)
+        .advection(Advection::MacCormack { limiter: true })
+        .viscosity_mode(if explicit {
+            ViscosityMode::Explicit
+        } else {
+            ViscosityMode::Implicit
+        })
+        .substepping(true)
+        .build()
     }
 
     /// The start: the inflow profile carried through the whole channel (the

@@ -27,7 +27,8 @@ use std::time::Instant;
 
 use diffphys::learn::study::{Job, OneSize, Plan, Protocol, TrainJob, Trainings, Variant};
 use diffphys::learn::{
-    rollout, states_at, DataSeed, Hybrid, LrSchedule, Report, Split, Splits, TrainSeed,
+    missed_floors, rollout, states_at, DataSeed, Hybrid, LrSchedule, Report, Split, Splits,
+    TrainSeed,
 };
 use diffphys::nn::Params;
 use diffphys::prelude::{check_gradient, GradCheckOptions};
@@ -252,5 +253,14 @@ fn main() -> Result<(), BoxError> {
         "peak_rss_bytes": common::peak_rss_bytes(),
         "seconds": run_start.elapsed().as_secs_f64(),
     }));
+    // The floors are the full scene's; the checkpoint's gradients must agree
+    // at any size.
+    let missed = missed_floors(&floors);
+    if missed
+        .iter()
+        .any(|f| !args.small || f.starts_with("checkpoint"))
+    {
+        return Err(format!("a floor of the scene is not met: {}", missed.join(", ")).into());
+    }
     Ok(())
 }

@@ -262,10 +262,7 @@ impl Figures {
             .map(|(name, c)| Series::mean_per_step(name.clone(), c))
             .filter(|s| !s.points.is_empty())
             .collect();
-        if series.is_empty() {
-            return Ok(());
-        }
-        Ok(line_chart_svg(
+        chart_unless_empty(
             path,
             &LineChart {
                 title,
@@ -275,7 +272,7 @@ impl Figures {
                 log_y: true,
                 series: &series,
             },
-        )?)
+        )
     }
 
     /// The conditions, in order.
@@ -313,6 +310,15 @@ impl Figures {
             .collect::<serde_json::Map<_, _>>()
             .into()
     }
+}
+
+/// Writes `chart` at `path` unless it has no series (a report skips a chart
+/// it has nothing for).
+pub(crate) fn chart_unless_empty(path: &std::path::Path, chart: &LineChart<'_>) -> Result<()> {
+    if chart.series.is_empty() {
+        return Ok(());
+    }
+    Ok(line_chart_svg(path, chart)?)
 }
 
 /// The floors of a `floors_met` JSON object that are not met: its `false`

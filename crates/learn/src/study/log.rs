@@ -12,10 +12,11 @@ use std::collections::BTreeMap;
 use std::fmt::Display;
 use std::path::Path;
 
-use diffphys_report::chart::{line_chart_svg, LineChart, Series};
+use diffphys_report::chart::{LineChart, Series};
 use serde_json::{json, Map, Value};
 
 use super::{Ledger, TrainedRun, Variant};
+use crate::report::chart_unless_empty;
 use crate::{Report, Result, Summary};
 
 /// A study's record of its trainings and selections: what it leaves for
@@ -197,10 +198,7 @@ impl Log {
                 (!points.is_empty()).then(|| Series::new(name.clone(), points))
             })
             .collect();
-        if series.is_empty() {
-            return Ok(());
-        }
-        Ok(line_chart_svg(
+        chart_unless_empty(
             path,
             &LineChart {
                 title: "Validation error during training (mean over the rollout)",
@@ -210,6 +208,6 @@ impl Log {
                 log_y: true,
                 series: &series,
             },
-        )?)
+        )
     }
 }

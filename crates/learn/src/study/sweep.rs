@@ -1,10 +1,10 @@
 //! A capacity sweep: the same variants trained at several model sizes, each
 //! run scored by one or more figures.
 
-use diffphys_report::chart::{line_chart_svg, LineChart, Series};
+use diffphys_report::chart::{LineChart, Series};
 use serde_json::{json, Map, Value};
 
-use crate::report::Summary;
+use crate::report::{chart_unless_empty, Summary};
 use crate::Result;
 
 /// One trained model of a sweep.
@@ -147,10 +147,7 @@ impl Sweep {
             .map(|&(variant, k, label)| Series::new(label, self.series(variant, k)))
             .filter(|s| !s.points.is_empty())
             .collect();
-        if series.is_empty() {
-            return Ok(());
-        }
-        Ok(line_chart_svg(
+        chart_unless_empty(
             path,
             &LineChart {
                 title,
@@ -160,6 +157,6 @@ impl Sweep {
                 log_y: true,
                 series: &series,
             },
-        )?)
+        )
     }
 }

@@ -36,28 +36,24 @@ mod wake_flow_scene;
 use std::time::Instant;
 
 use diffphys::flow::PressureSolver;
-use diffphys::hybrid::reference::Evaluation;
+use diffphys::hybrid::reference::Reference;
 use diffphys::hybrid::study::{Probe, Record, Setup};
-use diffphys::learn::study::run_jobs;
-use diffphys::learn::{DataSeed, Hybrid, LrSchedule, ModelCard, Split, Splits, TrainSeed};
+use diffphys::hybrid::wake::{self, Wake};
+use diffphys::learn::{Hybrid, LrSchedule, ModelCard, Splits, TrainSeed};
 use diffphys::nn::{Arithmetic, Params};
-use diffphys::report::progress_bar;
 use serde_json::{json, Value};
 
 use diffphys::learn::cache::Cache;
 use phases::{references, speed_study};
 use report::report;
 use wake_flow_scene::cli::{self, Cli, Command, ConvergenceArgs, EvaluateArgs};
-use wake_flow_scene::data::{self, base_state, reference, Bump, Reference};
-use wake_flow_scene::model;
-use wake_flow_scene::study;
 use wake_flow_scene::{
-    net, reference_scene, uncorrected, Body, Coarse, Net, NetSize, Options, Sizes, Variant,
-    MAIN_SIZE, SIZES, STEP_EVALUATIONS,
+    net, re_code, Body, Coarse, Net, NetSize, Options, Variant, CHANNEL, MAIN_SIZE, SIZES,
+    STEP_EVALUATIONS,
 };
 
 type BoxError = Box<dyn std::error::Error + Send + Sync>;
-type Wake = Hybrid<Coarse, Net>;
+type Hybrids = Hybrid<Coarse, Net>;
 
 /// Corrector evaluations per training at full size (each variant's Adam steps
 /// are this over its evaluations per step). Chosen on validation and on the
@@ -82,25 +78,26 @@ fn evaluate_command(e: EvaluateArgs) -> Result<(), BoxError> {
     let small = e.scene.small;
     let options = e.scene.options()?;
     let out = e.scene.out();
-    let sizes = Sizes::of(&options, small);
+    let scene = wake_flow_scene::wake(&options, small);
     println!(
         "wake flow: evaluating {} at Re {:?} ({} x {} coarse cells)",
         e.model.display(),
         options.held_out_re,
-        sizes.ny,
-        sizes.nx
+        scene.sizes.ny,
+        scene.sizes.nx
     );
     // The error's own message (a mismatch names the field), not its debug form.
-    let result = model::evaluate(&model::Evaluation {
-        model: &e.model,
-        sizes: &sizes,
-        arithmetic: options.arithmetic,
-        re: &options.held_out_re,
-        data_seed: e.data_seed,
-        out: &out,
-        threads: options.threads,
-    })
-    .map_err(|e| e.to_string())?;
+    let result = scene
+        .evaluate(&wake::Evaluation {
+            model: &e.model,
+            code: re_code,
+            arithmetic: options.arithmetic,
+            re: &options.held_out_re,
+            data_seed: e.data_seed,
+            out: &out,
+            threads: options.threads,
+        })
+        .map_err(|e| e.to_string())?;
     common::print_json_line(&json!({
         "example": "wake_flow",
         "command": "evaluate",
@@ -122,8 +119,13 @@ fn evaluate_command(e: EvaluateArgs) -> Result<(), BoxError> {
 fn convergence_command(c: ConvergenceArgs) -> Result<(), BoxError> {
     let run_start = Instant::now();
     let options = c.scene.options()?;
-    let sizes = Sizes::of(&options, c.scene.small);
-    let result = wake_flow_scene::convergence::check(&options, &sizes, c.data_seed)?;
+    let re = [
+        &options.train_re,
+        &options.validation_re,
+        &options.held_out_re,
+    ];
+    let scene = wake_flow_scene::wake(&options, c.scene.small);
+    let result = scene.convergence(re.map(|r| &r[..]), c.data_seed, options.threads)?;
     common::print_json_line(&json!({
         "example": "wake_flow",
         "command": "convergence",
@@ -138,7 +140,7 @@ fn convergence_command(c: ConvergenceArgs) -> Result<(), BoxError> {
 /// What every phase of the study reads: the options, the scenes, the cache.
 struct Ctx {
     options: Options,
-    sizes: Sizes,
+    wake: Wake,
     seeds: common::Seeds,
     args: common::ExampleArgs,
     coarse: Coarse,
@@ -164,10 +166,11 @@ impl Ctx {
             npy: cli.train.npy,
         };
         std::fs::create_dir_all(&args.out)?;
-        let sizes = Sizes::of(&options, small);
-        let fine = reference_scene(&sizes)?;
-        let coarse = Coarse::new(uncorrected(&sizes, 1, PressureSolver::Cholesky)?);
-        let cache = data::cache(&args.out, &sizes)?;
+        let wake = wake_flow_scene::wake(&options, small);
+        let fine = wake.reference_scene()?;
+        let coarse = Coarse::new(wake.uncorrected(1, PressureSolver::Cholesky)?);
+        let cache = wake.cache(&args.out)?;
+        let sizes = &wake.sizes;
         // `--iterations N`: N Adam steps of STEP_EVALUATIONS evaluations each.
         let evaluations = cli
             .train
@@ -184,7 +187,7 @@ impl Ctx {
             threads: options.threads,
             arithmetic: options.arithmetic,
             options,
-            sizes,
+            wake,
             seeds: common::Seeds { data, train },
             args,
             coarse,
@@ -198,7 +201,7 @@ impl Ctx {
     /// The study of the scene's options (see [`Setup`]); `card` gives the
     /// settings a saved corrector of a size must match.
     fn setup<'a>(&'a self, card: &'a (dyn Fn(NetSize) -> ModelCard + Sync)) -> Setup<'a> {
-        let (options, sizes) = (&self.options, &self.sizes);
+        let (options, sizes) = (&self.options, &self.wake.sizes);
         Setup {
             coarse: &self.coarse,
             code: wake_flow_scene::re_code,
@@ -216,12 +219,7 @@ impl Ctx {
                 final_fraction: 0.1,
             },
             checkpoint: Some(4),
-            evaluation: Evaluation {
-                starts: &sizes.starts,
-                rollout: sizes.rollout,
-                long: sizes.long,
-                free_stream: [wake_flow_scene::U_IN, 0.0],
-            },
+            evaluation: self.wake.evaluation(),
             held_out_conditions: options.held_out_re.len(),
             threads: self.threads,
             validation_only: self.validation_only,
@@ -255,7 +253,7 @@ fn main() -> Result<(), BoxError> {
     }
     let ctx = Ctx::new(&cli)?;
     let mut rec = Record::default();
-    let card = |size| model::card(&ctx.sizes, size, ctx.arithmetic);
+    let card = |size| ctx.wake.card(size, ctx.arithmetic);
     let setup = ctx.setup(&card);
     let mut speed_inputs = None;
     let mut params_count = serde_json::Map::new();
@@ -292,7 +290,7 @@ fn count_readings(ctx: &Ctx, rec: &mut Record) -> Result<(), BoxError> {
     };
     let configuration = format!(
         "{shaping:?} | {:?} | corrector evaluations {} | training seeds {:?}",
-        ctx.sizes, ctx.evaluations, ctx.seeds.train
+        ctx.wake.sizes, ctx.evaluations, ctx.seeds.train
     );
     let split = |ds| {
         format!(

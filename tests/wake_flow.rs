@@ -11,14 +11,29 @@ mod wake_flow_scene;
 
 use clap::Parser;
 use diffphys::flow::{FlowState, PressureSolver, Splitting};
-use diffphys::hybrid::{free_faces, sample, LatticeNet};
+use diffphys::hybrid::{free_faces, sample, HybridError, LatticeNet};
 use diffphys::learn::{Hybrid, LearnError, Simulator, Split, State, TrainSeed};
 use diffphys::nn::Arithmetic;
 use ndarray::Array2;
 use wake_flow_scene::cli::{seeds, Cli, Command};
 use wake_flow_scene::{
-    net, re_code, uncorrected, viscosity, Coarse, NetSize, Options, Sizes, Variant, WakeError,
+    net, re_code, small_sizes, Coarse, NetSize, Options, Sizes, Variant, Wake, WakeError, CHANNEL,
 };
+
+/// The scene at `sizes`.
+fn wake(sizes: Sizes) -> Wake {
+    Wake {
+        channel: CHANNEL,
+        sizes,
+    }
+}
+
+/// The coarse solver of `sizes`.
+fn uncorrected(sizes: Sizes) -> diffphys::flow::Scene {
+    wake(sizes)
+        .uncorrected(1, PressureSolver::Cholesky)
+        .unwrap()
+}
 
 /// The command line `wake_flow --small ARGS`, parsed by clap (which must
 /// accept it) and made typed options by the scene.
@@ -105,7 +120,7 @@ fn an_unroll_of_zero_is_refused() {
 fn a_reynolds_number_outside_the_range_is_refused() {
     for re in ["10", "5000", "nan"] {
         match options(&["--held-out-re", re]) {
-            Err(WakeError::ReOutOfRange { .. }) => {}
+            Err(WakeError::Hybrid(HybridError::ReOutOfRange { .. })) => {}
             other => panic!("Re {re}: expected out of range, got {other:?}"),
         }
     }
@@ -130,7 +145,7 @@ fn an_empty_split_is_refused() {
 }
 
 fn coarse() -> Coarse {
-    Coarse::new(uncorrected(&Sizes::small(), 1, PressureSolver::Cholesky).unwrap())
+    Coarse::new(uncorrected(small_sizes()))
 }
 
 /// A batch of one uniform flow at Re 400.
@@ -141,7 +156,7 @@ fn probe(c: &Coarse) -> State {
         Array2::from_elem(g.shape_x(), 1.0),
         Array2::zeros(g.shape_y()),
     );
-    State::stack(&[&sample(c.scene(), &s, viscosity(400.0))]).unwrap()
+    State::stack(&[&sample(c.scene(), &s, CHANNEL.viscosity(400.0))]).unwrap()
 }
 
 #[test]
@@ -187,8 +202,7 @@ fn the_incremental_coarse_solver_carries_its_pressure_uncorrected() {
         options(&["--coarse-splitting", "strang"]),
         Err(WakeError::Argument { .. })
     ));
-    let sizes = Sizes::of(&o, true);
-    let c = Coarse::new(uncorrected(&sizes, 1, PressureSolver::Cholesky).unwrap());
+    let c = Coarse::new(uncorrected(wake_flow_scene::wake(&o, true).sizes));
     assert_eq!(c.auxiliary_fields(), 1);
     let probe = probe(&c);
     assert_eq!(probe.fields.len(), 3);
@@ -283,11 +297,10 @@ fn the_coarse_advection_parses_and_an_unknown_one_is_refused() {
     );
     let o = options(&["--coarse-advection", "maccormack"]).unwrap();
     assert_eq!(o.coarse_advection, Advection::MacCormack { limiter: true });
-    let sizes = Sizes {
+    let scene = uncorrected(Sizes {
         advection: o.coarse_advection,
-        ..Sizes::small()
-    };
-    let scene = uncorrected(&sizes, 1, PressureSolver::Cholesky).unwrap();
+        ..small_sizes()
+    });
     assert_eq!(
         scene.settings().advection,
         Advection::MacCormack { limiter: true }
@@ -337,19 +350,18 @@ fn the_body_the_reference_scheme_and_the_arithmetic_parse_and_unknown_names_are_
 /// averages them onto the coarse grid.
 fn pinned_after_one_reference_step(body: wake_flow_scene::Body) -> f64 {
     use diffphys::flow::restrict_velocity;
-    use wake_flow_scene::{reference_scene, FACTOR};
-    let sizes = Sizes {
+    let w = wake(Sizes {
         body,
-        ..Sizes::small()
-    };
-    let coarse = Coarse::new(uncorrected(&sizes, 1, PressureSolver::Cholesky).unwrap());
-    let fine = reference_scene(&sizes).unwrap();
+        ..small_sizes()
+    });
+    let coarse = Coarse::new(w.uncorrected(1, PressureSolver::Cholesky).unwrap());
+    let fine = w.reference_scene().unwrap();
     let mut start = FlowState::zeros(&fine);
     start.ux.fill(1.0);
     let after = fine.forward(&start, &fine.params()).unwrap().0;
     let (ux, uy) = restrict_velocity(
         coarse.scene().grid(),
-        FACTOR,
+        CHANNEL.factor,
         after.ux.view(),
         after.uy.view(),
     )
@@ -378,13 +390,14 @@ fn only_the_cylinder_body_leaves_flow_on_the_pinned_faces() {
 
 #[test]
 fn the_inscribed_body_is_inside_the_reference_body() {
-    use wake_flow_scene::{Body, FACTOR};
-    let sizes = Sizes {
+    use wake_flow_scene::Body;
+    const FACTOR: usize = CHANNEL.factor;
+    let w = wake(Sizes {
         body: Body::Inscribed,
-        ..Sizes::small()
-    };
-    let coarse = uncorrected(&sizes, 1, PressureSolver::Cholesky).unwrap();
-    let fine = wake_flow_scene::reference_scene(&sizes).unwrap();
+        ..small_sizes()
+    });
+    let coarse = w.uncorrected(1, PressureSolver::Cholesky).unwrap();
+    let fine = w.reference_scene().unwrap();
     let (c, f) = (coarse.solid(), fine.solid());
     assert!(c.iter().any(|&s| s), "the coarse body has solid cells");
     for ((i, j), &solid) in c.indexed_iter() {
@@ -398,11 +411,11 @@ fn the_inscribed_body_is_inside_the_reference_body() {
 /// reference.
 #[test]
 fn evaluate_refuses_a_model_saved_for_another_scene() {
+    use diffphys::hybrid::wake::Evaluation;
     use diffphys::learn::SavedModel;
-    use wake_flow_scene::model::{card, evaluate, Evaluation};
-    use wake_flow_scene::{Body, MAIN_SIZE};
+    use wake_flow_scene::{full_sizes, Body, MAIN_SIZE};
 
-    let sizes = Sizes::small();
+    let sizes = small_sizes();
     let c = coarse();
     let (_, params) = net(
         c.scene(),
@@ -412,12 +425,13 @@ fn evaluate_refuses_a_model_saved_for_another_scene() {
     )
     .unwrap();
     let dir = std::env::temp_dir().join(format!("diffphys-wake-model-{}", std::process::id()));
-    SavedModel::save(&dir, &params, &card(&sizes, MAIN_SIZE, Arithmetic::Single)).unwrap();
+    let card = wake(sizes.clone()).card(MAIN_SIZE, Arithmetic::Single);
+    SavedModel::save(&dir, &params, &card).unwrap();
     let staircase = Sizes {
         body: Body::Staircase,
-        ..Sizes::small()
+        ..small_sizes()
     };
-    let full = Sizes::full();
+    let full = full_sizes();
     for (scene, arithmetic, field) in [
         (&staircase, Arithmetic::Single, "body"),
         (&sizes, Arithmetic::Native, "network_arithmetic"),
@@ -425,15 +439,15 @@ fn evaluate_refuses_a_model_saved_for_another_scene() {
     ] {
         let asked = Evaluation {
             model: &dir,
-            sizes: scene,
+            code: re_code,
             arithmetic,
             re: &[283.0],
             data_seed: None,
             out: &dir.join("out"),
             threads: 1,
         };
-        match evaluate(&asked) {
-            Err(WakeError::Learn(LearnError::SettingsMismatch { field: f, .. })) => {
+        match wake(scene.clone()).evaluate(&asked) {
+            Err(HybridError::Learn(LearnError::SettingsMismatch { field: f, .. })) => {
                 assert_eq!(f, field)
             }
             other => panic!(

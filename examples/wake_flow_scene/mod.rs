@@ -25,17 +25,12 @@
 //! Reynolds numbers.
 
 pub mod cli;
-pub mod convergence;
-pub mod data;
-pub mod model;
 mod net;
-mod solvers;
-pub mod study;
 
+pub use diffphys::hybrid::wake::{Body, Channel, ReferenceScheme, Sizes, Wake};
 pub use diffphys::hybrid::NetSize;
 pub use diffphys::learn::study::Variant;
 pub use net::{net, Net, MAIN_SIZE, SIZES};
-pub use solvers::{reference_scene, reference_scene_at, uncorrected, Body, ReferenceScheme};
 
 /// The coarse solver: the hybrid library's simulator of the coarse scene (a
 /// viscosity per sample, so one batch mixes Reynolds numbers).
@@ -46,20 +41,19 @@ use diffphys::learn::{LearnError, Split};
 use diffphys::nn::{Arithmetic, NnError};
 use diffphys::tape::TapeError;
 
-/// The domain's length along the flow.
-pub const LX: f64 = 2.0;
-/// Its width.
-pub const LY: f64 = 1.0;
-/// The cylinder's centre.
-pub const CENTRE: [f64; 2] = [0.5, 0.5];
-/// The cylinder's diameter (the length of `Re`).
-pub const DIAMETER: f64 = 0.2;
-/// The inflow speed.
-pub const U_IN: f64 = 1.0;
-/// The reference's refinement in space and time.
-pub const FACTOR: usize = 4;
-/// The Reynolds numbers a user may ask for (`--held-out-re`).
-pub const RE_RANGE: [f64; 2] = [50.0, 3200.0];
+/// The scene's channel: 2 long and 1 wide, a cylinder of diameter 0.2 at
+/// (0.5, 0.5), inflow speed 1, a reference 4× finer in space and time,
+/// Re from 50 to 3200, the scenes built at Re 400.
+pub const CHANNEL: Channel = Channel {
+    extent: [2.0, 1.0],
+    centre: [0.5, 0.5],
+    diameter: 0.2,
+    inflow: 1.0,
+    factor: 4,
+    re_range: [50.0, 3200.0],
+    re_centre: RE_CENTRE,
+};
+
 /// The Reynolds number the network's Re channel is centred on.
 pub const RE_CENTRE: f64 = 400.0;
 
@@ -67,12 +61,6 @@ pub const RE_CENTRE: f64 = 400.0;
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum WakeError {
-    /// A Reynolds number outside [`RE_RANGE`] (or not finite).
-    #[error("Reynolds number {re} is outside the scene's range [50, 3200]")]
-    ReOutOfRange {
-        /// What was asked for.
-        re: f64,
-    },
     /// A bad command-line argument.
     #[error("{option}: {message}")]
     Argument {
@@ -93,7 +81,8 @@ pub enum WakeError {
     /// A tape op refused.
     #[error(transparent)]
     Tape(#[from] TapeError),
-    /// The hybrid library refused (a corrector size, a trajectory).
+    /// The hybrid library refused (a Reynolds number out of range, a
+    /// corrector size, a trajectory).
     #[error(transparent)]
     Hybrid(#[from] diffphys::hybrid::HybridError),
 }
@@ -101,27 +90,10 @@ pub enum WakeError {
 /// The scene's result type.
 pub type Result<T> = std::result::Result<T, WakeError>;
 
-/// The viscosity of `re`.
-pub fn viscosity(re: f64) -> f64 {
-    U_IN * DIAMETER / re
-}
-
-/// `re` if it lies in [`RE_RANGE`].
-///
-/// # Errors
-/// [`WakeError::ReOutOfRange`].
-pub fn checked_re(re: f64) -> Result<f64> {
-    if re.is_finite() && (RE_RANGE[0]..=RE_RANGE[1]).contains(&re) {
-        Ok(re)
-    } else {
-        Err(WakeError::ReOutOfRange { re })
-    }
-}
-
-/// The network's Re input: `ln(Re / RE_CENTRE) / ln 4`, about −1.5 to 1.5 over
-/// [`RE_RANGE`].
+/// The network's Re input: `ln(Re / RE_CENTRE) / ln 4`, about −1.5 to 1.5
+/// over the channel's range.
 pub fn re_code(nu: f64) -> f64 {
-    let re = U_IN * DIAMETER / nu;
+    let re = CHANNEL.inflow * CHANNEL.diameter / nu;
     (re / RE_CENTRE).ln() / 4f64.ln()
 }
 
@@ -138,7 +110,7 @@ pub const STEP_EVALUATIONS: usize = 4;
 ///
 /// # Errors
 /// [`WakeError::Argument`] for text that is not a number;
-/// [`WakeError::ReOutOfRange`]; [`LearnError::EmptySplit`] for an empty list.
+/// [`diffphys::hybrid::HybridError::ReOutOfRange`]; [`LearnError::EmptySplit`] for an empty list.
 pub fn parse_re_list(option: &str, text: &str, split: Split) -> Result<Vec<f64>> {
     let list = text
         .split(',')
@@ -150,7 +122,7 @@ pub fn parse_re_list(option: &str, text: &str, split: Split) -> Result<Vec<f64>>
                 message: format!("not a number: {s:?}"),
             })
         })
-        .map(|r| r.and_then(checked_re))
+        .map(|r| r.and_then(|re| Ok(CHANNEL.checked_re(re)?)))
         .collect::<Result<Vec<_>>>()?;
     if list.is_empty() {
         return Err(LearnError::EmptySplit {
@@ -189,141 +161,60 @@ pub fn checked_list<T>(
     Ok(list)
 }
 
-/// The scene's sizes and schedule of one run (full or `--small`).
-#[derive(Debug, Clone, PartialEq)]
-pub struct Sizes {
-    /// Coarse cells along x (streamwise).
-    pub nx: usize,
-    /// Coarse cells along y.
-    pub ny: usize,
-    /// The coarse time step.
-    pub dt: f64,
-    /// Coarse steps from the start state to the split's base state.
-    pub warm_base: usize,
-    /// Coarse steps from the base state at each Re before recording (the
-    /// skipped transient).
-    pub warm: usize,
-    /// Coarse steps recorded per Re.
-    pub record: usize,
-    /// The base state's Reynolds number.
-    pub base_re: f64,
-    /// Rollout length of the headline figure.
-    pub rollout: usize,
-    /// Its start steps in the recorded trajectory.
-    pub starts: Vec<usize>,
-    /// The long rollout (from step 0).
-    pub long: usize,
-    /// The starts of the speed study's rollouts (a subset of `starts`: the
-    /// 4× solver is the costly part).
-    pub speed_starts: Vec<usize>,
-    /// The coarse (uncorrected and corrected) solver's advection, also at the
-    /// speed study's finer levels.
-    pub advection: Advection,
-    /// The coarse solver's splitting (also at the speed study's finer
-    /// levels): with [`Splitting::Incremental`] its state carries the
-    /// pressure, an auxiliary field.
-    pub splitting: Splitting,
-    /// How each resolution sees the cylinder.
-    pub body: Body,
-    /// The reference's scheme.
-    pub reference: ReferenceScheme,
-}
-
-impl Sizes {
-    /// The full or small scene with the schemes and body of `options`.
-    pub fn of(options: &Options, small: bool) -> Self {
-        Sizes {
+/// The scene of `options` (full or small).
+pub fn wake(options: &Options, small: bool) -> Wake {
+    Wake {
+        channel: CHANNEL,
+        sizes: Sizes {
             advection: options.coarse_advection,
             splitting: options.coarse_splitting,
             body: options.body,
             reference: options.reference,
-            ..if small { Sizes::small() } else { Sizes::full() }
-        }
-    }
-
-    /// The full scene.
-    pub fn full() -> Self {
-        Sizes {
-            nx: 64,
-            ny: 32,
-            dt: 0.01,
-            warm_base: 600,
-            warm: 200,
-            record: 250,
-            base_re: 400.0,
-            rollout: 100,
-            starts: vec![0, 50, 100, 150],
-            long: 240,
-            speed_starts: vec![0, 100],
-            advection: Advection::SemiLagrangian,
-            splitting: Splitting::Plain,
-            body: Body::Inscribed,
-            reference: ReferenceScheme::SecondOrder,
-        }
-    }
-
-    /// CI: 16 × 32 cells, short trajectories.
-    pub fn small() -> Self {
-        Sizes {
-            nx: 32,
-            ny: 16,
-            dt: 0.02,
-            warm_base: 60,
-            warm: 20,
-            record: 40,
-            base_re: 400.0,
-            rollout: 16,
-            starts: vec![0, 16],
-            long: 36,
-            speed_starts: vec![0, 16],
-            advection: Advection::SemiLagrangian,
-            splitting: Splitting::Plain,
-            body: Body::Inscribed,
-            reference: ReferenceScheme::SecondOrder,
-        }
+            ..if small { small_sizes() } else { full_sizes() }
+        },
     }
 }
 
-/// The coarse solver's advection schemes, by their `--coarse-advection` name.
-pub const ADVECTIONS: [(&str, Advection); 2] = [
-    ("semi-lagrangian", Advection::SemiLagrangian),
-    ("maccormack", Advection::MacCormack { limiter: true }),
-];
-
-/// The `--coarse-advection` name of `advection`.
-pub fn advection_label(advection: Advection) -> &'static str {
-    name_in(&ADVECTIONS, advection)
+/// The full scene: 32 × 64 coarse cells, dt 0.01.
+pub fn full_sizes() -> Sizes {
+    Sizes {
+        nx: 64,
+        ny: 32,
+        dt: 0.01,
+        warm_base: 600,
+        warm: 200,
+        record: 250,
+        base_re: 400.0,
+        rollout: 100,
+        starts: vec![0, 50, 100, 150],
+        long: 240,
+        speed_starts: vec![0, 100],
+        advection: Advection::SemiLagrangian,
+        splitting: Splitting::Plain,
+        body: Body::Inscribed,
+        reference: ReferenceScheme::SecondOrder,
+    }
 }
 
-/// The coarse solver's splittings, by their `--coarse-splitting` name.
-pub const SPLITTINGS: [(&str, Splitting); 2] = [
-    ("plain", Splitting::Plain),
-    ("incremental", Splitting::Incremental),
-];
-
-/// The `--coarse-splitting` name of `splitting`.
-pub fn splitting_label(splitting: Splitting) -> &'static str {
-    name_in(&SPLITTINGS, splitting)
+/// CI: 16 × 32 cells, short trajectories.
+pub fn small_sizes() -> Sizes {
+    Sizes {
+        nx: 32,
+        ny: 16,
+        dt: 0.02,
+        warm_base: 60,
+        warm: 20,
+        record: 40,
+        base_re: 400.0,
+        rollout: 16,
+        starts: vec![0, 16],
+        long: 36,
+        speed_starts: vec![0, 16],
+        ..full_sizes()
+    }
 }
 
-/// The corrector's convolution arithmetic, by its `--network-arithmetic` name.
-/// `f32` is the default: on validation it trains as well as `f64` in about
-/// 0.8× the time (docs/11, "Cost").
-pub const ARITHMETICS: [(&str, Arithmetic); 2] =
-    [("f32", Arithmetic::Single), ("f64", Arithmetic::Native)];
-
-/// The `--network-arithmetic` name of `arithmetic`.
-pub fn arithmetic_label(arithmetic: Arithmetic) -> &'static str {
-    name_in(&ARITHMETICS, arithmetic)
-}
-
-/// The name of `value` in a table of names.
-fn name_in<T: PartialEq>(table: &[(&'static str, T)], value: T) -> &'static str {
-    table
-        .iter()
-        .find(|(_, v)| *v == value)
-        .map_or("?", |(n, _)| n)
-}
+pub use diffphys::hybrid::wake::{ADVECTIONS, ARITHMETICS, SPLITTINGS};
 
 /// The value named `name` in a table of names; an argument error for
 /// `option` listing the names otherwise.

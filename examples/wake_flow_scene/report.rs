@@ -12,9 +12,9 @@ pub(crate) fn report(
     params_count: serde_json::Map<String, Value>,
     run_start: Instant,
 ) -> Result<(), BoxError> {
+    let sizes = &ctx.wake.sizes;
     let Ctx {
         options,
-        sizes,
         seeds,
         args,
         coarse,
@@ -32,7 +32,7 @@ pub(crate) fn report(
     rec.charts(
         &args.out,
         coarse.scene(),
-        (wake_flow_scene::CENTRE, 0.5 * wake_flow_scene::DIAMETER),
+        (CHANNEL.centre, 0.5 * CHANNEL.diameter),
         sol,
     )?;
     let npy: Vec<(String, ndarray::ArrayViewD<'_, f64>)> = (rec.results.last)
@@ -71,9 +71,9 @@ pub(crate) fn report(
     let setup_json = json!({
         "body": sizes.body.label(),
         "reference_scheme": sizes.reference.label(),
-        "coarse_advection": wake_flow_scene::advection_label(sizes.advection),
-        "coarse_splitting": wake_flow_scene::splitting_label(sizes.splitting),
-        "network_arithmetic": wake_flow_scene::arithmetic_label(arithmetic),
+        "coarse_advection": wake::name_in(&wake::ADVECTIONS, sizes.advection),
+        "coarse_splitting": wake::name_in(&wake::SPLITTINGS, sizes.splitting),
+        "network_arithmetic": wake::name_in(&wake::ARITHMETICS, arithmetic),
         "pinned_face_error": rec.pinned_face_error,
     });
     let mut line = json!({
@@ -89,7 +89,7 @@ pub(crate) fn report(
         "rollout_starts": sizes.starts,
         "long_rollout_steps": sizes.long,
         "re_definition": "U D / nu, U = 1 inflow speed, D = 0.2 cylinder diameter",
-        "re_range": wake_flow_scene::RE_RANGE,
+        "re_range": CHANNEL.re_range,
         "data_seeds": seeds.data,
         "train_seeds": seeds.train,
         "train_re": options.train_re,

@@ -23,6 +23,9 @@
 //! - Speed against accuracy ([`speed`]): the corrected coarse solver and
 //!   uncorrected finer ones from the same starts against the same reference,
 //!   timed per coarse step.
+//! - A body in a channel ([`wake`]): the wake scene family's solvers at
+//!   every resolution, its cached reference, saved correctors re-evaluated
+//!   at any Re, the reference's convergence check and the speed study.
 //! - Flow metrics of a rollout ([`metrics`]): the error of the velocity's
 //!   deviation from a free stream and of the vorticity, as
 //!   [`diffphys_learn::Metric`]s read them.
@@ -52,6 +55,7 @@ pub mod reference;
 mod simulator;
 pub mod speed;
 pub mod study;
+pub mod wake;
 
 pub use corrector::{LatticeNet, NetSize, ParamCode};
 pub use simulator::{free_faces, sample, FlowSimulator};
@@ -89,6 +93,22 @@ pub enum HybridError {
         re: f64,
         /// The pinned-face error.
         error: f64,
+    },
+    /// A Reynolds number outside the scene's range (or not finite).
+    #[error("Reynolds number {re} is outside the scene's range [{}, {}]", range[0], range[1])]
+    ReOutOfRange {
+        /// What was asked for.
+        re: f64,
+        /// The range.
+        range: [f64; 2],
+    },
+    /// A setting the scene cannot honour.
+    #[error("{what}: {message}")]
+    Setting {
+        /// The setting.
+        what: &'static str,
+        /// What is wrong.
+        message: String,
     },
     /// The learning library refused.
     #[error(transparent)]

@@ -3,7 +3,8 @@
 //! at Reynolds numbers it never saw, and set against simply running a finer
 //! grid.
 //!
-//! Scene (physics in `wake_flow_scene`): a cylinder wake in a 2 × 1 channel,
+//! Scene (its statement in `wake_flow_scene`, the work in the library's
+//! `diffphys::hybrid::wake`): a cylinder wake in a 2 × 1 channel,
 //! uniform inflow, outflow, free-slip side walls; the coarse solver is
 //! semi-Lagrangian with plain splitting, the reference 128 × 256 with
 //! MacCormack and incremental splitting, restricted by face averages.
@@ -18,8 +19,8 @@
 //! corrector sizes. The speed study rolls out the uncorrected solver at 1×, 2×
 //! and 4× the resolution and the corrected coarse one, timed.
 //!
-//! Options: `wake_flow --help` lists every flag with its default (the scene's
-//! own in `wake_flow_scene::cli`). Every trained corrector is saved under
+//! Options: `wake_flow --help` lists every flag (`hybrid::wake::args`; the
+//! list defaults are `wake_flow_scene::defaults`, printed as a run starts). Every trained corrector is saved under
 //! `OUT/models/` with the settings that shaped it; `wake_flow evaluate
 //! --model DIR --held-out-re LIST` evaluates one at any Re in range without
 //! training; `wake_flow convergence` sets the reference against the same
@@ -27,33 +28,20 @@
 //! `cargo run --release --example wake_flow` (`-- --small` for CI).
 
 mod common;
-#[path = "wake_flow_scene/phases.rs"]
-mod phases;
-#[path = "wake_flow_scene/report.rs"]
-mod report;
 mod wake_flow_scene;
 
 use std::time::Instant;
 
-use diffphys::flow::PressureSolver;
-use diffphys::hybrid::reference::Reference;
-use diffphys::hybrid::study::{Probe, Record, Setup};
-use diffphys::hybrid::wake::{self, Wake};
-use diffphys::learn::{Hybrid, LrSchedule, ModelCard, Splits, TrainSeed};
-use diffphys::nn::{Arithmetic, Params};
+use diffphys::hybrid::study::Record;
+use diffphys::hybrid::wake::args::{Cli, Command, ConvergenceArgs, EvaluateArgs};
+use diffphys::hybrid::wake::study::{Outcome, Plan, Study};
+use diffphys::hybrid::wake::{self};
+use diffphys::learn::LrSchedule;
 use serde_json::{json, Value};
 
-use diffphys::learn::cache::Cache;
-use phases::{references, speed_study};
-use report::report;
-use wake_flow_scene::cli::{self, Cli, Command, ConvergenceArgs, EvaluateArgs};
-use wake_flow_scene::{
-    net, re_code, Body, Coarse, Net, NetSize, Options, Variant, CHANNEL, MAIN_SIZE, SIZES,
-    STEP_EVALUATIONS,
-};
+use wake_flow_scene::{re_code, Options, Variant, CHANNEL, MAIN_SIZE, SIZES, STEP_EVALUATIONS};
 
 type BoxError = Box<dyn std::error::Error + Send + Sync>;
-type Hybrids = Hybrid<Coarse, Net>;
 
 /// Corrector evaluations per training at full size (each variant's Adam steps
 /// are this over its evaluations per step). Chosen on validation and on the
@@ -71,12 +59,26 @@ const PILOT_DIVISOR: usize = 4;
 /// full size.
 const VALIDATION_EVALUATIONS: usize = 1_600;
 
+/// What the scene fixes about its trainings.
+const PLAN: Plan = Plan {
+    code: re_code,
+    main_size: MAIN_SIZE,
+    evaluations: [EVALUATIONS, 16 * STEP_EVALUATIONS],
+    step_evaluations: STEP_EVALUATIONS,
+    pilot_divisor: PILOT_DIVISOR,
+    validation_evaluations: [VALIDATION_EVALUATIONS, 32],
+    schedule: LrSchedule::Cosine {
+        final_fraction: 0.1,
+    },
+    checkpoint: Some(4),
+};
+
 /// `wake_flow evaluate --model DIR [--held-out-re LIST] [--data-seed N]`
 /// with the scene's options: a saved corrector rolled out at each Re.
 fn evaluate_command(e: EvaluateArgs) -> Result<(), BoxError> {
     let run_start = Instant::now();
     let small = e.scene.small;
-    let options = e.scene.options()?;
+    let options = wake_flow_scene::scene_options(&e.scene)?;
     let out = e.scene.out();
     let scene = wake_flow_scene::wake(&options, small);
     println!(
@@ -118,7 +120,7 @@ fn evaluate_command(e: EvaluateArgs) -> Result<(), BoxError> {
 /// `wake_flow convergence [--data-seed N]` with the scene's options.
 fn convergence_command(c: ConvergenceArgs) -> Result<(), BoxError> {
     let run_start = Instant::now();
-    let options = c.scene.options()?;
+    let options = wake_flow_scene::scene_options(&c.scene)?;
     let re = [
         &options.train_re,
         &options.validation_re,
@@ -137,112 +139,6 @@ fn convergence_command(c: ConvergenceArgs) -> Result<(), BoxError> {
     Ok(())
 }
 
-/// What every phase of the study reads: the options, the scenes, the cache.
-struct Ctx {
-    options: Options,
-    wake: Wake,
-    seeds: common::Seeds,
-    args: common::ExampleArgs,
-    coarse: Coarse,
-    fine: diffphys::flow::Scene,
-    cache: Cache,
-    /// The budget of each training: corrector evaluations.
-    evaluations: usize,
-    threads: usize,
-    arithmetic: Arithmetic,
-    /// Develop on validation only (`--validation-only`): the held-out split
-    /// is not read.
-    validation_only: bool,
-}
-
-impl Ctx {
-    fn new(cli: &Cli) -> Result<Self, BoxError> {
-        let small = cli.train.scene.small;
-        let options = Options::from_args(&cli.train)?;
-        let (data, train) = cli::seeds(&cli.train)?;
-        let args = common::ExampleArgs {
-            small,
-            out: cli.train.scene.out(),
-            npy: cli.train.npy,
-        };
-        std::fs::create_dir_all(&args.out)?;
-        let wake = wake_flow_scene::wake(&options, small);
-        let fine = wake.reference_scene()?;
-        let coarse = Coarse::new(wake.uncorrected(1, PressureSolver::Cholesky)?);
-        let cache = wake.cache(&args.out)?;
-        let sizes = &wake.sizes;
-        // `--iterations N`: N Adam steps of STEP_EVALUATIONS evaluations each.
-        let evaluations = cli
-            .train
-            .iterations
-            .map_or(args.pick(EVALUATIONS, 16 * STEP_EVALUATIONS), |n| {
-                n * STEP_EVALUATIONS
-            });
-        println!(
-            "wake flow: coarse {} x {} (dt {}), reference {} x {} (dt {}); train Re {:?}, validation Re {:?}, held-out Re {:?}; {} corrector evaluations per training, at least {} per Adam step",
-            sizes.ny, sizes.nx, sizes.dt, fine.grid().ny, fine.grid().nx, fine.dt(),
-            options.train_re, options.validation_re, options.held_out_re, evaluations, STEP_EVALUATIONS
-        );
-        Ok(Ctx {
-            threads: options.threads,
-            arithmetic: options.arithmetic,
-            options,
-            wake,
-            seeds: common::Seeds { data, train },
-            args,
-            coarse,
-            fine,
-            cache,
-            evaluations,
-            validation_only: cli.train.validation_only,
-        })
-    }
-
-    /// The study of the scene's options (see [`Setup`]); `card` gives the
-    /// settings a saved corrector of a size must match.
-    fn setup<'a>(&'a self, card: &'a (dyn Fn(NetSize) -> ModelCard + Sync)) -> Setup<'a> {
-        let (options, sizes) = (&self.options, &self.wake.sizes);
-        Setup {
-            coarse: &self.coarse,
-            code: wake_flow_scene::re_code,
-            arithmetic: self.arithmetic,
-            variants: &options.variants,
-            main_size: MAIN_SIZE,
-            capacity: &options.capacity,
-            learning_rates: &options.learning_rates,
-            train_seeds: &self.seeds.train,
-            evaluations: self.evaluations,
-            step_evaluations: STEP_EVALUATIONS,
-            pilot_divisor: PILOT_DIVISOR,
-            validation_evaluations: self.args.pick(VALIDATION_EVALUATIONS, 32),
-            schedule: LrSchedule::Cosine {
-                final_fraction: 0.1,
-            },
-            checkpoint: Some(4),
-            evaluation: self.wake.evaluation(),
-            held_out_conditions: options.held_out_re.len(),
-            threads: self.threads,
-            validation_only: self.validation_only,
-            models: self.args.out.join("models"),
-            card,
-            // The staircase and inscribed bodies make the pinned faces'
-            // error zero by construction.
-            pinned_must_vanish: (sizes.body != Body::Cylinder).then(|| sizes.body.label()),
-        }
-    }
-
-    /// A corrector of `size` on the coarse scene, drawn from training seed
-    /// `seed`.
-    fn new_net(&self, size: NetSize, seed: u64) -> wake_flow_scene::Result<(Net, Params<f64>)> {
-        net(
-            self.coarse.scene(),
-            size,
-            self.arithmetic,
-            &mut TrainSeed(seed).init_rng(),
-        )
-    }
-}
-
 fn main() -> Result<(), BoxError> {
     let run_start = Instant::now();
     let cli: Cli = common::parse_args("wake_flow")?;
@@ -251,64 +147,99 @@ fn main() -> Result<(), BoxError> {
         Some(Command::Convergence(c)) => return convergence_command(c),
         None => {}
     }
-    let ctx = Ctx::new(&cli)?;
-    let mut rec = Record::default();
-    let card = |size| ctx.wake.card(size, ctx.arithmetic);
-    let setup = ctx.setup(&card);
-    let mut speed_inputs = None;
-    let mut params_count = serde_json::Map::new();
-    for size in std::iter::once(MAIN_SIZE).chain(ctx.options.capacity.iter().copied()) {
-        let (_, p) = ctx.new_net(size, 0)?;
-        params_count.insert(size.label(), json!(p.count()));
-    }
-    for &ds in &ctx.seeds.data {
-        let splits = references(&ctx, ds)?;
-        let (train, validation, sigma) = setup.untrained(ds, &splits, &mut rec)?;
-        mem("src");
-        let probe = setup.protocol(ds, &splits, (&train, &validation), sigma, &mut rec)?;
-        mem("held-out");
-        if speed_inputs.is_none() {
-            speed_inputs = Some((splits, probe));
-        }
-    }
-    let speed = speed_study(&ctx, speed_inputs.as_ref(), &mut rec)?;
-    count_readings(&ctx, &mut rec)?;
-    report(&ctx, rec, speed, params_count, run_start)
+    let options = wake_flow_scene::options(&cli.train)?;
+    let scene = wake_flow_scene::wake(&options, cli.train.scene.small);
+    let study = Study::new(scene, options, PLAN, &cli.train)?;
+    let outcome = study.run()?;
+    report(&study, &outcome, cli.train.npy, run_start)
 }
 
-/// Appends this run's held-out readings to the output folder's ledger: per
-/// data seed, the split (the reference's settings, the held-out Re, the seed)
-/// and the configuration that shaped the models read on it (every option but
-/// the held-out Re, the thread count and the speed study; the budget; the
-/// training seeds).
-fn count_readings(ctx: &Ctx, rec: &mut Record) -> Result<(), BoxError> {
-    let shaping = Options {
-        held_out_re: Vec::new(),
-        threads: 0,
-        speed: false,
-        ..ctx.options.clone()
-    };
-    let configuration = format!(
-        "{shaping:?} | {:?} | corrector evaluations {} | training seeds {:?}",
-        ctx.wake.sizes, ctx.evaluations, ctx.seeds.train
-    );
-    let split = |ds| {
-        format!(
-            "{} | held-out Re {:?} | data seed {ds}",
-            ctx.cache.settings(),
-            ctx.options.held_out_re
-        )
-    };
-    Ok(rec
-        .log
-        .count_readings(&ctx.args.out, split, &configuration)?)
-}
-
-/// Prints the peak resident memory so far (the tapes' buffer pools are freed
-/// with the training runs that made them).
-fn mem(phase: &str) {
+/// The tables, charts, `--npy` arrays and the JSON line; an error where a
+/// floor of the full scene is missed.
+fn report(study: &Study, outcome: &Outcome, npy: bool, run_start: Instant) -> Result<(), BoxError> {
+    let (rec, sizes) = (&outcome.record, &study.wake.sizes);
     println!(
-        "  memory after {phase}: peak RSS {:.0} MB",
-        common::peak_rss_bytes().unwrap_or(0) as f64 / 1e6
+        "\nheld-out figures over {} steps, long rollout {} steps (data seeds {:?} x train seeds {:?}):",
+        sizes.rollout, sizes.long, study.data_seeds, study.train_seeds
     );
+    rec.print_tables();
+    let (floors, capacity) = floors(&study.options, rec);
+    let sol = !study.options.unrolls().is_empty();
+    let body = (CHANNEL.centre, 0.5 * CHANNEL.diameter);
+    rec.charts(&study.out, study.coarse.scene(), body, sol)?;
+    let args = common::ExampleArgs {
+        small: study.small,
+        out: study.out.clone(),
+        npy,
+    };
+    let last: Vec<(String, ndarray::ArrayViewD<'_, f64>)> = (rec.results.last.iter())
+        .flat_map(|(name, s)| {
+            [
+                (format!("last_{name}_ux"), s.ux.view().into_dyn()),
+                (format!("last_{name}_uy"), s.uy.view().into_dyn()),
+            ]
+        })
+        .collect();
+    let meaning = "velocity component (u_x [nx + 1, ny] or u_y [nx, ny + 1]) after the long rollout at the first held-out Re";
+    let arrays: Vec<_> = (last.iter())
+        .map(|(n, a)| (n.as_str(), a.view(), meaning))
+        .collect();
+    args.write_npy(&arrays)?;
+    println!("floors: {floors}");
+    let mut line = json!({
+        "example": "wake_flow",
+        "capacity": capacity,
+        "floors_met": floors,
+        // The floors are the full scene's (docs/11): `--small`'s budgets and
+        // grids measure that the study runs, not what it reaches.
+        "floors_apply": !study.small,
+        "peak_rss_bytes": common::peak_rss_bytes(),
+        "wall_s": run_start.elapsed().as_secs_f64(),
+    });
+    for (key, value) in study.json(outcome) {
+        line[key] = value;
+    }
+    if study.small {
+        println!("floors: not applied at --small (they are the full scene's)");
+    }
+    if study.validation_only {
+        println!("validation only: the held-out split was not read (no held-out figure, no floor measured; the speed study ran on validation)");
+    }
+    common::print_json_line(&line);
+    let missed = diffphys::learn::missed_floors(&line["floors_met"]);
+    if !study.small && !missed.is_empty() {
+        return Err(format!("a floor of the scene is not met: {}", missed.join(", ")).into());
+    }
+    Ok(())
+}
+
+/// The floors of the scene (docs/11) from the held-out figures, and the
+/// capacity sweep's JSON.
+fn floors(options: &Options, rec: &Record) -> (Value, Value) {
+    let capacity_runs = &rec.capacity;
+    let sol_src = rec.ratio_per_re("sol_selected", "src");
+    let floor_sol_src = if sol_src.values().any(Option::is_none) || sol_src.is_empty() {
+        json!("not measured")
+    } else {
+        json!(sol_src.values().all(|r| r.unwrap_or(f64::INFINITY) <= 0.3))
+    };
+    let sol = options.unrolls().first().map(|&k| Variant::Sol(k).name());
+    let mut capacity = capacity_runs.to_json(&["sol", "non"]);
+    capacity["variant_sol"] = json!(sol);
+    let smallest = |k| capacity_runs.ratio(&SIZES[0].label(), "sol", "non", k);
+    let (smallest, smallest_long) = (smallest(0), smallest(1));
+    let floor_small = match smallest {
+        Some(r) => json!(r <= 0.8),
+        None => json!("not measured"),
+    };
+    let floors = json!({
+        "sol_selected_at_most_0.3x_src_every_held_out_re": floor_sol_src,
+        "sol_selected_over_src_per_re": sol_src,
+        "goal_sol_selected_at_most_0.1x_src": if sol_src.is_empty() || sol_src.values().any(Option::is_none) { json!("not measured") } else { json!(sol_src.values().all(|r| r.unwrap_or(f64::INFINITY) <= 0.1)) },
+        "smallest_size_sol_at_most_0.8x_non_100_steps": floor_small,
+        "smallest_size_sol_over_non_100_steps": smallest,
+        "smallest_size_sol_over_non_long": smallest_long,
+        "peak_rss_under_2_gib": common::peak_rss_bytes().map(|b| b < 2 << 30),
+    });
+    (floors, capacity)
 }

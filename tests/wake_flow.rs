@@ -11,14 +11,19 @@ mod wake_flow_scene;
 
 use clap::Parser;
 use diffphys::flow::{FlowState, PressureSolver, Splitting};
+use diffphys::hybrid::wake::args::{seeds, Cli, Command};
 use diffphys::hybrid::{free_faces, sample, HybridError, LatticeNet};
+use diffphys::hybrid::{FlowSimulator as Coarse, NetSize};
 use diffphys::learn::{Hybrid, LearnError, Simulator, Split, State, TrainSeed};
 use diffphys::nn::Arithmetic;
 use ndarray::Array2;
-use wake_flow_scene::cli::{seeds, Cli, Command};
-use wake_flow_scene::{
-    net, re_code, small_sizes, Coarse, NetSize, Options, Sizes, Variant, Wake, WakeError, CHANNEL,
-};
+use wake_flow_scene::{re_code, small_sizes, Options, Sizes, Variant, Wake, CHANNEL};
+
+/// The scene's corrector of `size` on the coarse scene `c`.
+fn net(c: &Coarse, size: NetSize) -> (LatticeNet, diffphys::nn::Params<f64>) {
+    let rng = &mut TrainSeed(1).init_rng();
+    LatticeNet::new(c.scene(), size, re_code, Arithmetic::Single, rng).unwrap()
+}
 
 /// The scene at `sizes`.
 fn wake(sizes: Sizes) -> Wake {
@@ -42,8 +47,8 @@ fn cli(args: &[&str]) -> Cli {
     Cli::try_parse_from(line).expect("clap accepts the flags")
 }
 
-fn options(args: &[&str]) -> Result<Options, WakeError> {
-    Options::from_args(&cli(args).train)
+fn options(args: &[&str]) -> Result<Options, HybridError> {
+    wake_flow_scene::options(&cli(args).train)
 }
 
 #[test]
@@ -60,11 +65,11 @@ fn options_parse_with_the_small_defaults() {
     assert_eq!((data, train), (vec![1], vec![4, 5]));
     assert!(matches!(
         seeds(&cli(&["--train-seeds", "4,x"]).train),
-        Err(WakeError::Argument { .. })
+        Err(HybridError::Argument { .. })
     ));
     assert!(matches!(
         options(&["--lrs", "1e-3,-1"]),
-        Err(WakeError::Argument { .. })
+        Err(HybridError::Argument { .. })
     ));
 }
 
@@ -85,7 +90,7 @@ fn an_unknown_flag_and_evaluate_without_a_model_are_usage_errors() {
         Some(Command::Evaluate(e)) => {
             assert_eq!(e.model, std::path::PathBuf::from("m"));
             assert_eq!(
-                e.scene.options().unwrap().body,
+                wake_flow_scene::scene_options(&e.scene).unwrap().body,
                 wake_flow_scene::Body::Staircase
             );
         }
@@ -103,7 +108,7 @@ fn an_unknown_flag_and_evaluate_without_a_model_are_usage_errors() {
 #[test]
 fn an_unknown_variant_is_refused() {
     match options(&["--variants", "non,magic"]) {
-        Err(WakeError::Learn(LearnError::UnknownVariant { name })) => assert_eq!(name, "magic"),
+        Err(HybridError::Learn(LearnError::UnknownVariant { name })) => assert_eq!(name, "magic"),
         other => panic!("expected an unknown variant, got {other:?}"),
     }
 }
@@ -112,7 +117,7 @@ fn an_unknown_variant_is_refused() {
 fn an_unroll_of_zero_is_refused() {
     assert!(matches!(
         options(&["--variants", "sol0"]),
-        Err(WakeError::Learn(LearnError::ZeroUnroll { .. }))
+        Err(HybridError::Learn(LearnError::ZeroUnroll { .. }))
     ));
 }
 
@@ -120,13 +125,13 @@ fn an_unroll_of_zero_is_refused() {
 fn a_reynolds_number_outside_the_range_is_refused() {
     for re in ["10", "5000", "nan"] {
         match options(&["--held-out-re", re]) {
-            Err(WakeError::Hybrid(HybridError::ReOutOfRange { .. })) => {}
+            Err(HybridError::ReOutOfRange { .. }) => {}
             other => panic!("Re {re}: expected out of range, got {other:?}"),
         }
     }
     assert!(matches!(
         options(&["--held-out-re", "abc"]),
-        Err(WakeError::Argument { .. })
+        Err(HybridError::Argument { .. })
     ));
 }
 
@@ -138,7 +143,9 @@ fn an_empty_split_is_refused() {
         ("--held-out-re", Split::HeldOut),
     ] {
         match options(&[flag, ","]) {
-            Err(WakeError::Learn(LearnError::EmptySplit { split: s, .. })) => assert_eq!(s, split),
+            Err(HybridError::Learn(LearnError::EmptySplit { split: s, .. })) => {
+                assert_eq!(s, split)
+            }
             other => panic!("{flag}: expected an empty split, got {other:?}"),
         }
     }
@@ -182,13 +189,7 @@ fn a_corrector_of_the_wrong_shape_is_refused() {
         }
         other => panic!("expected a corrector-fields error, got {other:?}"),
     }
-    let (corrector, params) = net(
-        c.scene(),
-        size,
-        Arithmetic::Single,
-        &mut TrainSeed(1).init_rng(),
-    )
-    .unwrap();
+    let (corrector, params) = net(&c, size);
     Hybrid::new(c.clone(), corrector)
         .check_shapes(&params, &probe(&c))
         .unwrap();
@@ -200,7 +201,7 @@ fn the_incremental_coarse_solver_carries_its_pressure_uncorrected() {
     assert_eq!(o.coarse_splitting, Splitting::Incremental);
     assert!(matches!(
         options(&["--coarse-splitting", "strang"]),
-        Err(WakeError::Argument { .. })
+        Err(HybridError::Argument { .. })
     ));
     let c = Coarse::new(uncorrected(wake_flow_scene::wake(&o, true).sizes));
     assert_eq!(c.auxiliary_fields(), 1);
@@ -210,13 +211,7 @@ fn the_incremental_coarse_solver_carries_its_pressure_uncorrected() {
         width: 4,
         blocks: 1,
     };
-    let (corrector, zero_head) = net(
-        c.scene(),
-        size,
-        Arithmetic::Single,
-        &mut TrainSeed(1).init_rng(),
-    )
-    .unwrap();
+    let (corrector, zero_head) = net(&c, size);
     // A head that does not start at zero, so the correction is not nothing.
     let mut params = diffphys::nn::Params::new();
     for (name, v) in zero_head.names().iter().zip(zero_head.values()) {
@@ -282,7 +277,7 @@ fn capacity_sizes_parse_and_bad_ones_are_refused() {
     for bad in ["w0b1", "8b1", "wxb2"] {
         assert!(matches!(
             options(&["--capacity-sizes", bad]),
-            Err(WakeError::Argument { .. })
+            Err(HybridError::Argument { .. })
         ));
     }
     assert!(options(&["--no-capacity"]).unwrap().capacity.is_empty());
@@ -306,7 +301,7 @@ fn the_coarse_advection_parses_and_an_unknown_one_is_refused() {
         Advection::MacCormack { limiter: true }
     );
     match options(&["--coarse-advection", "upwind"]) {
-        Err(WakeError::Argument { option, message }) => {
+        Err(HybridError::Argument { option, message }) => {
             assert_eq!(option, "--coarse-advection");
             assert!(message.contains("upwind"), "{message}");
         }
@@ -336,7 +331,7 @@ fn the_body_the_reference_scheme_and_the_arithmetic_parse_and_unknown_names_are_
         ("--network-arithmetic", "bf16"),
     ] {
         match options(&[flag, bad]) {
-            Err(WakeError::Argument { option, message }) => {
+            Err(HybridError::Argument { option, message }) => {
                 assert_eq!(option, flag);
                 assert!(message.contains(bad), "{message}");
             }
@@ -417,13 +412,7 @@ fn evaluate_refuses_a_model_saved_for_another_scene() {
 
     let sizes = small_sizes();
     let c = coarse();
-    let (_, params) = net(
-        c.scene(),
-        MAIN_SIZE,
-        Arithmetic::Single,
-        &mut TrainSeed(1).init_rng(),
-    )
-    .unwrap();
+    let (_, params) = net(&c, MAIN_SIZE);
     let dir = std::env::temp_dir().join(format!("diffphys-wake-model-{}", std::process::id()));
     let card = wake(sizes.clone()).card(MAIN_SIZE, Arithmetic::Single);
     SavedModel::save(&dir, &params, &card).unwrap();
@@ -471,7 +460,7 @@ fn validation_only_is_a_flag_of_the_study_not_of_its_configuration() {
     // The options that shape the models (the ledger's configuration) do not
     // change with it: a later full run counts as the same configuration.
     assert_eq!(
-        Options::from_args(&c.train).unwrap(),
-        Options::from_args(&cli(&[]).train).unwrap()
+        wake_flow_scene::options(&c.train).unwrap(),
+        wake_flow_scene::options(&cli(&[]).train).unwrap()
     );
 }

@@ -180,11 +180,4 @@ pub struct Seeds {
     pub train: Vec<u64>,
 }
 
-/// The process's peak resident set size in bytes (`VmHWM` of
-/// `/proc/self/status`; `None` where there is no such file).
-pub fn peak_rss_bytes() -> Option<u64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
-    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb * 1024)
-}
+pub use diffphys::report::peak_rss_bytes;

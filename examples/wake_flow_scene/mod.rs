@@ -1,6 +1,6 @@
-//! The physics and the network of `wake_flow`: the coarse wake solver as a
-//! batched simulator, the reference solver, the corrector, the options and the
-//! scene's typed errors.
+//! The scene of `wake_flow`: its channel, sizes, default options and
+//! corrector sizes; the hybrid library's [`diffphys::hybrid::wake`] builds
+//! the solvers, the reference and the study from them.
 //!
 //! Geometry (units: inflow speed U = 1, cylinder diameter D = 0.2): a channel
 //! 2 long (x, streamwise) and 1 wide (y), uniform inflow 1 on the left, outflow
@@ -24,22 +24,13 @@
 //! sample's parameter ([`diffphys::flow::batch`]), so one batch mixes
 //! Reynolds numbers.
 
-pub mod cli;
-mod net;
-
+pub use diffphys::hybrid::wake::args::{Options, SceneArgs, TrainArgs};
 pub use diffphys::hybrid::wake::{Body, Channel, ReferenceScheme, Sizes, Wake};
-pub use diffphys::hybrid::NetSize;
+use diffphys::hybrid::NetSize;
 pub use diffphys::learn::study::Variant;
-pub use net::{net, Net, MAIN_SIZE, SIZES};
 
-/// The coarse solver: the hybrid library's simulator of the coarse scene (a
-/// viscosity per sample, so one batch mixes Reynolds numbers).
-pub type Coarse = diffphys::hybrid::FlowSimulator;
-
-use diffphys::flow::{Advection, FlowError, Splitting};
-use diffphys::learn::{LearnError, Split};
-use diffphys::nn::{Arithmetic, NnError};
-use diffphys::tape::TapeError;
+use diffphys::flow::{Advection, Splitting};
+use diffphys::nn::Arithmetic;
 
 /// The scene's channel: 2 long and 1 wide, a cylinder of diameter 0.2 at
 /// (0.5, 0.5), inflow speed 1, a reference 4× finer in space and time,
@@ -57,38 +48,8 @@ pub const CHANNEL: Channel = Channel {
 /// The Reynolds number the network's Re channel is centred on.
 pub const RE_CENTRE: f64 = 400.0;
 
-/// Everything that can go wrong in the scene.
-#[derive(Debug, thiserror::Error)]
-#[non_exhaustive]
-pub enum WakeError {
-    /// A bad command-line argument.
-    #[error("{option}: {message}")]
-    Argument {
-        /// The option.
-        option: String,
-        /// What is wrong.
-        message: String,
-    },
-    /// The learning library refused (empty split, unroll 0, corrector shape, …).
-    #[error(transparent)]
-    Learn(#[from] LearnError),
-    /// The flow solver refused.
-    #[error(transparent)]
-    Flow(#[from] FlowError),
-    /// A network layer refused.
-    #[error(transparent)]
-    Nn(#[from] NnError),
-    /// A tape op refused.
-    #[error(transparent)]
-    Tape(#[from] TapeError),
-    /// The hybrid library refused (a Reynolds number out of range, a
-    /// corrector size, a trajectory).
-    #[error(transparent)]
-    Hybrid(#[from] diffphys::hybrid::HybridError),
-}
-
-/// The scene's result type.
-pub type Result<T> = std::result::Result<T, WakeError>;
+/// The scene's result type: the hybrid library's errors.
+pub type Result<T> = std::result::Result<T, diffphys::hybrid::HybridError>;
 
 /// The network's Re input: `ln(Re / RE_CENTRE) / ln 4`, about −1.5 to 1.5
 /// over the channel's range.
@@ -106,59 +67,22 @@ pub fn re_code(nu: f64) -> f64 {
 /// batches (docs/11, "Smaller steps").
 pub const STEP_EVALUATIONS: usize = 4;
 
-/// A comma-separated list of Reynolds numbers, each checked.
+/// The typed options of the study's command line: [`defaults`] with the
+/// flags applied.
 ///
 /// # Errors
-/// [`WakeError::Argument`] for text that is not a number;
-/// [`diffphys::hybrid::HybridError::ReOutOfRange`]; [`LearnError::EmptySplit`] for an empty list.
-pub fn parse_re_list(option: &str, text: &str, split: Split) -> Result<Vec<f64>> {
-    let list = text
-        .split(',')
-        .map(str::trim)
-        .filter(|s| !s.is_empty())
-        .map(|s| {
-            s.parse::<f64>().map_err(|_| WakeError::Argument {
-                option: option.into(),
-                message: format!("not a number: {s:?}"),
-            })
-        })
-        .map(|r| r.and_then(|re| Ok(CHANNEL.checked_re(re)?)))
-        .collect::<Result<Vec<_>>>()?;
-    if list.is_empty() {
-        return Err(LearnError::EmptySplit {
-            split,
-            context: format!("{option} lists no Reynolds number"),
-        }
-        .into());
-    }
-    Ok(list)
+/// As [`Options::from_args`].
+pub fn options(args: &TrainArgs) -> Result<Options> {
+    Options::from_args(args, &CHANNEL, defaults(args.scene.small), MAIN_SIZE)
 }
 
-/// A comma-separated list, each entry parsed by `parse` (`None`: not
-/// `what`).
+/// The scene's options for `evaluate` and `convergence`: [`defaults`] with
+/// the scene's flags applied.
 ///
 /// # Errors
-/// [`WakeError::Argument`] for an entry `parse` refuses, or no entry.
-pub fn checked_list<T>(
-    option: &str,
-    what: &str,
-    text: &str,
-    parse: impl Fn(&str) -> Option<T>,
-) -> Result<Vec<T>> {
-    let argument = |message: String| WakeError::Argument {
-        option: option.into(),
-        message,
-    };
-    let list = text
-        .split(',')
-        .map(str::trim)
-        .filter(|s| !s.is_empty())
-        .map(|s| parse(s).ok_or_else(|| argument(format!("not {what}: {s:?}"))))
-        .collect::<Result<Vec<T>>>()?;
-    if list.is_empty() {
-        return Err(argument(format!("lists no {what}")));
-    }
-    Ok(list)
+/// As [`SceneArgs::options`].
+pub fn scene_options(args: &SceneArgs) -> Result<Options> {
+    args.options(&CHANNEL, defaults(args.small))
 }
 
 /// The scene of `options` (full or small).
@@ -214,118 +138,61 @@ pub fn small_sizes() -> Sizes {
     }
 }
 
-pub use diffphys::hybrid::wake::{ADVECTIONS, ARITHMETICS, SPLITTINGS};
-
-/// The value named `name` in a table of names; an argument error for
-/// `option` listing the names otherwise.
-pub fn parse_named<T: Copy>(table: &[(&'static str, T)], option: &str, name: &str) -> Result<T> {
-    table
-        .iter()
-        .find(|(n, _)| *n == name.trim())
-        .map(|(_, v)| *v)
-        .ok_or_else(|| WakeError::Argument {
-            option: option.into(),
-            message: format!(
-                "{name:?} is not one of {}",
-                table.iter().map(|(n, _)| *n).collect::<Vec<_>>().join(", ")
-            ),
-        })
-}
-
-/// The scene's own command-line options (the seeds, `--small`, `--out`,
-/// `--iterations` and `--npy` are the examples' common ones).
-#[derive(Debug, Clone, PartialEq)]
-pub struct Options {
-    /// The variants to train (`src` always runs).
-    pub variants: Vec<Variant>,
-    /// Training Reynolds numbers.
-    pub train_re: Vec<f64>,
-    /// Validation Reynolds numbers: by default inside the training range
-    /// (141, 566) and outside it on both sides (85, 1900), as the held-out
-    /// split is.
-    pub validation_re: Vec<f64>,
-    /// Held-out Reynolds numbers.
-    pub held_out_re: Vec<f64>,
-    /// Learning rates to choose from on validation.
-    pub learning_rates: Vec<f64>,
-    /// The corrector sizes of the capacity sweep besides [`MAIN_SIZE`]
-    /// (empty: no sweep).
-    pub capacity: Vec<NetSize>,
-    /// Run the speed study.
-    pub speed: bool,
-    /// Trainings (and held-out evaluations) run at once, each on its own
-    /// thread (default: the available cores).
-    pub threads: usize,
-    /// The coarse solver's advection (`--coarse-advection`).
-    pub coarse_advection: Advection,
-    /// The coarse solver's splitting (`--coarse-splitting`).
-    pub coarse_splitting: Splitting,
-    /// How each resolution sees the cylinder (`--body cylinder|staircase|inscribed`).
-    pub body: Body,
-    /// The reference's scheme (`--reference-scheme second-order|coarse`).
-    pub reference: ReferenceScheme,
-    /// The corrector's convolution arithmetic (`--network-arithmetic f32|f64`).
-    pub arithmetic: Arithmetic,
-}
-
-impl Options {
-    /// The defaults (full or small).
-    pub fn defaults(small: bool) -> Self {
-        let list = |v: &[f64]| v.to_vec();
-        Options {
-            variants: vec![
-                Variant::Src,
-                Variant::Non,
-                Variant::Noise,
-                Variant::Sol(4),
-                Variant::Sol(16),
-            ],
-            train_re: if small {
-                list(&[200.0, 400.0, 800.0])
-            } else {
-                list(&[100.0, 200.0, 400.0, 800.0, 1600.0])
-            },
-            validation_re: if small {
-                list(&[566.0])
-            } else {
-                list(&[85.0, 141.0, 566.0, 1900.0])
-            },
-            held_out_re: if small {
-                list(&[283.0, 2263.0])
-            } else {
-                list(&[71.0, 283.0, 1131.0, 2263.0])
-            },
-            learning_rates: if small { vec![1e-3] } else { vec![1e-3, 3e-3] },
-            capacity: vec![SIZES[0], SIZES[2]],
-            speed: true,
-            threads: std::thread::available_parallelism().map_or(1, usize::from),
-            coarse_advection: Advection::SemiLagrangian,
-            coarse_splitting: Splitting::Plain,
-            body: Body::Inscribed,
-            reference: ReferenceScheme::SecondOrder,
-            arithmetic: Arithmetic::Single,
-        }
-    }
-
-    /// The unrolls of the SOL variants, in order.
-    pub fn unrolls(&self) -> Vec<usize> {
-        self.variants
-            .iter()
-            .filter_map(|v| match v {
-                Variant::Sol(k) => Some(*k),
-                _ => None,
-            })
-            .collect()
-    }
-
-    /// Whether `re` lies inside the training range.
-    pub fn inside(&self, re: f64) -> bool {
-        let lo = self.train_re.iter().copied().fold(f64::INFINITY, f64::min);
-        let hi = self
-            .train_re
-            .iter()
-            .copied()
-            .fold(f64::NEG_INFINITY, f64::max);
-        (lo..=hi).contains(&re)
+/// The scene's defaults (full or small): the splits' Reynolds numbers, the
+/// variants, the learning rates to pilot, the capacity sweep's sizes.
+pub fn defaults(small: bool) -> Options {
+    let list = |v: &[f64]| v.to_vec();
+    Options {
+        variants: vec![
+            Variant::Src,
+            Variant::Non,
+            Variant::Noise,
+            Variant::Sol(4),
+            Variant::Sol(16),
+        ],
+        train_re: if small {
+            list(&[200.0, 400.0, 800.0])
+        } else {
+            list(&[100.0, 200.0, 400.0, 800.0, 1600.0])
+        },
+        validation_re: if small {
+            list(&[566.0])
+        } else {
+            list(&[85.0, 141.0, 566.0, 1900.0])
+        },
+        held_out_re: if small {
+            list(&[283.0, 2263.0])
+        } else {
+            list(&[71.0, 283.0, 1131.0, 2263.0])
+        },
+        learning_rates: if small { vec![1e-3] } else { vec![1e-3, 3e-3] },
+        capacity: vec![SIZES[0], SIZES[2]],
+        speed: true,
+        threads: std::thread::available_parallelism().map_or(1, usize::from),
+        coarse_advection: Advection::SemiLagrangian,
+        coarse_splitting: Splitting::Plain,
+        body: Body::Inscribed,
+        reference: ReferenceScheme::SecondOrder,
+        arithmetic: Arithmetic::Single,
     }
 }
+
+/// The corrector sizes of the capacity sweep (about 1.5k, 10k and 22k
+/// parameters); the middle one is the main variants' size.
+pub const SIZES: [NetSize; 3] = [
+    NetSize {
+        width: 8,
+        blocks: 1,
+    },
+    NetSize {
+        width: 16,
+        blocks: 2,
+    },
+    NetSize {
+        width: 24,
+        blocks: 2,
+    },
+];
+
+/// The main variants' corrector size.
+pub const MAIN_SIZE: NetSize = SIZES[1];

@@ -102,6 +102,14 @@ pub enum HybridError {
         /// The range.
         range: [f64; 2],
     },
+    /// A bad command-line argument.
+    #[error("{option}: {message}")]
+    Argument {
+        /// The option.
+        option: String,
+        /// What is wrong.
+        message: String,
+    },
     /// A setting the scene cannot honour.
     #[error("{what}: {message}")]
     Setting {

@@ -17,3 +17,21 @@ pub mod progress;
 
 pub use error::{ReportError, Result};
 pub use progress::{progress_bar, NoProgress, Progress};
+
+/// The process's peak resident set size in bytes (`VmHWM` of
+/// `/proc/self/status`; `None` where there is no such file).
+pub fn peak_rss_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+/// Prints the peak resident memory after `phase` (a learning run reports
+/// it as it goes; buffer pools are freed with the runs that made them).
+pub fn print_memory(phase: &str) {
+    println!(
+        "  memory after {phase}: peak RSS {:.0} MB",
+        peak_rss_bytes().unwrap_or(0) as f64 / 1e6
+    );
+}

@@ -13,10 +13,12 @@
 //! with `U` the inflow speed and `D` the cylinder's diameter. A scene states
 //! its [`Channel`] and [`Sizes`]; the example `wake_flow` is one.
 
+pub mod args;
 mod convergence;
 mod data;
 mod measure;
 mod saved;
+pub mod study;
 
 pub use data::Bump;
 pub use saved::{Evaluation, KIND};

@@ -1,20 +1,161 @@
-//! The command line of `wake_flow` (clap): every flag with its default in
-//! `--help`, the values parsed into typed [`Options`] with the scene's typed
-//! errors.
+//! The command line of a wake study (clap): every flag in `--help`, the
+//! values parsed into typed [`Options`] with typed errors
+//! ([`HybridError::Argument`], [`HybridError::ReOutOfRange`],
+//! [`LearnError::EmptySplit`], [`LearnError::UnknownVariant`]). A scene
+//! gives its defaults ([`Options`]) and its [`Channel`].
 
 use std::path::PathBuf;
 
 use clap::{Args, Parser, Subcommand};
+use diffphys_flow::{Advection, Splitting};
+use diffphys_learn::study::Variant;
+use diffphys_learn::{LearnError, Split};
+use diffphys_nn::Arithmetic;
 
-use super::{
-    checked_list, parse_named, parse_re_list, Body, NetSize, Options, ReferenceScheme, Result,
-    Variant, WakeError, ADVECTIONS, ARITHMETICS, MAIN_SIZE, SPLITTINGS,
-};
-use diffphys::learn::Split;
+use super::{Body, Channel, ReferenceScheme, ADVECTIONS, ARITHMETICS, SPLITTINGS};
+use crate::{HybridError, NetSize, Result};
 
-/// The hybrid wake-flow solver: a coarse flow solver with a corrector
-/// trained through it against a 4x finer reference, tested at Reynolds
-/// numbers it never saw (docs/11-wake-flow.md).
+/// A comma-separated list of Reynolds numbers, each checked against the
+/// channel's range.
+///
+/// # Errors
+/// [`HybridError::Argument`] for text that is not a number;
+/// [`diffphys::hybrid::HybridError::ReOutOfRange`]; [`LearnError::EmptySplit`] for an empty list.
+pub fn parse_re_list(
+    channel: &Channel,
+    option: &str,
+    text: &str,
+    split: Split,
+) -> Result<Vec<f64>> {
+    let list = text
+        .split(',')
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .map(|s| {
+            s.parse::<f64>().map_err(|_| HybridError::Argument {
+                option: option.into(),
+                message: format!("not a number: {s:?}"),
+            })
+        })
+        .map(|r| r.and_then(|re| channel.checked_re(re)))
+        .collect::<Result<Vec<_>>>()?;
+    if list.is_empty() {
+        return Err(LearnError::EmptySplit {
+            split,
+            context: format!("{option} lists no Reynolds number"),
+        }
+        .into());
+    }
+    Ok(list)
+}
+
+/// A comma-separated list, each entry parsed by `parse` (`None`: not
+/// `what`).
+///
+/// # Errors
+/// [`HybridError::Argument`] for an entry `parse` refuses, or no entry.
+pub fn checked_list<T>(
+    option: &str,
+    what: &str,
+    text: &str,
+    parse: impl Fn(&str) -> Option<T>,
+) -> Result<Vec<T>> {
+    let argument = |message: String| HybridError::Argument {
+        option: option.into(),
+        message,
+    };
+    let list = text
+        .split(',')
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .map(|s| parse(s).ok_or_else(|| argument(format!("not {what}: {s:?}"))))
+        .collect::<Result<Vec<T>>>()?;
+    if list.is_empty() {
+        return Err(argument(format!("lists no {what}")));
+    }
+    Ok(list)
+}
+
+/// The value named `name` in a table of names; an argument error for
+/// `option` listing the names otherwise.
+pub fn parse_named<T: Copy>(table: &[(&'static str, T)], option: &str, name: &str) -> Result<T> {
+    table
+        .iter()
+        .find(|(n, _)| *n == name.trim())
+        .map(|(_, v)| *v)
+        .ok_or_else(|| HybridError::Argument {
+            option: option.into(),
+            message: format!(
+                "{name:?} is not one of {}",
+                table.iter().map(|(n, _)| *n).collect::<Vec<_>>().join(", ")
+            ),
+        })
+}
+
+/// A wake study's typed options (the seeds, `--small`, `--out`,
+/// `--iterations` and `--npy` stay in the command line's [`TrainArgs`]); a
+/// scene gives their defaults.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Options {
+    /// The variants to train (`src` always runs).
+    pub variants: Vec<Variant>,
+    /// Training Reynolds numbers.
+    pub train_re: Vec<f64>,
+    /// Validation Reynolds numbers: by default inside the training range
+    /// (141, 566) and outside it on both sides (85, 1900), as the held-out
+    /// split is.
+    pub validation_re: Vec<f64>,
+    /// Held-out Reynolds numbers.
+    pub held_out_re: Vec<f64>,
+    /// Learning rates to choose from on validation.
+    pub learning_rates: Vec<f64>,
+    /// The corrector sizes of the capacity sweep besides the main size
+    /// (empty: no sweep).
+    pub capacity: Vec<NetSize>,
+    /// Run the speed study.
+    pub speed: bool,
+    /// Trainings (and held-out evaluations) run at once, each on its own
+    /// thread (default: the available cores).
+    pub threads: usize,
+    /// The coarse solver's advection (`--coarse-advection`).
+    pub coarse_advection: Advection,
+    /// The coarse solver's splitting (`--coarse-splitting`).
+    pub coarse_splitting: Splitting,
+    /// How each resolution sees the cylinder (`--body cylinder|staircase|inscribed`).
+    pub body: Body,
+    /// The reference's scheme (`--reference-scheme second-order|coarse`).
+    pub reference: ReferenceScheme,
+    /// The corrector's convolution arithmetic (`--network-arithmetic f32|f64`).
+    pub arithmetic: Arithmetic,
+}
+
+impl Options {
+    /// The unrolls of the SOL variants, in order.
+    pub fn unrolls(&self) -> Vec<usize> {
+        self.variants
+            .iter()
+            .filter_map(|v| match v {
+                Variant::Sol(k) => Some(*k),
+                _ => None,
+            })
+            .collect()
+    }
+
+    /// Whether `re` lies inside the training range.
+    pub fn inside(&self, re: f64) -> bool {
+        let lo = self.train_re.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = self
+            .train_re
+            .iter()
+            .copied()
+            .fold(f64::NEG_INFINITY, f64::max);
+        (lo..=hi).contains(&re)
+    }
+}
+/// A hybrid wake-flow solver: a coarse flow solver with a corrector
+/// trained through it against a finer reference, tested at Reynolds
+/// numbers it never saw (docs/11-wake-flow.md). List defaults are the
+/// scene's; a run prints them as it starts.
 #[derive(Debug, Parser)]
 #[command(name = "wake_flow", version, args_conflicts_with_subcommands = true)]
 pub struct Cli {
@@ -53,13 +194,13 @@ pub struct ConvergenceArgs {
 /// What the scene is: the same for training and evaluation.
 #[derive(Debug, Clone, Args)]
 pub struct SceneArgs {
-    /// CI size: 16 x 32 coarse cells, short trajectories, small budgets.
+    /// CI size: the scene's small grid, short trajectories, small budgets.
     #[arg(long)]
     pub small: bool,
     /// Folder for charts, the reference cache and saved models [default: out/wake_flow].
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Held-out Reynolds numbers, in [50, 3200] [default: 71,283,1131,2263; --small: 283,2263].
+    /// Held-out Reynolds numbers, within the scene's range [default: the scene's].
     #[arg(long, value_name = "LIST")]
     pub held_out_re: Option<String>,
     /// The coarse solver's advection: semi-lagrangian or maccormack.
@@ -97,23 +238,23 @@ pub struct TrainArgs {
     /// Training seeds [default: 1,2,3; --small: 1].
     #[arg(long, value_name = "LIST")]
     pub train_seeds: Option<String>,
-    /// Training Reynolds numbers [default: 100,200,400,800,1600; --small: 200,400,800].
+    /// Training Reynolds numbers [default: the scene's].
     #[arg(long, value_name = "LIST")]
     pub train_re: Option<String>,
-    /// Validation Reynolds numbers [default: 85,141,566,1900; --small: 566].
+    /// Validation Reynolds numbers [default: the scene's].
     #[arg(long, value_name = "LIST")]
     pub validation_re: Option<String>,
-    /// Variants to train (src always runs) [default: src,non,noise,sol4,sol16].
+    /// Variants to train (src always runs) [default: the scene's].
     #[arg(long, value_name = "LIST")]
     pub variants: Option<String>,
-    /// Learning rates to choose from on validation [default: 1e-3,3e-3; --small: 1e-3].
+    /// Learning rates to choose from on validation [default: the scene's].
     #[arg(long, value_name = "LIST")]
     pub lrs: Option<String>,
-    /// Adam steps of 4 corrector evaluations each: a budget of 4N evaluations
-    /// [default: 12,000 steps, 48,000 evaluations; --small: 16 steps].
+    /// Adam steps of the scene's corrector evaluations per step each [default:
+    /// the scene's budget].
     #[arg(long, value_name = "N")]
     pub iterations: Option<usize>,
-    /// Corrector sizes of the capacity sweep besides w16b2 [default: w8b1,w24b2].
+    /// Corrector sizes of the capacity sweep besides the main size [default: the scene's].
     #[arg(long, value_name = "LIST", conflicts_with = "no_capacity")]
     pub capacity_sizes: Option<String>,
     /// No capacity sweep.
@@ -153,14 +294,16 @@ impl SceneArgs {
             .unwrap_or_else(|| PathBuf::from("out").join("wake_flow"))
     }
 
-    /// The scene's options (the study's at their defaults).
+    /// The scene's options: `defaults` (the scene's, full or small as
+    /// `--small` says) with these flags applied, Reynolds numbers checked
+    /// against `channel`.
     ///
     /// # Errors
     /// As [`Options::from_args`].
-    pub fn options(&self) -> Result<Options> {
-        let mut o = Options::defaults(self.small);
+    pub fn options(&self, channel: &Channel, defaults: Options) -> Result<Options> {
+        let mut o = defaults;
         if let Some(list) = &self.held_out_re {
-            o.held_out_re = parse_re_list("--held-out-re", list, Split::HeldOut)?;
+            o.held_out_re = parse_re_list(channel, "--held-out-re", list, Split::HeldOut)?;
         }
         o.coarse_advection =
             parse_named(&ADVECTIONS, "--coarse-advection", &self.coarse_advection)?;
@@ -179,7 +322,7 @@ impl SceneArgs {
         )?;
         if let Some(n) = self.threads {
             if n == 0 {
-                return Err(WakeError::Argument {
+                return Err(HybridError::Argument {
                     option: "--threads".into(),
                     message: "not a positive thread count: 0".into(),
                 });
@@ -191,21 +334,29 @@ impl SceneArgs {
 }
 
 impl Options {
-    /// The typed options of a study's command line.
+    /// The typed options of a study's command line: the scene's `defaults`
+    /// with the flags applied; `main_size` is trained anyway, so the capacity
+    /// sweep leaves it out.
     ///
     /// # Errors
-    /// [`diffphys::learn::LearnError::UnknownVariant`]; [`diffphys::learn::LearnError::ZeroUnroll`]
-    /// for `sol0`; [`WakeError::ReOutOfRange`];
-    /// [`diffphys::learn::LearnError::EmptySplit`] for an empty Re list;
-    /// [`WakeError::Argument`] for an unknown name, an unparsable number, a
+    /// [`LearnError::UnknownVariant`]; [`LearnError::ZeroUnroll`]
+    /// for `sol0`; [`HybridError::ReOutOfRange`];
+    /// [`LearnError::EmptySplit`] for an empty Re list;
+    /// [`HybridError::Argument`] for an unknown name, an unparsable number, a
     /// learning rate that is not positive or a bad size.
-    pub fn from_args(args: &TrainArgs) -> Result<Self> {
-        let mut o = args.scene.options()?;
+    pub fn from_args(
+        args: &TrainArgs,
+        channel: &Channel,
+        defaults: Options,
+        main_size: NetSize,
+    ) -> Result<Self> {
+        let mut o = args.scene.options(channel, defaults)?;
+        let re_list = |option, list, split| parse_re_list(channel, option, list, split);
         if let Some(list) = &args.train_re {
-            o.train_re = parse_re_list("--train-re", list, Split::Train)?;
+            o.train_re = re_list("--train-re", list, Split::Train)?;
         }
         if let Some(list) = &args.validation_re {
-            o.validation_re = parse_re_list("--validation-re", list, Split::Validation)?;
+            o.validation_re = re_list("--validation-re", list, Split::Validation)?;
         }
         if let Some(list) = &args.variants {
             let mut variants = vec![Variant::Src];
@@ -236,12 +387,12 @@ impl Options {
                 .map(|s| {
                     s.trim()
                         .parse::<NetSize>()
-                        .map_err(|e| WakeError::Argument {
+                        .map_err(|e| HybridError::Argument {
                             option: "--capacity-sizes".into(),
                             message: e.to_string(),
                         })
                 })
-                .filter(|s| s.as_ref().map_or(true, |s| *s != MAIN_SIZE))
+                .filter(|s| s.as_ref().map_or(true, |s| *s != main_size))
                 .collect::<Result<_>>()?;
         }
         o.speed = !args.no_speed;
@@ -252,7 +403,7 @@ impl Options {
 /// The training and data seeds of a study's command line: `(data, train)`.
 ///
 /// # Errors
-/// [`WakeError::Argument`] for a list that is not seeds, or an empty one.
+/// [`HybridError::Argument`] for a list that is not seeds, or an empty one.
 pub fn seeds(args: &TrainArgs) -> Result<(Vec<u64>, Vec<u64>)> {
     let list =
         |option: &str, text: &str| checked_list(option, "a seed", text, |s| s.parse::<u64>().ok());

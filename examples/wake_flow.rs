@@ -33,7 +33,7 @@ mod wake_flow_scene;
 use std::time::Instant;
 
 use diffphys::hybrid::study::Record;
-use diffphys::hybrid::wake::args::{Cli, Command, ConvergenceArgs, EvaluateArgs};
+use diffphys::hybrid::wake::args::{self, Cli, Command, ConvergenceArgs, EvaluateArgs};
 use diffphys::hybrid::wake::study::{Outcome, Plan, Study};
 use diffphys::hybrid::wake::{self};
 use diffphys::learn::LrSchedule;
@@ -141,7 +141,12 @@ fn convergence_command(c: ConvergenceArgs) -> Result<(), BoxError> {
 
 fn main() -> Result<(), BoxError> {
     let run_start = Instant::now();
-    let cli: Cli = common::parse_args("wake_flow")?;
+    let (full, small) = (
+        wake_flow_scene::defaults(false),
+        wake_flow_scene::defaults(true),
+    );
+    let help = |c| args::with_defaults(c, &full, &small);
+    let cli: Cli = common::parse_args_with("wake_flow", help)?;
     match cli.command {
         Some(Command::Evaluate(e)) => return evaluate_command(e),
         Some(Command::Convergence(c)) => return convergence_command(c),

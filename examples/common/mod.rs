@@ -41,12 +41,20 @@ pub struct ExampleArgs {
 /// # Errors
 /// When the `--out` folder cannot be created.
 pub fn parse_args<C: Parser>(name: &'static str) -> Result<C, String> {
-    parse_argv(name, std::env::args_os().collect())
+    parse_args_with(name, |c| c)
 }
 
-/// [`parse_args`] of `argv`, its first item the program.
-fn parse_argv<C: Parser>(name: &'static str, argv: Vec<OsString>) -> Result<C, String> {
-    let mut command = command::<C>(name);
+/// [`parse_args`] with the command edited first (for help text that only
+/// the scene knows, such as its defaults).
+///
+/// # Errors
+/// As [`parse_args`].
+pub fn parse_args_with<C: Parser>(
+    name: &'static str,
+    edit: impl FnOnce(Command) -> Command,
+) -> Result<C, String> {
+    let argv: Vec<OsString> = std::env::args_os().collect();
+    let mut command = edit(command::<C>(name));
     let mut matches = command
         .try_get_matches_from_mut(&argv)
         .unwrap_or_else(|e| exit_on(&e, &command, &argv));

@@ -11,6 +11,7 @@ use diffphys_flow::{Advection, Splitting};
 use diffphys_learn::study::Variant;
 use diffphys_learn::{LearnError, Split};
 use diffphys_nn::Arithmetic;
+use std::fmt::Display;
 
 use super::{Body, Channel, ReferenceScheme, ADVECTIONS, ARITHMETICS, SPLITTINGS};
 use crate::{HybridError, NetSize, Result};
@@ -420,4 +421,62 @@ pub fn seeds(args: &TrainArgs) -> Result<(Vec<u64>, Vec<u64>)> {
         None => vec![1, 2, 3],
     };
     Ok((data, train))
+}
+
+/// `command` (a study's [`Cli`]) with the help of each list flag ending in
+/// the scene's defaults, full and `--small` (`[default: …]`), here and in
+/// the subcommands that take it.
+pub fn with_defaults(command: clap::Command, full: &Options, small: &Options) -> clap::Command {
+    fn list<T: Display>(v: &[T]) -> String {
+        v.iter().map(T::to_string).collect::<Vec<_>>().join(",")
+    }
+    let both = |f: String, s: String| {
+        if f == s {
+            format!("[default: {f}]")
+        } else {
+            format!("[default: {f}; --small: {s}]")
+        }
+    };
+    let names = |o: &Options| list(&o.variants.iter().map(|v| v.name()).collect::<Vec<_>>());
+    let sizes = |o: &Options| list(&o.capacity.iter().map(|s| s.label()).collect::<Vec<_>>());
+    let defaults = [
+        (
+            "held_out_re",
+            both(list(&full.held_out_re), list(&small.held_out_re)),
+        ),
+        (
+            "train_re",
+            both(list(&full.train_re), list(&small.train_re)),
+        ),
+        (
+            "validation_re",
+            both(list(&full.validation_re), list(&small.validation_re)),
+        ),
+        ("variants", both(names(full), names(small))),
+        (
+            "lrs",
+            both(list(&full.learning_rates), list(&small.learning_rates)),
+        ),
+        ("capacity_sizes", both(sizes(full), sizes(small))),
+    ];
+    let annotate = |mut c: clap::Command| {
+        for (id, default) in &defaults {
+            if c.get_arguments().any(|a| a.get_id() == *id) {
+                c = c.mut_arg(*id, |a| {
+                    let help = a.get_help().map(|h| h.to_string()).unwrap_or_default();
+                    let help = help.replace("[default: the scene's]", "");
+                    a.help(format!("{} {default}", help.trim_end()))
+                });
+            }
+        }
+        c
+    };
+    let command = annotate(command);
+    let subcommands: Vec<String> = command
+        .get_subcommands()
+        .map(|s| s.get_name().to_owned())
+        .collect();
+    subcommands
+        .iter()
+        .fold(command, |c, name| c.mut_subcommand(name, annotate))
 }

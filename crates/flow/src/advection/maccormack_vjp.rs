@@ -17,11 +17,33 @@
 //! in entry order; every array receives the same additions in the same
 //! order, so the results are the same bits.
 
-use super::lanes::{each_segment, with_workspace, SegmentVelocity, Workspace};
+use super::lanes::{each_segment, with_workspace, Segment, SegmentVelocity, Workspace};
 use super::maccormack::Traced;
 use super::sampling::Periodic;
 use super::tracer::{for_blocks, Field, Grads, Tracer};
 use crate::buffers::{give_back, scratch, zero_pairs, zeros};
+
+/// The forward of a MacCormack step, recomputed for its product.
+#[derive(Clone, Copy)]
+struct Recomputed<'a> {
+    q: &'a [f64],
+    q_hat: &'a [f64],
+    /// `q̃` where the limiter is on (else empty).
+    q_tilde: &'a [f64],
+    traced: &'a [Traced],
+}
+
+impl Recomputed<'_> {
+    /// The tracing velocities of the `m` entries from `k0` into `v` (zero at
+    /// fixed entries, whose `traced` is stale).
+    #[inline(always)]
+    fn velocities(&self, k0: usize, m: usize, free: impl Fn(usize) -> bool, v: &mut [Segment; 2]) {
+        for (l, t) in self.traced[k0..k0 + m].iter().enumerate() {
+            let t = if free(k0 + l) { t.v } else { [0.0; 2] };
+            (v[0][l], v[1][l]) = (t[0], t[1]);
+        }
+    }
+}
 
 impl Tracer<'_> {
     /// Adds the product of the MacCormack step with `g` to `grads` and to
@@ -125,65 +147,40 @@ impl Tracer<'_> {
         } else {
             Vec::new()
         };
-        let all_free = field.all_free();
-        let free = |k: usize| all_free || field.free(k);
+        let forward = Recomputed {
+            q,
+            q_hat: &q_hat,
+            q_tilde: &q_tilde,
+            traced: &traced,
+        };
         let mut g_hat = zeros(n);
         let mut g_v = zero_pairs(n);
         // (A⁻)ᵀ g_q̃, the gradient of q̂ through q̃
         let mut through_tilde = zeros(n);
-        let f_back = self.slope_factors(-dt);
-        self.each_entry(field, 0, n, |k, _, p| {
-            let gk = g[k];
-            if !free(k) {
-                grads.q[k] += gk;
-                return;
-            }
-            let v = traced[k].v;
-            if limiter {
-                let value = q_hat[k] + 0.5 * (q[k] - q_tilde[k]);
-                let [lo, hi] = traced[k].range;
-                if value < lo || value > hi {
-                    self.clamped_vjp(field, p, v, dt, q, value, gk, grads);
-                    return;
-                }
-            }
-            g_hat[k] += gk;
-            grads.q[k] += 0.5 * gk;
-            let g_tilde = -0.5 * gk;
-            if g_tilde != 0.0 {
-                let gv = Self::periodic_entry_vjp(
-                    lean,
-                    p,
-                    v,
-                    -dt,
-                    f_back,
-                    &q_hat,
-                    g_tilde,
-                    &mut through_tilde,
-                );
-                g_v[k][0] += gv[0];
-                g_v[k][1] += gv[1];
-            }
-        });
+        self.tilde_product(
+            field,
+            lean,
+            &forward,
+            dt,
+            limiter,
+            g,
+            grads,
+            [&mut g_hat, &mut through_tilde],
+            &mut g_v,
+        );
         // Aᵀ ḡ_q̂ into a zeroed array (added to `grads.q` after, as the
         // passes do), and each entry's velocity gradient, now complete
         let mut through_hat = zeros(n);
-        let f = self.slope_factors(dt);
-        let tables = self.tables(field.lattice);
-        self.each_entry(field, 0, n, |k, ab, p| {
-            let gh = g_hat[k] + through_tilde[k];
-            if !free(k) {
-                through_hat[k] += gh;
-                return;
-            }
-            if gh != 0.0 {
-                let gv =
-                    Self::periodic_entry_vjp(lean, p, traced[k].v, dt, f, q, gh, &mut through_hat);
-                g_v[k][0] += gv[0];
-                g_v[k][1] += gv[1];
-            }
-            self.velocity_vjp_at(field.lattice, &tables, k, ab, g_v[k], grads);
-        });
+        self.hat_product(
+            field,
+            lean,
+            &forward,
+            dt,
+            [&g_hat, &through_tilde],
+            &mut through_hat,
+            &mut g_v,
+            grads,
+        );
         for (a, b) in grads.q.iter_mut().zip(&through_hat) {
             *a += b;
         }
@@ -192,6 +189,144 @@ impl Tracer<'_> {
         }
         give_back(traced);
         give_back(g_v);
+    }
+
+    /// The first sweep of [`Tracer::maccormack_vjp_lanes`], by segments in
+    /// entry order: the combination's product with `g` (to `grads.q`, to
+    /// `g_hat` and, for a clamped entry, to its chosen corner), and that of
+    /// `q̃ = A⁻ q̂` with `−g/2` (to `through_tilde` and `g_v`).
+    #[allow(clippy::too_many_arguments)]
+    fn tilde_product(
+        &self,
+        field: &Field<'_>,
+        lean: Periodic,
+        fw: &Recomputed<'_>,
+        dt: f64,
+        limiter: bool,
+        g: &[f64],
+        grads: &mut Grads,
+        [g_hat, through_tilde]: [&mut [f64]; 2],
+        g_v: &mut [[f64; 2]],
+    ) {
+        let [xs, ys] = &field.position;
+        let all_free = field.all_free();
+        let free = |k: usize| all_free || field.free(k);
+        let f = self.slope_factors(-dt);
+        let Recomputed {
+            q,
+            q_hat,
+            q_tilde,
+            traced,
+        } = *fw;
+        with_workspace(|w| {
+            let Workspace {
+                departures: dep,
+                v,
+                out: [slx, sly, _],
+                ..
+            } = w;
+            each_segment(field.sampler.nb, 0, q.len(), |k0, a, b0, m| {
+                fw.velocities(k0, m, &free, v);
+                dep.locate(&lean, q_hat, xs[a], &ys[b0..b0 + m], v, -dt);
+                dep.slopes(slx, sly);
+                for l in 0..m {
+                    let (k, p) = (k0 + l, [xs[a], ys[b0 + l]]);
+                    let gk = g[k];
+                    if !free(k) {
+                        grads.q[k] += gk;
+                        continue;
+                    }
+                    if limiter {
+                        let value = q_hat[k] + 0.5 * (q[k] - q_tilde[k]);
+                        let [lo, hi] = traced[k].range;
+                        if value < lo || value > hi {
+                            self.clamped_vjp(field, p, traced[k].v, dt, q, value, gk, grads);
+                            continue;
+                        }
+                    }
+                    g_hat[k] += gk;
+                    grads.q[k] += 0.5 * gk;
+                    let g_tilde = -0.5 * gk;
+                    if g_tilde != 0.0 {
+                        let gv = if dep.indexed() {
+                            dep.scatter(l, g_tilde, through_tilde);
+                            [f[0] * g_tilde * slx[l], f[1] * g_tilde * sly[l]]
+                        } else {
+                            let v = traced[k].v;
+                            Self::periodic_entry_vjp(
+                                lean,
+                                p,
+                                v,
+                                -dt,
+                                f,
+                                q_hat,
+                                g_tilde,
+                                through_tilde,
+                            )
+                        };
+                        g_v[k][0] += gv[0];
+                        g_v[k][1] += gv[1];
+                    }
+                }
+            });
+        });
+    }
+
+    /// The second sweep of [`Tracer::maccormack_vjp_lanes`], by segments in
+    /// entry order: `q̂ = A q`'s product with `ḡ_q̂ = g_hat + through_tilde`
+    /// (to `through_hat` and `g_v`), then each entry's velocity gradient
+    /// scattered to `u` ([`Tracer::velocity_vjp_at`]).
+    #[allow(clippy::too_many_arguments)]
+    fn hat_product(
+        &self,
+        field: &Field<'_>,
+        lean: Periodic,
+        fw: &Recomputed<'_>,
+        dt: f64,
+        [g_hat, through_tilde]: [&[f64]; 2],
+        through_hat: &mut [f64],
+        g_v: &mut [[f64; 2]],
+        grads: &mut Grads,
+    ) {
+        let [xs, ys] = &field.position;
+        let all_free = field.all_free();
+        let free = |k: usize| all_free || field.free(k);
+        let f = self.slope_factors(dt);
+        let tables = self.tables(field.lattice);
+        let q = fw.q;
+        with_workspace(|w| {
+            let Workspace {
+                departures: dep,
+                v,
+                out: [slx, sly, _],
+                ..
+            } = w;
+            each_segment(field.sampler.nb, 0, q.len(), |k0, a, b0, m| {
+                fw.velocities(k0, m, &free, v);
+                dep.locate(&lean, q, xs[a], &ys[b0..b0 + m], v, dt);
+                dep.slopes(slx, sly);
+                for l in 0..m {
+                    let k = k0 + l;
+                    let gh = g_hat[k] + through_tilde[k];
+                    if !free(k) {
+                        through_hat[k] += gh;
+                        continue;
+                    }
+                    if gh != 0.0 {
+                        let gv = if dep.indexed() {
+                            dep.scatter(l, gh, through_hat);
+                            [f[0] * gh * slx[l], f[1] * gh * sly[l]]
+                        } else {
+                            let (p, v) = ([xs[a], ys[b0 + l]], fw.traced[k].v);
+                            Self::periodic_entry_vjp(lean, p, v, dt, f, q, gh, through_hat)
+                        };
+                        g_v[k][0] += gv[0];
+                        g_v[k][1] += gv[1];
+                    }
+                    self.velocity_vjp_at(field.lattice, &tables, k, [a, b0 + l], g_v[k], grads);
+                }
+            });
+        });
     }
 
     /// `q̃ = A⁻ q̂` at every free entry of a periodic box, traced back by the

@@ -226,7 +226,7 @@ impl Tracer<'_> {
                 ..
             } = w;
             each_segment(field.sampler.nb, 0, q.len(), |k0, a, b0, m| {
-                fw.velocities(k0, m, &free, v);
+                fw.velocities(k0, m, free, v);
                 dep.locate(&lean, q_hat, xs[a], &ys[b0..b0 + m], v, -dt);
                 dep.slopes(slx, sly);
                 for l in 0..m {
@@ -302,7 +302,7 @@ impl Tracer<'_> {
                 ..
             } = w;
             each_segment(field.sampler.nb, 0, q.len(), |k0, a, b0, m| {
-                fw.velocities(k0, m, &free, v);
+                fw.velocities(k0, m, free, v);
                 dep.locate(&lean, q, xs[a], &ys[b0..b0 + m], v, dt);
                 dep.slopes(slx, sly);
                 for l in 0..m {

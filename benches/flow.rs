@@ -8,6 +8,11 @@
 //! `½|u|²` after it with respect to the start velocity (the implicit pressure
 //! adjoint). Throughput is cells per second.
 //!
+//! `flow_maccormack_periodic`: the MacCormack velocity advection alone (with
+//! the limiter) on the periodic Taylor–Green box at 128² and 512², f32
+//! fields: `advect_velocity` (forward), and it followed by
+//! `advect_velocity_vjp` (forward + backward, as a tape's step runs them).
+//!
 //! Run: `cargo bench --bench flow` (`-- --quick` for a shorter run;
 //! `RAYON_NUM_THREADS=1` for the one-core figures of the peers' table).
 //! `FLOW_BENCH_LARGE=0` leaves out 512 x 1024.
@@ -19,8 +24,10 @@ use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
-use diffphys::flow::{FlowState, FlowVars, ParamVars, Scene};
+use diffphys::flow::advection::{advect_velocity, advect_velocity_vjp};
+use diffphys::flow::{Advection, Faces, FlowGrid, FlowState, FlowVars, ParamVars, Scene, Sides};
 use diffphys::tape::{Real, Tape};
+use ndarray::{Array1, Array2};
 
 fn forward<T: Real>(scene: &Scene, start: &FlowState<T>) -> FlowState<T> {
     scene
@@ -92,5 +99,70 @@ fn periodic_box(c: &mut Criterion) {
     bench_scene(c, "flow_box_f64", "128x128", &scene, &start);
 }
 
-criterion_group!(benches, wake, periodic_box);
+/// The MacCormack step of the velocity on a periodic `n × n` box of side
+/// 2π: the Taylor–Green field plus a perturbation, dt at Courant number ½.
+fn maccormack_periodic(c: &mut Criterion) {
+    let mut g = c.benchmark_group("flow_maccormack_periodic_f32");
+    for n in [128, 512] {
+        let h = 2.0 * std::f64::consts::PI / n as f64;
+        let grid = FlowGrid {
+            nx: n,
+            ny: n,
+            dx: h,
+            dy: h,
+            sides: Sides::periodic(),
+        };
+        let faces = Faces::classify(&grid, &Array2::from_elem((n, n), false));
+        let scheme = Advection::MacCormack { limiter: true };
+        let dt = 0.5 * h;
+        let wobble = |a: usize, b: usize| 0.3 * (((a * 7 + b * 13) % 17) as f64 / 17.0 - 0.5);
+        let ux = Array2::from_shape_fn(grid.shape_x(), |(a, b)| {
+            let (x, y) = (a as f64 * h, (b as f64 + 0.5) * h);
+            (x.sin() * y.cos() + wobble(a, b)) as f32
+        });
+        let uy = Array2::from_shape_fn(grid.shape_y(), |(a, b)| {
+            let (x, y) = ((a as f64 + 0.5) * h, b as f64 * h);
+            (-x.cos() * y.sin() + wobble(b, a)) as f32
+        });
+        let walls = Array1::<f32>::zeros(4);
+        let run = || {
+            advect_velocity(
+                &grid,
+                &faces,
+                scheme,
+                dt,
+                (ux.view(), uy.view()),
+                (ux.view(), uy.view()),
+                walls.view(),
+            )
+            .expect("the advection runs")
+        };
+        g.throughput(Throughput::Elements((n * n) as u64));
+        if n > 256 {
+            g.sample_size(20);
+        }
+        g.bench_function(BenchmarkId::new("forward", n), |b| {
+            b.iter(|| black_box(run()))
+        });
+        g.bench_function(BenchmarkId::new("forward_backward", n), |b| {
+            b.iter(|| {
+                let (ax, ay) = run();
+                advect_velocity_vjp(
+                    &grid,
+                    &faces,
+                    scheme,
+                    dt,
+                    (ux.view(), uy.view()),
+                    (ux.view(), uy.view()),
+                    walls.view(),
+                    (ax.view(), ay.view()),
+                )
+                .expect("the product runs")
+            })
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, wake, periodic_box, maccormack_periodic);
 criterion_main!(benches);

@@ -142,6 +142,74 @@ fn velocity_advection_is_linear_in_the_field_for_frozen_tracing() {
     assert!(a.iter().chain(b.iter()).all(|v| *v == 0.0));
 }
 
+/// With the tracing velocity held fixed, the advection is linear in the
+/// advected field for semi-Lagrangian and unlimited MacCormack steps (both
+/// compositions of interpolations): its product with respect to the field
+/// is its transpose, `⟨A q, y⟩ = ⟨q, Aᵀ y⟩`, on every scene (the periodic
+/// box takes the segment kernels of both directions).
+#[test]
+fn velocity_advection_in_the_field_passes_the_dot_product_test() {
+    for scheme in [
+        Advection::SemiLagrangian,
+        Advection::MacCormack { limiter: false },
+    ] {
+        for (name, b) in scenes() {
+            let scene = b.build().unwrap();
+            let g = scene.grid();
+            let shapes = [g.shape_x(), g.shape_y()];
+            let (ux, uy) = velocity(&scene, 1.0, 31);
+            // zero wall speeds: the ghosts are then linear in the field too
+            let w = Array1::<f64>::zeros(4);
+            let dt = 0.7 * scene.dt();
+            let apply = |x: ArrayViewD<'_, f64>| {
+                let q = unpack(&x.to_owned(), &shapes);
+                let (a, b) = advect_velocity(
+                    g,
+                    scene.faces(),
+                    scheme,
+                    dt,
+                    (q[0].view(), q[1].view()),
+                    (ux.view(), uy.view()),
+                    w.view(),
+                )
+                .unwrap();
+                pack(&[&a, &b])
+            };
+            let apply_t = |y: ArrayViewD<'_, f64>| {
+                let gy = unpack(&y.to_owned(), &shapes);
+                let zx = Array2::<f64>::zeros((shapes[0][0], shapes[0][1]));
+                let zy = Array2::<f64>::zeros((shapes[1][0], shapes[1][1]));
+                // the field's product does not read the field (linear)
+                let r = advect_velocity_vjp(
+                    g,
+                    scene.faces(),
+                    scheme,
+                    dt,
+                    (zx.view(), zy.view()),
+                    (ux.view(), uy.view()),
+                    w.view(),
+                    (gy[0].view(), gy[1].view()),
+                )
+                .unwrap();
+                pack(&[&r.field_x, &r.field_y])
+            };
+            let (x0, x1) = velocity(&scene, 1.0, 33);
+            let (y0, y1) = velocity(&scene, 1.0, 35);
+            let rep = check_adjoint(
+                apply,
+                apply_t,
+                pack(&[&x0, &x1]).view(),
+                pack(&[&y0, &y1]).view(),
+            )
+            .unwrap();
+            assert!(
+                rep.passes(1e-12),
+                "advection {scheme:?} {name} dot test: {rep:?}"
+            );
+        }
+    }
+}
+
 #[test]
 fn scalar_advection_gradients() {
     for scheme in [

@@ -242,6 +242,8 @@ impl<'a> SegmentVelocity<'a> {
 /// by [`Departures::locate`] segment after segment (a [`Workspace`]'s).
 pub(super) struct Departures {
     m: usize,
+    /// The corner indices `k` hold the corners (one wrap sufficed).
+    indexed: bool,
     corners: [[Segment; 2]; 2],
     fx: Segment,
     fy: Segment,
@@ -254,6 +256,7 @@ impl Default for Departures {
     fn default() -> Self {
         Departures {
             m: 0,
+            indexed: false,
             corners: [[[0.0; SEGMENT]; 2]; 2],
             fx: [0.0; SEGMENT],
             fy: [0.0; SEGMENT],
@@ -293,6 +296,7 @@ impl Departures {
         let one_wrap = fits
             & floors(sx, lean.n[0], &mut self.fx[..m], &mut ci[..m])
             & floors(sy, lean.n[1], &mut self.fy[..m], &mut cj[..m]);
+        self.indexed = one_wrap;
         if one_wrap {
             let (na, nb) = (lean.n[0] as i32, lean.n[1] as i32);
             let (ci, cj) = (&ci[..m], &cj[..m]);
@@ -364,6 +368,50 @@ impl Departures {
         for l in 0..m {
             lo[l] = c00[l].min(c01[l]).min(c10[l]).min(c11[l]);
             hi[l] = c00[l].max(c01[l]).max(c10[l]).max(c11[l]);
+        }
+    }
+}
+
+impl Departures {
+    /// Whether [`Departures::scatter`] may be used: the corners' indices
+    /// were computed (else the segment's departures need the scalar path).
+    #[inline(always)]
+    pub(super) fn indexed(&self) -> bool {
+        self.indexed
+    }
+
+    /// The slopes of the bilinear interpolant along x and y at the
+    /// departure points, in lattice units, into `sx`, `sy`
+    /// ([`super::sampling::bilinear_slopes`], term for term).
+    #[inline(always)]
+    pub(super) fn slopes(&self, sx: &mut Segment, sy: &mut Segment) {
+        let m = self.m;
+        let [[c00, c01], [c10, c11]] = &self.corners;
+        let (c00, c01, c10, c11) = (&c00[..m], &c01[..m], &c10[..m], &c11[..m]);
+        let (fx, fy) = (&self.fx[..m], &self.fy[..m]);
+        let (sx, sy) = (&mut sx[..m], &mut sy[..m]);
+        for l in 0..m {
+            let (wx, wy) = ([1.0 - fx[l], fx[l]], [1.0 - fy[l], fy[l]]);
+            sx[l] = wy[0] * (c10[l] - c00[l]) + wy[1] * (c11[l] - c01[l]);
+            sy[l] = wx[0] * (c01[l] - c00[l]) + wx[1] * (c11[l] - c10[l]);
+        }
+    }
+
+    /// Adds `c · wx[a] · wy[b]` to the corner `[a][b]` of the departure
+    /// point of entry `l` in `grad` (the transpose of
+    /// [`Departures::values`]; [`super::sampling::bilinear_scatter`], term
+    /// for term and in its order). Only where [`Departures::indexed`].
+    #[inline(always)]
+    pub(super) fn scatter(&self, l: usize, c: f64, grad: &mut [f64]) {
+        debug_assert!(self.indexed && l < self.m);
+        let (wx, wy) = (
+            [1.0 - self.fx[l], self.fx[l]],
+            [1.0 - self.fy[l], self.fy[l]],
+        );
+        for (ka, wa) in self.k.iter().zip(wx) {
+            for (kab, wb) in ka.iter().zip(wy) {
+                grad[kab[l] as usize] += c * wa * wb;
+            }
         }
     }
 }

@@ -20,9 +20,9 @@ use crate::buffers::{give_back, in_block_pairs, scratch};
 /// What the first sweep keeps of a free entry for the second: its tracing
 /// velocity and the range of the four values `q̂` interpolated from.
 #[derive(Debug, Clone, Copy, Default)]
-struct Traced {
-    v: [f64; 2],
-    range: [f64; 2],
+pub(super) struct Traced {
+    pub(super) v: [f64; 2],
+    pub(super) range: [f64; 2],
 }
 
 impl Tracer<'_> {
@@ -105,6 +105,67 @@ impl Tracer<'_> {
         let n = q.len();
         let nb = field.sampler.nb;
         let [xs, ys] = &field.position;
+        let all_free = field.all_free();
+        let free = |k: usize| all_free || field.free(k);
+        let (q_hat, traced) = self.first_sweep(field, lean, &vel, q, dt);
+        let qh: &[f64] = &q_hat;
+        let mut out = scratch(n);
+        for_blocks(&mut out, |off, block| {
+            with_workspace(|w| {
+                let Workspace {
+                    departures: dep,
+                    v,
+                    out: [q_tilde, value, _],
+                    ..
+                } = w;
+                each_segment(nb, off, block.len(), |k0, a, b0, m| {
+                    for (l, t) in traced[k0..k0 + m].iter().enumerate() {
+                        // a fixed entry's `traced` is stale: trace it by zero, unused
+                        let t = if free(k0 + l) { t.v } else { [0.0; 2] };
+                        (v[0][l], v[1][l]) = (t[0], t[1]);
+                    }
+                    dep.locate(&lean, qh, xs[a], &ys[b0..b0 + m], v, -dt);
+                    dep.values(q_tilde);
+                    let (qh, q, q_tilde) = (&qh[k0..k0 + m], &q[k0..k0 + m], &q_tilde[..m]);
+                    for l in 0..m {
+                        value[l] = qh[l] + 0.5 * (q[l] - q_tilde[l]);
+                    }
+                    let block = &mut block[k0 - off..k0 - off + m];
+                    for l in 0..m {
+                        let k = k0 + l;
+                        block[l] = if !free(k) {
+                            q[l]
+                        } else if limiter {
+                            let [lo, hi] = traced[k].range;
+                            value[l].clamp(lo, hi)
+                        } else {
+                            value[l]
+                        };
+                    }
+                });
+            });
+        });
+        give_back(q_hat);
+        give_back(traced);
+        out
+    }
+}
+
+impl Tracer<'_> {
+    /// The first sweep on a periodic box: `q̂ = A q` at every entry (`q` at
+    /// the fixed ones), and at each free entry its tracing velocity and the
+    /// limiter's range, by segments (see [`super::lanes`]).
+    pub(super) fn first_sweep(
+        &self,
+        field: &Field<'_>,
+        lean: Periodic,
+        vel: &SegmentVelocity<'_>,
+        q: &[f64],
+        dt: f64,
+    ) -> (Vec<f64>, Vec<Traced>) {
+        let n = q.len();
+        let nb = field.sampler.nb;
+        let [xs, ys] = &field.position;
         // a box without obstacles has no fixed entry: no test per entry
         let all_free = field.all_free();
         let free = |k: usize| all_free || field.free(k);
@@ -146,46 +207,7 @@ impl Tracer<'_> {
                 });
             },
         );
-        let qh: &[f64] = &q_hat;
-        let mut out = scratch(n);
-        for_blocks(&mut out, |off, block| {
-            with_workspace(|w| {
-                let Workspace {
-                    departures: dep,
-                    v,
-                    out: [q_tilde, value, _],
-                    ..
-                } = w;
-                each_segment(nb, off, block.len(), |k0, a, b0, m| {
-                    for (l, t) in traced[k0..k0 + m].iter().enumerate() {
-                        // a fixed entry's `traced` is stale: trace it by zero, unused
-                        let t = if free(k0 + l) { t.v } else { [0.0; 2] };
-                        (v[0][l], v[1][l]) = (t[0], t[1]);
-                    }
-                    dep.locate(&lean, qh, xs[a], &ys[b0..b0 + m], v, -dt);
-                    dep.values(q_tilde);
-                    let (qh, q, q_tilde) = (&qh[k0..k0 + m], &q[k0..k0 + m], &q_tilde[..m]);
-                    for l in 0..m {
-                        value[l] = qh[l] + 0.5 * (q[l] - q_tilde[l]);
-                    }
-                    let block = &mut block[k0 - off..k0 - off + m];
-                    for l in 0..m {
-                        let k = k0 + l;
-                        block[l] = if !free(k) {
-                            q[l]
-                        } else if limiter {
-                            let [lo, hi] = traced[k].range;
-                            value[l].clamp(lo, hi)
-                        } else {
-                            value[l]
-                        };
-                    }
-                });
-            });
-        });
-        give_back(q_hat);
-        give_back(traced);
-        out
+        (q_hat, traced)
     }
 }
 

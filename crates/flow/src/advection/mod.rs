@@ -44,6 +44,7 @@ use crate::Result;
 
 mod lanes;
 mod maccormack;
+mod maccormack_vjp;
 mod sampling;
 mod tracer;
 

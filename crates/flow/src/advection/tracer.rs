@@ -410,9 +410,14 @@ impl Tracer<'_> {
         g: &[f64],
         grads: &mut Grads,
     ) {
-        if let (Advection::SemiLagrangian, Some(lean)) = (scheme, field.sampler.periodic()) {
-            self.periodic_step_vjp(field, lean, q, dt, g, grads);
-            return;
+        match (scheme, field.sampler.periodic()) {
+            (Advection::SemiLagrangian, Some(lean)) => {
+                return self.periodic_step_vjp(field, lean, q, dt, g, grads);
+            }
+            (Advection::MacCormack { limiter }, Some(lean)) => {
+                return self.maccormack_vjp_lanes(field, lean, q, dt, limiter, g, grads);
+            }
+            _ => {}
         }
         let n = q.len();
         let vel = self.velocities(field, n);
@@ -424,47 +429,8 @@ impl Tracer<'_> {
             give_back(g_v);
             return;
         };
-        let (qh, range) = self.first_pass(field, q, &vel, dt, limiter);
-        let qt = self.semi_lagrangian(field, &qh, &vel, -dt);
-        let mut g_hat = zeros(n);
-        let mut g_tilde = zeros(n);
-        self.each_entry(field, 0, n, |k, _, p| {
-            let gk = g[k];
-            if !field.free(k) {
-                grads.q[k] += gk;
-                return;
-            }
-            if limiter {
-                let v = qh[k] + 0.5 * (q[k] - qt[k]);
-                let [lo, hi] = range[k];
-                if v < lo || v > hi {
-                    // clamped: the gradient goes to the corner that was chosen
-                    let dep = Self::departure(field, p, vel[k], dt);
-                    let (lo, hi) = dep.extremes(q, &self.walls);
-                    let (a, b, _) = if v < lo.2 { lo } else { hi };
-                    dep.scatter_corner(a, b, gk, &mut grads.q, &mut grads.walls);
-                    return;
-                }
-            }
-            g_hat[k] += gk;
-            grads.q[k] += 0.5 * gk;
-            g_tilde[k] = -0.5 * gk;
-        });
-        // q̃ = A⁻ q̂: its field gradient lands on q̂.
-        let mut inner = Grads::zeros(n, 0, 0);
-        self.semi_lagrangian_vjp(field, &qh, &vel, -dt, &g_tilde, &mut inner, &mut g_v);
-        for (a, b) in g_hat.iter_mut().zip(&inner.q) {
-            *a += b;
-        }
-        inner.q.iter_mut().for_each(|v| *v = 0.0);
-        // q̂ = A q.
-        self.semi_lagrangian_vjp(field, q, &vel, dt, &g_hat, &mut inner, &mut g_v);
-        grads.add(&inner);
+        self.maccormack_vjp_passes(field, q, &vel, dt, limiter, g, grads, &mut g_v);
         self.velocities_vjp(field, &g_v, grads);
-        for v in [qh, qt, g_hat, g_tilde, inner.q, inner.ux, inner.uy] {
-            give_back(v);
-        }
-        give_back(range);
         give_back(vel);
         give_back(g_v);
     }

@@ -69,7 +69,7 @@ use diffphys::flow::validation::{
     control_volume_force, Dfg2d1, DfgChannel, FaceBox, FloorCheck, CONTROL_VOLUME_CLEARANCE,
     DFG_2D1, DFG_2D1_HIGH_ACCURACY, DFG_CENTRE, DFG_DIAMETER, DFG_HEIGHT, DFG_NU,
 };
-use diffphys::flow::{FlowState, Scene, Splitting};
+use diffphys::flow::{FlowState, Interior, Scene, Splitting};
 use ndarray::Array2;
 use serde_json::{json, Value};
 
@@ -298,6 +298,10 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
     (case.channel.height, case.channel.courant) = (height, opt.courant);
     (case.tol, case.max_time) = (opt.tol, opt.max_time);
     case.channel.immersed = opt.immersed;
+    case.channel.interior = match opt.interior.as_str() {
+        "forced" => Interior::Forced,
+        _ => Interior::Solid,
+    };
     let t0 = Instant::now();
     let result = case.run(&mut |_, _, _| Ok(()))?;
     let seconds = t0.elapsed().as_secs_f64();
@@ -397,12 +401,21 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
         }));
     }
     let with_forcing = [0, 1].map(|k| exchange[k] + forcing_exchange[k]);
+    let body = c(DfgChannel::body_force(scene, s)?);
+    let cv = result.control_volume;
+    let apart = [0, 1].map(|d| 100.0 * (body[d] - cv[d]) / cv[0]);
     if scene.immersed().is_some() {
         println!(
             "  surface, the step's exchange + the immersed forcing's: cD {:.4} cL {:+.5}",
             with_forcing[0], with_forcing[1]
         );
+        println!(
+            "  two methods: forcing exchange (DfgChannel::body_force) cD {:.4} cL {:+.5} | control volume {:.2} cD {:.4} cL {:+.5} | apart {:+.3} % / {:+.3} % of cD",
+            body[0], body[1], case.channel.cv_half_width, cv[0], cv[1], apart[0], apart[1]
+        );
     }
+    let dp = result.values[2];
+    println!("  dp {dp:.5} (reference {:.5})", DFG_2D1_HIGH_ACCURACY[2]);
     let geo = geometry(scene);
     println!(
         "  body: {} solid cells, area/disc {:.4}, centroid offset ({:+.1e}, {:+.1e}), cells without a mirror image about y = 0.2: {}",
@@ -424,6 +437,10 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
                     "momentum_exchange_plus_immersed_forcing": with_forcing,
                     "momentum_exchange_viscous_cl_tangential_normal": links},
         "control_volume": boxes,
+        "body_force": {"cd": body[0], "cl": body[1], "interior": opt.interior,
+                       "control_volume_cd_cl": cv,
+                       "apart_percent_of_cd": apart},
+        "dp": dp,
         "geometry": geo,
         "surface_cl_history": lift_history,
     });
@@ -465,6 +482,10 @@ struct Options {
     /// it) instead of the staircase.
     #[arg(long)]
     immersed: bool,
+    /// What lies inside the immersed circle: solid cells (the staircase's,
+    /// pinned) or faces forced to zero with the pressure across the body.
+    #[arg(long, default_value = "solid", value_parser = ["solid", "forced"])]
+    interior: String,
 }
 
 fn parse() -> Result<(common::ExampleArgs, Options)> {

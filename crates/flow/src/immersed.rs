@@ -1,9 +1,11 @@
 //! A circle as a direct-forcing immersed boundary on the faces (Fadlun,
 //! Verzicco, Orlandi and Mohd-Yusof 2000): a body that is not a staircase.
 //!
-//! The cells whose centre lies inside the circle stay solid (their faces
-//! pinned to zero, the pressure system without them), as for
-//! [`crate::Obstacle::cylinder`]. Every *free* face that the Laplacian links
+//! With [`Interior::Solid`] (the default) the cells whose centre lies inside
+//! the circle stay solid (their faces pinned to zero, the pressure system
+//! without them), as for [`crate::Obstacle::cylinder`]; with
+//! [`Interior::Forced`] no cell is solid, the pressure spans the body, and
+//! every face inside the circle is forced to zero. Every *free* face that the Laplacian links
 //! to a solid face, along either axis, is **forced**: after advection and
 //! viscosity, before the projection, its velocity is replaced by the linear
 //! interpolation between zero at the true wall and the next face outward.
@@ -27,6 +29,13 @@
 //! to zero, as the staircase would. The set of forced faces and their links is
 //! fixed when the body is built (from the solid cells); `δ` follows the
 //! circle `θ = (c_x, c_y, r)` smoothly while that set holds.
+//!
+//! **Force.** The forcing changes the momentum of the faces by
+//! `Σ_forced (u'_f − u_f) dx dy` per step ([`ImmersedCircle::momentum_change`],
+//! summed by [`ForcingImpulse`]); the force of the flow on the body is minus
+//! that per unit time ([`crate::StepInfo::immersed_force`]), the whole force
+//! with a forced interior and a steady flow, the forcing's share of it with
+//! a solid one.
 //!
 //! **Adjoint.** The map is linear in the velocity; with `g` the gradient of
 //! the output,

@@ -76,7 +76,7 @@ use diffphys::flow::validation::{
     control_volume_force, Dfg2d1, DfgChannel, FaceBox, FloorCheck, CONTROL_VOLUME_CLEARANCE,
     DFG_2D1, DFG_2D1_HIGH_ACCURACY, DFG_CENTRE, DFG_DIAMETER, DFG_HEIGHT, DFG_NU,
 };
-use diffphys::flow::{FlowState, Interior, Scene, Splitting};
+use diffphys::flow::{FlowState, Interior, Obstacle, Scene, Splitting};
 use ndarray::Array2;
 use serde_json::{json, Value};
 
@@ -391,9 +391,11 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
     let mut boxes = Vec::new();
     let mut forcing_exchange = [0.0; 2];
     let mut slip = 0.0;
+    // the circle's cells, solid or (a forced interior) fluid
+    let body_cells = Obstacle::cylinder(DFG_CENTRE, DFG_DIAMETER / 2.0).rasterise(g)?;
     for a in BOXES {
         let b = FaceBox::around(g, DFG_CENTRE, a);
-        let clearance = b.clearance(scene.solid());
+        let clearance = b.clearance(&body_cells);
         if clearance < CONTROL_VOLUME_CLEARANCE {
             continue;
         }

@@ -126,7 +126,7 @@ impl FaceBox {
                         "control-volume force",
                         "box",
                         format!(
-                            "{self:?} cuts a body: solid cell ({i}, {j}) lies within {c} cells of an edge"
+                            "{self:?} cuts a body: body cell ({i}, {j}) lies within {c} cells of an edge"
                         ),
                     ));
                 }

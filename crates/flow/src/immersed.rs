@@ -1,9 +1,11 @@
 //! A circle as a direct-forcing immersed boundary on the faces (Fadlun,
 //! Verzicco, Orlandi and Mohd-Yusof 2000): a body that is not a staircase.
 //!
-//! The cells whose centre lies inside the circle stay solid (their faces
-//! pinned to zero, the pressure system without them), as for
-//! [`crate::Obstacle::cylinder`]. Every *free* face that the Laplacian links
+//! With [`Interior::Solid`] (the default) the cells whose centre lies inside
+//! the circle stay solid (their faces pinned to zero, the pressure system
+//! without them), as for [`crate::Obstacle::cylinder`]; with
+//! [`Interior::Forced`] no cell is solid, the pressure spans the body, and
+//! every face inside the circle is forced to zero. Every *free* face that the Laplacian links
 //! to a solid face, along either axis, is **forced**: after advection and
 //! viscosity, before the projection, its velocity is replaced by the linear
 //! interpolation between zero at the true wall and the next face outward.
@@ -27,6 +29,13 @@
 //! to zero, as the staircase would. The set of forced faces and their links is
 //! fixed when the body is built (from the solid cells); `δ` follows the
 //! circle `θ = (c_x, c_y, r)` smoothly while that set holds.
+//!
+//! **Force.** The forcing changes the momentum of the faces by
+//! `Σ_forced (u'_f − u_f) dx dy` per step ([`ImmersedCircle::momentum_change`],
+//! summed by [`ForcingImpulse`]); the force of the flow on the body is minus
+//! that per unit time ([`crate::StepInfo::immersed_force`]), the whole force
+//! with a forced interior and a steady flow, the forcing's share of it with
+//! a solid one.
 //!
 //! **Adjoint.** The map is linear in the velocity; with `g` the gradient of
 //! the output,
@@ -55,6 +64,8 @@
 use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
 use ndarray::{Array1, Array2, ArrayView1, ArrayView2};
 
+use std::cell::Cell;
+use std::rc::Rc;
 use std::sync::Arc;
 
 use crate::boundaries::{view1, view2, FaceKind, Faces};
@@ -335,6 +346,29 @@ impl ImmersedCircle {
         )
     }
 
+    /// `Σ_forced (after_f − before_f) dx dy` per component: the momentum the
+    /// forcing added to the faces in going from `before` to `after` (each
+    /// `(u_x, u_y)` on the grid's faces).
+    ///
+    /// # Panics
+    /// For arrays not on the grid's faces (a broken internal invariant: the
+    /// op checks them first).
+    pub fn momentum_change<T: Real>(
+        &self,
+        before: (ArrayView2<'_, T>, ArrayView2<'_, T>),
+        after: (ArrayView2<'_, T>, ArrayView2<'_, T>),
+    ) -> [f64; 2] {
+        let cell = self.grid.dx * self.grid.dy;
+        let sum = |forced: &[ForcedFace], b: ArrayView2<'_, T>, a: ArrayView2<'_, T>| {
+            let (b, a) = (wide(b), wide(a));
+            cell * forced.iter().map(|f| a[f.face] - b[f.face]).sum::<f64>()
+        };
+        [
+            sum(&self.x, before.0, after.0),
+            sum(&self.y, before.1, after.1),
+        ]
+    }
+
     fn components(&self) -> [(&[ForcedFace], [usize; 2]); 2] {
         [
             (&self.x, self.grid.shape_x()),
@@ -436,12 +470,65 @@ pub fn immersed_forcing_vjp<T: Real>(
     Ok((gx, gy, g_shape.iter().map(|&v| T::from_f64(v)).collect()))
 }
 
+/// What lies inside an immersed circle ([`crate::SceneBuilder::immersed_interior`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum Interior {
+    /// The cells of [`crate::Obstacle::cylinder`] of the same circle are solid:
+    /// their faces pinned to zero, the pressure system without them. The
+    /// pressure and the viscosity then also act on the staircase, so the
+    /// forcing's momentum ([`ForcingImpulse`]) is only part of the force.
+    #[default]
+    Solid,
+    /// No solid cell: every face inside the circle is forced to zero and the
+    /// pressure spans the body (Fadlun et al. 2000). The forcing is then the
+    /// whole exchange with the body, and the force on it is minus the
+    /// forcing's momentum per unit time ([`crate::StepInfo::immersed_force`]).
+    Forced,
+}
+
+/// The momentum the immersed forcing has added to the faces,
+/// `Σ_forced (u'_f − u*_f) dx dy` per component (`u*` the velocity it was
+/// given, `u'` its output), summed over every forward run since it was made;
+/// shared by its clones (as [`crate::pressure::SolveCounter`]).
+#[derive(Debug, Clone, Default)]
+pub struct ForcingImpulse(Rc<Cell<[f64; 2]>>);
+
+impl ForcingImpulse {
+    /// Zero.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// The momentum added so far, `[x, y]`.
+    pub fn total(&self) -> [f64; 2] {
+        self.0.get()
+    }
+
+    fn add(&self, m: [f64; 2]) {
+        let t = self.0.get();
+        self.0.set([t[0] + m[0], t[1] + m[1]]);
+    }
+}
+
 /// [`immersed_forcing`] as a tape op: inputs `[u_x, u_y, shape]`, outputs
-/// `[u_x', u_y']`. It keeps nothing beyond its inputs.
+/// `[u_x', u_y']`. It keeps nothing beyond its inputs; each forward adds the
+/// momentum it changed to [`ImmersedForcing::impulse`].
 #[derive(Debug, Clone)]
 pub struct ImmersedForcing {
     /// The body and its forced faces.
     pub body: Arc<ImmersedCircle>,
+    /// Where the forwards' momentum changes go.
+    pub impulse: ForcingImpulse,
+}
+
+impl ImmersedForcing {
+    /// The op for `body`, with a fresh [`ForcingImpulse`].
+    pub fn new(body: Arc<ImmersedCircle>) -> Self {
+        ImmersedForcing {
+            body,
+            impulse: ForcingImpulse::new(),
+        }
+    }
 }
 
 impl<T: Real> Op<T> for ImmersedForcing {
@@ -451,12 +538,12 @@ impl<T: Real> Op<T> for ImmersedForcing {
 
     fn forward(&mut self, inputs: &[ArrayViewD<'_, T>]) -> diffphys_tape::Result<Vec<ArrayD<T>>> {
         TapeError::check_arity(NAME, 3, inputs.len())?;
-        let (ux, uy) = immersed_forcing(
-            &self.body,
-            view2(&inputs[0])?,
-            view2(&inputs[1])?,
-            view1(&inputs[2])?,
-        )?;
+        let (ux0, uy0) = (view2(&inputs[0])?, view2(&inputs[1])?);
+        let (ux, uy) = immersed_forcing(&self.body, ux0, uy0, view1(&inputs[2])?)?;
+        self.impulse.add(
+            self.body
+                .momentum_change((ux0, uy0), (ux.view(), uy.view())),
+        );
         Ok(vec![ux.into_dyn(), uy.into_dyn()])
     }
 

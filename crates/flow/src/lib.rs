@@ -87,7 +87,7 @@ pub use diffusion::ViscosityMode;
 pub use error::{FlowError, Result};
 pub use forcing::{Buoyancy, Forced, Forcing};
 pub use grid::{FlowGrid, Lattice};
-pub use immersed::{Circle, ImmersedCircle};
+pub use immersed::{Circle, ImmersedCircle, Interior};
 pub use pressure::PressureSolver;
 pub use restrict::{restrict_pressure, restrict_velocity};
 pub use sides::{Boundary, Side, Sides};

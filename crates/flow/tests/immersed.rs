@@ -11,7 +11,8 @@ use std::sync::Arc;
 
 use diffphys_flow::immersed::{immersed_forcing, immersed_forcing_vjp, ImmersedForcing};
 use diffphys_flow::{
-    Circle, FlowError, FlowParams, FlowState, FlowVars, ImmersedCircle, ParamVars, Scene, Sides,
+    Circle, FlowError, FlowParams, FlowState, FlowVars, ImmersedCircle, Interior, ParamVars, Scene,
+    Sides,
 };
 use diffphys_tape::{test_array, ArrayD, Tape};
 use ndarray::{arr1, Array1, Array2};
@@ -19,11 +20,17 @@ use ndarray::{arr1, Array1, Array2};
 const CENTRE: [f64; 2] = [0.62, 0.47];
 const RADIUS: f64 = 0.2;
 
-/// A 24 × 12 channel 2 × 1 with the immersed circle of `shape`.
+/// A 24 × 12 channel 2 × 1 with the immersed circle of `shape`, its cells solid.
 fn scene(shape: [f64; 3]) -> Scene {
+    scene_with(shape, Interior::Solid)
+}
+
+/// [`scene`] with the circle's inside `interior`.
+fn scene_with(shape: [f64; 3], interior: Interior) -> Scene {
     Scene::builder(24, 12, [2.0, 1.0])
         .sides(Sides::channel())
         .immersed(Circle::new([shape[0], shape[1]], shape[2]).unwrap())
+        .immersed_interior(interior)
         .parabolic_inflow(1.0)
         .viscosity(0.02)
         .dt(0.02)
@@ -63,11 +70,16 @@ fn the_body_forces_the_free_faces_next_to_it() {
 
 #[test]
 fn the_forcing_passes_the_dot_product_test() {
-    let scene = scene(shape());
+    for interior in [Interior::Solid, Interior::Forced] {
+        forcing_passes_the_dot_product_test(&scene_with(shape(), interior));
+    }
+}
+
+fn forcing_passes_the_dot_product_test(scene: &Scene) {
     let body = scene.immersed().unwrap();
     let s = arr1(&shape());
-    let (ux, uy) = common::velocity(&scene, 1.0, 5);
-    let (gx, gy) = common::velocity(&scene, 1.0, 7);
+    let (ux, uy) = common::velocity(scene, 1.0, 5);
+    let (gx, gy) = common::velocity(scene, 1.0, 7);
     let (ax, ay) = immersed_forcing(body, ux.view(), uy.view(), s.view()).unwrap();
     let (jx, jy, _) =
         immersed_forcing_vjp(body, ux.view(), uy.view(), s.view(), gx.view(), gy.view()).unwrap();
@@ -114,17 +126,79 @@ fn the_shape_gradient_of_the_forcing_matches_central_differences() {
     }
 }
 
+/// A forced interior: no cell is solid, every face inside the circle comes
+/// out of the forcing at zero, and the step's force is minus the momentum
+/// the forcing changed, per unit time.
+#[test]
+fn a_forced_interior_is_fluid_and_its_force_is_the_forcings_momentum() {
+    let scene = scene_with(shape(), Interior::Forced);
+    assert!(scene.solid().iter().all(|&c| !c));
+    let body = scene.immersed().unwrap();
+    let (ux, uy) = common::velocity(&scene, 1.0, 41);
+    let s = arr1(&shape());
+    let (fx, fy) = immersed_forcing(body, ux.view(), uy.view(), s.view()).unwrap();
+    let g = scene.grid();
+    let inside =
+        |[x, y]: [f64; 2]| (x - CENTRE[0]).powi(2) + (y - CENTRE[1]).powi(2) < RADIUS * RADIUS;
+    let mut zeros = 0;
+    for ((i, j), v) in fx.indexed_iter() {
+        if inside([i as f64 * g.dx, (j as f64 + 0.5) * g.dy]) {
+            assert_eq!(*v, 0.0, "x-face ({i}, {j})");
+            zeros += 1;
+        }
+    }
+    for ((i, j), v) in fy.indexed_iter() {
+        if inside([(i as f64 + 0.5) * g.dx, j as f64 * g.dy]) {
+            assert_eq!(*v, 0.0, "y-face ({i}, {j})");
+            zeros += 1;
+        }
+    }
+    // a circle 4.8 cells across holds about 2 π r² / h² ≈ 29 faces
+    assert!(zeros > 20, "{zeros}");
+    // Σ (u' − u) dx dy, every face (the unforced ones do not change)
+    let change = |a: &Array2<f64>, b: &Array2<f64>| {
+        g.dx * g.dy * a.iter().zip(b).map(|(x, y)| y - x).sum::<f64>()
+    };
+    let m = body.momentum_change((ux.view(), uy.view()), (fx.view(), fy.view()));
+    assert!((m[0] - change(&ux, &fx)).abs() < 1e-12 && (m[1] - change(&uy, &fy)).abs() < 1e-12);
+    // the op adds it up over its forwards
+    let op = ImmersedForcing::new(Arc::clone(body));
+    let tape = Tape::<f64>::new();
+    let (a, b) = (
+        tape.constant(ux.clone().into_dyn()),
+        tape.constant(uy.clone().into_dyn()),
+    );
+    let c = tape.constant(s.clone().into_dyn());
+    tape.apply_multi(op.clone(), &[a, b, c]).unwrap();
+    tape.apply_multi(op.clone(), &[a, b, c]).unwrap();
+    let t = op.impulse.total();
+    assert!((t[0] - 2.0 * m[0]).abs() < 1e-12 && (t[1] - 2.0 * m[1]).abs() < 1e-12);
+    // a step reports −Σ (u' − u*) dx dy / dt, with u* its own velocity
+    let s0 = FlowState::from_velocity(&scene, ux.clone(), uy.clone());
+    let (_, info) = scene.forward(&s0, &scene.params()).unwrap();
+    assert!(info
+        .immersed_force
+        .iter()
+        .all(|f| f.is_finite() && *f != 0.0));
+    // a scene without an immersed body reports no force
+    let plain = common::channel().build().unwrap();
+    let (_, info) = plain
+        .forward(&FlowState::<f64>::zeros(&plain), &plain.params())
+        .unwrap();
+    assert_eq!(info.immersed_force, [0.0; 2]);
+}
+
 const STEPS: usize = 20;
 
 /// `<u_x, w_x> + <u_y, w_y>` of the state after [`STEPS`] steps of the
 /// channel past the circle of `shape`, without a tape.
 fn loss_after_steps(
-    shape: [f64; 3],
+    (shape, interior): ([f64; 3], Interior),
     s0: &FlowState<f64>,
     p: &FlowParams<f64>,
     w: &(Array2<f64>, Array2<f64>),
 ) -> f64 {
-    let scene = scene(shape);
+    let scene = scene_with(shape, interior);
     let mut s = s0.clone();
     for _ in 0..STEPS {
         s = scene.forward(&s, p).unwrap().0;
@@ -134,7 +208,19 @@ fn loss_after_steps(
 
 #[test]
 fn gradients_through_twenty_steps_match_central_differences() {
-    let scene = scene(shape());
+    gradients_through_twenty_steps(Interior::Solid);
+}
+
+#[test]
+fn gradients_through_twenty_steps_with_a_forced_interior_match_central_differences() {
+    gradients_through_twenty_steps(Interior::Forced);
+}
+
+/// The gradient of a loss after [`STEPS`] steps with respect to the initial
+/// velocity, the inflow, the centre and the radius, against central
+/// differences.
+fn gradients_through_twenty_steps(interior: Interior) {
+    let scene = scene_with(shape(), interior);
     let (ux, uy) = common::velocity(&scene, 0.3, 21);
     let s0 = FlowState::from_velocity(&scene, ux, uy);
     let p = scene.params::<f64>();
@@ -152,7 +238,9 @@ fn gradients_through_twenty_steps_match_central_differences() {
     let wy = tape.constant(w.1.clone().into_dyn());
     let loss = s.ux.dot(wx).unwrap().add(s.uy.dot(wy).unwrap()).unwrap();
     let value = loss.item().unwrap();
-    assert!((value - loss_after_steps(shape(), &s0, &p, &w)).abs() <= 1e-12 * value.abs());
+    assert!(
+        (value - loss_after_steps((shape(), interior), &s0, &p, &w)).abs() <= 1e-12 * value.abs()
+    );
     let g = tape
         .backward(loss, &[state.ux, state.uy, params.inflow, body])
         .unwrap();
@@ -167,7 +255,7 @@ fn gradients_through_twenty_steps_match_central_differences() {
         central(1e-6, &|e| {
             let mut s = shape();
             s[k] += e;
-            loss_after_steps(s, &s0, &p, &w)
+            loss_after_steps((s, interior), &s0, &p, &w)
         })
     };
     let g_body = g.get(body).unwrap();
@@ -178,7 +266,7 @@ fn gradients_through_twenty_steps_match_central_differences() {
                 let mut s = s0.clone();
                 s.ux.scaled_add(e, &dx);
                 s.uy.scaled_add(e, &dy);
-                loss_after_steps(shape(), &s, &p, &w)
+                loss_after_steps((shape(), interior), &s, &p, &w)
             }),
             sum(g.get(state.ux).unwrap(), dx.as_slice().unwrap())
                 + sum(g.get(state.uy).unwrap(), dy.as_slice().unwrap()),
@@ -188,7 +276,7 @@ fn gradients_through_twenty_steps_match_central_differences() {
             central(1e-6, &|e| {
                 let mut q = p.clone();
                 q.inflow.scaled_add(e, &dinflow);
-                loss_after_steps(shape(), &s0, &q, &w)
+                loss_after_steps((shape(), interior), &s0, &q, &w)
             }),
             sum(g.get(params.inflow).unwrap(), dinflow.as_slice().unwrap()),
         ),
@@ -197,7 +285,7 @@ fn gradients_through_twenty_steps_match_central_differences() {
         ("radius", along_shape(2), g_body[2]),
     ];
     for (what, fd, ad) in cases {
-        println!("d loss / d {what}: finite differences {fd:.10e}, tape {ad:.10e}");
+        println!("{interior:?}: d loss / d {what}: finite differences {fd:.10e}, tape {ad:.10e}");
         assert!(
             ad.abs() > 1e-4,
             "{what}: the gradient is (nearly) zero: {ad:e}"
@@ -294,9 +382,7 @@ fn bad_bodies_are_typed_errors() {
     let r = plain.step_with_body(&tape, &state, &params, body);
     assert!(matches!(r, Err(FlowError::InvalidParameter { .. })));
     // the op on the wrong velocity shape
-    let op = ImmersedForcing {
-        body: Arc::clone(scene.immersed().unwrap()),
-    };
+    let op = ImmersedForcing::new(Arc::clone(scene.immersed().unwrap()));
     let tape = Tape::<f64>::new();
     let a = tape.var(ArrayD::zeros(ndarray::IxDyn(&[3, 3])));
     let s = tape.constant(arr1(&shape()).into_dyn());

@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use diffphys_ops::cg::CgParams;
 use diffphys_tape::pool::BufferPool;
-use ndarray::Array1;
+use ndarray::{Array1, Array2};
 
 use super::{Scene, SceneInner};
 use crate::advection::Advection;
@@ -14,7 +14,7 @@ use crate::diagnostics::ForceWeights;
 use crate::diffusion::{default_viscosity_solver, Diffusion, ViscosityMode};
 use crate::forcing::{Buoyancy, Forcing};
 use crate::grid::FlowGrid;
-use crate::immersed::{Circle, ImmersedCircle};
+use crate::immersed::{Circle, ImmersedCircle, Interior};
 use crate::pressure::{PressureSolver, PressureSystem};
 use crate::sides::{Boundary, Side, Sides};
 use crate::spectral::PeriodicPoisson;
@@ -78,6 +78,7 @@ impl Scene {
             buoyancy: None,
             forcing: None,
             immersed: None,
+            interior: Interior::Solid,
             scalars: 0,
             settings: Settings::default(),
         }
@@ -99,6 +100,7 @@ pub struct SceneBuilder {
     buoyancy: Option<Buoyancy>,
     forcing: Option<Arc<dyn Forcing>>,
     immersed: Option<Circle>,
+    interior: Interior,
     scalars: usize,
     settings: Settings,
 }
@@ -117,11 +119,21 @@ impl SceneBuilder {
     }
 
     /// The obstacle as an immersed circle ([`crate::immersed`]): the cells
-    /// of [`Obstacle::cylinder`] of the same circle stay solid, and the free
-    /// faces next to them are forced by interpolation to the true wall after
-    /// the viscosity, before the projection. Replaces [`SceneBuilder::obstacle`].
+    /// of [`Obstacle::cylinder`] of the same circle stay solid (by default;
+    /// see [`SceneBuilder::immersed_interior`]), and the free faces next to
+    /// them are forced by interpolation to the true wall after the
+    /// viscosity, before the projection. Replaces [`SceneBuilder::obstacle`].
     pub fn immersed(mut self, circle: Circle) -> Self {
         self.immersed = Some(circle);
+        self
+    }
+
+    /// What lies inside the immersed circle (default [`Interior::Solid`]):
+    /// with [`Interior::Forced`] no cell is solid, the faces inside the
+    /// circle are forced to zero and the pressure spans the body. Without
+    /// [`SceneBuilder::immersed`] it does nothing.
+    pub fn immersed_interior(mut self, interior: Interior) -> Self {
+        self.interior = interior;
         self
     }
 
@@ -256,6 +268,7 @@ impl SceneBuilder {
             buoyancy,
             forcing,
             immersed,
+            interior,
             scalars,
             settings,
         } = self;
@@ -386,6 +399,12 @@ impl SceneBuilder {
                 "the obstacle fills the whole domain",
             ));
         }
+        // a forced interior: the circle's cells were rasterised for the checks
+        // above, and are fluid
+        let solid = match (immersed, interior) {
+            (Some(_), Interior::Forced) => Array2::from_elem(solid.dim(), false),
+            _ => solid,
+        };
         if let Some(b) = buoyancy {
             if b.scalar >= scalars || !b.beta.is_finite() {
                 return Err(FlowError::scene(

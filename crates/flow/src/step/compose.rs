@@ -10,7 +10,7 @@ use crate::advection::{AdvectScalar, AdvectVelocity};
 use crate::boundaries::EnforceBoundaries;
 use crate::diffusion::Diffuse;
 use crate::forcing::{Buoyant, Forced};
-use crate::immersed::ImmersedForcing;
+use crate::immersed::{ForcingImpulse, ImmersedForcing};
 use crate::pressure::{Project, SolveCounter, SubtractPressureGradient};
 use crate::{FlowError, Result};
 
@@ -78,6 +78,7 @@ pub(super) fn substep<T: Real, E: Exec<T>>(
     p: &ParamsOf<E::V>,
     dt: f64,
     counter: &SolveCounter,
+    impulse: &ForcingImpulse,
 ) -> Result<StateOf<E::V>> {
     let settings = scene.settings();
     let (grid, faces) = (scene.grid(), scene.faces());
@@ -163,6 +164,7 @@ pub(super) fn substep<T: Real, E: Exec<T>>(
         (Some(body), Some(shape)) => two(e.run(
             ImmersedForcing {
                 body: Arc::clone(body),
+                impulse: impulse.clone(),
             },
             &[&ux, &uy, shape],
         )?),

@@ -51,7 +51,7 @@ use crate::diagnostics::ForceWeights;
 use crate::diffusion::{explicit_diffusion_number, Diffusion, ViscosityMode};
 use crate::forcing::{Buoyancy, Forcing};
 use crate::grid::FlowGrid;
-use crate::immersed::ImmersedCircle;
+use crate::immersed::{ForcingImpulse, ImmersedCircle};
 use crate::pressure::{PressureSystem, SolveCounter};
 use crate::sides::{Boundary, Side};
 use crate::{FlowError, Result};
@@ -313,6 +313,12 @@ impl Scene {
         self.0.immersed.as_ref()
     }
 
+    /// `−impulse / dt`: the force of the flow on the immersed body over a step
+    /// whose forcing added `impulse` (see [`StepInfo::immersed_force`]).
+    fn immersed_force(&self, impulse: &ForcingImpulse) -> [f64; 2] {
+        impulse.total().map(|m| -m / self.dt())
+    }
+
     /// The immersed body's shape `(c_x, c_y, r)` as an array `[3]`.
     fn body_shape<T: Real>(&self) -> Option<ArrayD<T>> {
         self.0.immersed.as_ref().map(|b| {
@@ -375,6 +381,7 @@ impl Scene {
         let (n, courant) = self.plan(&s, &p)?;
         let exec = OnTape(tape);
         let counter = SolveCounter::new();
+        let impulse = ForcingImpulse::new();
         let mut st = StateOf {
             ux: state.ux,
             uy: state.uy,
@@ -388,12 +395,21 @@ impl Scene {
             body,
         };
         for _ in 0..n {
-            st = substep(&exec, self, st, &pv, self.dt() / n as f64, &counter)?;
+            st = substep(
+                &exec,
+                self,
+                st,
+                &pv,
+                self.dt() / n as f64,
+                &counter,
+                &impulse,
+            )?;
         }
         let info = StepInfo {
             substeps: n,
             courant,
             pressure_iterations: counter.iterations(),
+            immersed_force: self.immersed_force(&impulse),
         };
         Ok((
             FlowVars {
@@ -456,6 +472,7 @@ impl Scene {
     ) -> Result<(FlowState<T>, StepInfo)> {
         let (n, courant) = self.plan(&state.view(), params)?;
         let counter = SolveCounter::new();
+        let impulse = ForcingImpulse::new();
         let d = |a: &Array2<T>| a.clone().into_dyn();
         let mut st = StateOf {
             ux: d(&state.ux),
@@ -470,7 +487,15 @@ impl Scene {
             body: self.body_shape(),
         };
         for _ in 0..n {
-            st = substep(&Plain, self, st, &pv, self.dt() / n as f64, &counter)?;
+            st = substep(
+                &Plain,
+                self,
+                st,
+                &pv,
+                self.dt() / n as f64,
+                &counter,
+                &impulse,
+            )?;
         }
         let two = |a: ArrayD<T>| a.into_dimensionality().expect("the ops return 2D fields");
         Ok((
@@ -484,6 +509,7 @@ impl Scene {
                 substeps: n,
                 courant,
                 pressure_iterations: counter.iterations(),
+                immersed_force: self.immersed_force(&impulse),
             },
         ))
     }

@@ -217,4 +217,14 @@ pub struct StepInfo {
     pub courant: f64,
     /// CG iterations of each pressure solve (0 for the direct solver).
     pub pressure_iterations: Vec<usize>,
+    /// The force `[F_x, F_y]` of the flow on the immersed body over the step
+    /// by the momentum its forcing exchanges (zero without one):
+    /// `F = −(1/dt) Σ_substeps Σ_forced (u'_f − u*_f) dx dy`, `u*` the velocity
+    /// the forcing is given, `u'` its output. With [`crate::immersed::Interior::Forced`]
+    /// that is the whole exchange with the body (for a body at rest, whose
+    /// inside holds no momentum after the forcing); with
+    /// [`crate::immersed::Interior::Solid`] the staircase's pressure and
+    /// viscous exchange come on top. Recorded by the forwards: a checkpointed
+    /// rollout that recomputes a step counts it again.
+    pub immersed_force: [f64; 2],
 }

@@ -30,7 +30,7 @@
 
 use ndarray::Array2;
 
-use crate::{FlowError, FlowGrid, FlowState, Result, Scene};
+use crate::{FlowError, FlowGrid, FlowState, Obstacle, Result, Scene};
 
 /// A rectangle of cell faces: x from face `i0` to face `i1`, y from face `j0`
 /// to face `j1` (the cells `i0..i1 × j0..j1` lie inside).
@@ -118,7 +118,7 @@ impl FaceBox {
         let c = CONTROL_VOLUME_CLEARANCE;
         let (a0, a1) = (self.i0.saturating_sub(c), (self.i1 + c).min(nx));
         let (b0, b1) = (self.j0.saturating_sub(c), (self.j1 + c).min(ny));
-        let solid = scene.solid();
+        let solid = &body_cells(scene);
         for i in a0..a1 {
             for j in b0..b1 {
                 if solid[[i, j]] && self.cells_to_edge(i, j) < c {
@@ -126,7 +126,7 @@ impl FaceBox {
                         "control-volume force",
                         "box",
                         format!(
-                            "{self:?} cuts a body: solid cell ({i}, {j}) lies within {c} cells of an edge"
+                            "{self:?} cuts a body: body cell ({i}, {j}) lies within {c} cells of an edge"
                         ),
                     ));
                 }
@@ -195,8 +195,8 @@ impl ControlVolumeForce {
 /// [`FlowError::Shape`] for a state of another scene;
 /// [`FlowError::InvalidParameter`] for a box that leaves the domain (an edge
 /// on the domain's boundary or beyond it), is empty, or cuts a body (a solid
-/// cell within [`CONTROL_VOLUME_CLEARANCE`] cells of an edge, on either
-/// side).
+/// cell, or a cell whose centre lies in an immersed circle, within
+/// [`CONTROL_VOLUME_CLEARANCE`] cells of an edge, on either side).
 pub fn control_volume_force(
     scene: &Scene,
     b: FaceBox,
@@ -247,6 +247,19 @@ pub fn control_volume_force(
         f.unsteady = [0, 1].map(|d| -(m1[d] - m0[d]) / scene.dt());
     }
     Ok(f)
+}
+
+/// The cells of the scene's bodies: the solid cells, and those of an
+/// immersed circle whose inside is forced rather than solid.
+fn body_cells(scene: &Scene) -> Array2<bool> {
+    let mut cells = scene.solid().clone();
+    if let Some(body) = scene.immersed() {
+        let c = body.circle();
+        if let Ok(inside) = Obstacle::cylinder(c.center, c.radius).rasterise(scene.grid()) {
+            cells.zip_mut_with(&inside, |a, &b| *a |= b);
+        }
+    }
+    cells
 }
 
 /// `Ok` for a state on the scene's lattices.
@@ -383,5 +396,22 @@ mod tests {
             control_volume_force(&scene, good, &other, None, 0.01),
             Err(FlowError::Shape { .. })
         ));
+        // an immersed circle with a forced inside has no solid cell, and a
+        // box through it is refused all the same
+        let forced = Scene::builder(40, 20, [2.0, 1.0])
+            .immersed(crate::Circle::new([0.5, 0.5], 0.1).unwrap())
+            .immersed_interior(crate::Interior::Forced)
+            .viscosity(0.01)
+            .dt(0.01)
+            .build()
+            .unwrap();
+        assert!(forced.solid().iter().all(|&c| !c));
+        let s = FlowState::<f64>::zeros(&forced);
+        let through = FaceBox::around(&g, [0.5, 0.5], 0.05);
+        assert!(matches!(
+            control_volume_force(&forced, through, &s, None, 0.01),
+            Err(FlowError::InvalidParameter { .. })
+        ));
+        assert!(control_volume_force(&forced, good, &s, None, 0.01).is_ok());
     }
 }

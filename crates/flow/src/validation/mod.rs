@@ -30,6 +30,7 @@
 mod cavity;
 mod control_volume;
 mod cylinder;
+mod dfg_forces;
 mod pbdl_wake;
 mod shedding;
 mod taylor_green;

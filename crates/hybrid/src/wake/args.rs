@@ -21,7 +21,7 @@ use crate::{HybridError, NetSize, Result};
 ///
 /// # Errors
 /// [`HybridError::Argument`] for text that is not a number;
-/// [`diffphys::hybrid::HybridError::ReOutOfRange`]; [`LearnError::EmptySplit`] for an empty list.
+/// [`HybridError::ReOutOfRange`]; [`LearnError::EmptySplit`] for an empty list.
 pub fn parse_re_list(
     channel: &Channel,
     option: &str,

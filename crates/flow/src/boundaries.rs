@@ -1,18 +1,22 @@
 //! Side conditions, obstacles, and which faces they fix.
 //!
-//! Each of the four sides carries one [`Boundary`]. On the faces of a side the
-//! normal velocity is fixed (walls: zero; inflow: the inflow profile) or free
-//! (outflow, periodic); the tangential velocity enters through ghost values
-//! beyond the side, used by advection and diffusion:
+//! Each of the four sides carries one [`Boundary`], a handle on a
+//! [`crate::sides::SideCondition`]. On the faces of a side the normal velocity
+//! is fixed (walls: zero; inflow: the inflow profile) or free (outflow,
+//! periodic); the tangential velocity enters through ghost values beyond the
+//! side, used by advection and diffusion. The conditions diffphys ships:
 //!
-//! | side | normal velocity on its faces | tangential ghost `u_g` (inner value `u_i`) | pressure |
+//! | condition | normal velocity on its faces | tangential ghost `u_g` (inner value `u_i`) | pressure |
 //! | --- | --- | --- | --- |
-//! | [`Boundary::NoSlip`] | 0 | `−u_i` (zero at the wall) | zero normal gradient |
-//! | [`Boundary::FreeSlip`] | 0 | `u_i` (zero shear) | zero normal gradient |
-//! | [`Boundary::MovingWall`] | 0 | `2 U − u_i` (`U` at the wall) | zero normal gradient |
-//! | [`Boundary::Inflow`] | the profile | `−u_i` (no tangential inflow) | zero normal gradient |
-//! | [`Boundary::Outflow`] | free (projected) | `u_i` (zero gradient) | `p = 0` one cell outside |
-//! | [`Boundary::Periodic`] | free, wraps | wraps | wraps |
+//! | [`NoSlip`](crate::sides::NoSlip) | 0 | `−u_i` (zero at the wall) | zero normal gradient |
+//! | [`FreeSlip`](crate::sides::FreeSlip) | 0 | `u_i` (zero shear) | zero normal gradient |
+//! | [`MovingWall`](crate::sides::MovingWall) | 0 | `2 U − u_i` (`U` at the wall) | zero normal gradient |
+//! | [`Inflow`](crate::sides::Inflow) | the profile | `−u_i` (no tangential inflow) | zero normal gradient |
+//! | [`Outflow`](crate::sides::Outflow) | free (projected) | `u_i` (zero gradient) | `p = 0` one cell outside |
+//! | [`Periodic`](crate::sides::Periodic) | free, wraps | wraps | wraps |
+//!
+//! A condition of one's own answers the same three questions
+//! ([`crate::sides`]); the operators read only the answers.
 //!
 //! An obstacle is a mask of solid cells; every face touching a solid cell has
 //! zero velocity (a staircase no-slip body). [`Obstacle::cylinder`] and
@@ -29,7 +33,7 @@ use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
 use ndarray::{Array1, Array2, ArrayView1, ArrayView2};
 
 use crate::grid::{FlowGrid, Lattice};
-pub use crate::sides::{Boundary, Side, Sides};
+pub use crate::sides::{Boundary, NormalVelocity, Side, Sides};
 use crate::{FlowError, Result};
 
 /// A solid body in the flow: a mask of solid cells.
@@ -201,10 +205,11 @@ impl Faces {
         let touches_solid = |cells: (Option<usize>, Option<usize>), at: &dyn Fn(usize) -> bool| {
             cells.0.is_some_and(at) || cells.1.is_some_and(at)
         };
-        let kind = |side: Option<Side>, along: usize| match side.map(|s| grid.sides.get(s)) {
-            None | Some(Boundary::Outflow) | Some(Boundary::Periodic) => FaceKind::Free,
-            Some(Boundary::Inflow) => FaceKind::Inflow(along),
-            Some(_) => FaceKind::Zero,
+        let kind = |side: Option<Side>, along: usize| match side.map(|s| grid.sides.get(s).normal())
+        {
+            None | Some(NormalVelocity::Free | NormalVelocity::Wraps) => FaceKind::Free,
+            Some(NormalVelocity::Profile) => FaceKind::Inflow(along),
+            Some(NormalVelocity::Zero) => FaceKind::Zero,
         };
         let mut x = Vec::with_capacity(nfx * ny);
         for f in 0..nfx {
@@ -383,9 +388,7 @@ impl<T: Real> Op<T> for EnforceBoundaries {
 
 /// The inflow side of `sides`, if any (the first; a scene allows one).
 pub(crate) fn inflow_side(sides: &Sides) -> Option<Side> {
-    Side::ALL
-        .into_iter()
-        .find(|&s| sides.get(s) == Boundary::Inflow)
+    Side::ALL.into_iter().find(|&s| sides.get(s).is_inflow())
 }
 
 /// A tape array as a 2D view.

@@ -59,6 +59,15 @@ impl FlowGrid {
         self.sides.bottom.is_periodic()
     }
 
+    /// The cell size normal to `side`: `dx` on the left and right, `dy` on
+    /// the bottom and top.
+    pub fn normal_size(&self, side: Side) -> f64 {
+        match side {
+            Side::Left | Side::Right => self.dx,
+            Side::Bottom | Side::Top => self.dy,
+        }
+    }
+
     /// The domain size `[lx, ly]`.
     pub fn size(&self) -> [f64; 2] {
         [self.nx as f64 * self.dx, self.ny as f64 * self.dy]

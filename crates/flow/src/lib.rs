@@ -8,7 +8,7 @@
 //! | module | operator |
 //! | --- | --- |
 //! | [`grid`] | cells, faces, array layout |
-//! | [`sides`] | the side vocabulary: [`Side`], [`Boundary`], [`Sides`] |
+//! | [`sides`] | the side vocabulary: [`Side`], the [`SideCondition`] trait and its shipped types, [`Boundary`], [`Sides`] |
 //! | [`boundaries`] | obstacles, the condition of every face ([`Faces`]), [`boundaries::enforce_boundaries`] |
 //! | [`advection`] | semi-Lagrangian and MacCormack self-advection, passive scalars |
 //! | [`diffusion`] | explicit and implicit viscosity ([`diffusion::Diffusion`]) |
@@ -90,7 +90,7 @@ pub use grid::{FlowGrid, Lattice};
 pub use immersed::{Circle, ImmersedCircle, Interior};
 pub use pressure::PressureSolver;
 pub use restrict::{restrict_pressure, restrict_velocity};
-pub use sides::{Boundary, Side, Sides};
+pub use sides::{Boundary, Side, SideCondition, Sides};
 pub use step::{
     Exec, FlowParams, FlowState, FlowVars, ParamVars, Scene, SceneBuilder, Settings, Splitting,
     StepInfo,

@@ -331,10 +331,11 @@ impl PressureSystem {
 /// The nearest staggered grid of diffphys-ops, for its multigrid cycle: an
 /// axis is open where a side of it is an outflow.
 fn ops_mac(grid: &FlowGrid, solid: &Array2<bool>) -> Result<MacGrid> {
-    let axis = |lo: Boundary, hi: Boundary| {
+    let dirichlet = |b: &Boundary| b.pressure() == OpsBoundary::ZeroDirichlet;
+    let axis = |lo: &Boundary, hi: &Boundary| {
         if lo.is_periodic() {
             OpsBoundary::Periodic
-        } else if lo == Boundary::Outflow || hi == Boundary::Outflow {
+        } else if dirichlet(lo) || dirichlet(hi) {
             OpsBoundary::ZeroDirichlet
         } else {
             OpsBoundary::Closed
@@ -342,7 +343,7 @@ fn ops_mac(grid: &FlowGrid, solid: &Array2<bool>) -> Result<MacGrid> {
     };
     let s = &grid.sides;
     let g = Grid2::new(grid.nx, grid.ny, grid.dx, grid.dy, OpsBoundary::Closed)?
-        .with_boundaries(axis(s.left, s.right), axis(s.bottom, s.top));
+        .with_boundaries(axis(&s.left, &s.right), axis(&s.bottom, &s.top));
     let mut mac = if solid.iter().any(|&v| v) {
         let active = solid.mapv(|v| !v).into_dyn();
         MacGrid::with_mask(g, CellMask::from_array(active.view()))?
@@ -352,14 +353,14 @@ fn ops_mac(grid: &FlowGrid, solid: &Array2<bool>) -> Result<MacGrid> {
     // An axis with an outflow at one end only: the other end (an inflow, a
     // wall) is zero Neumann for the pressure, as in the operator itself; the
     // cycle would otherwise precondition a Dirichlet end there.
-    for (a, lo, hi) in [(0, s.left, s.right), (1, s.bottom, s.top)] {
+    for (a, lo, hi) in [(0, &s.left, &s.right), (1, &s.bottom, &s.top)] {
         if lo.is_periodic() {
             continue;
         }
-        if lo != Boundary::Outflow && hi == Boundary::Outflow {
+        if !dirichlet(lo) && dirichlet(hi) {
             mac = mac.with_closed_side(a, false)?;
         }
-        if hi != Boundary::Outflow && lo == Boundary::Outflow {
+        if !dirichlet(hi) && dirichlet(lo) {
             mac = mac.with_closed_side(a, true)?;
         }
     }

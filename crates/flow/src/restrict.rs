@@ -97,10 +97,10 @@ mod tests {
     fn channel(nx: usize, ny: usize) -> Scene {
         Scene::builder(nx, ny, [2.0, 1.0])
             .sides(Sides {
-                left: Boundary::Inflow,
-                right: Boundary::Outflow,
-                bottom: Boundary::FreeSlip,
-                top: Boundary::FreeSlip,
+                left: Boundary::inflow(),
+                right: Boundary::outflow(),
+                bottom: Boundary::free_slip(),
+                top: Boundary::free_slip(),
             })
             .uniform_inflow(1.0)
             .viscosity(0.01)

@@ -160,8 +160,8 @@ fn inflow_profile_of_the_wrong_length() {
 fn one_periodic_side_alone() {
     let e = Scene::builder(4, 4, [1.0, 1.0])
         .sides(Sides {
-            left: Boundary::Periodic,
-            ..Sides::all(Boundary::NoSlip)
+            left: Boundary::periodic(),
+            ..Sides::all(Boundary::no_slip())
         })
         .build()
         .unwrap_err();

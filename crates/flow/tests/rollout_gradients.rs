@@ -18,7 +18,7 @@ const STEPS: usize = 20;
 fn scene(advection: Advection, mode: ViscosityMode) -> Scene {
     Scene::builder(12, 6, [2.0, 1.0])
         .sides(Sides {
-            top: Boundary::MovingWall { speed: 0.5 },
+            top: Boundary::moving_wall(0.5),
             ..Sides::channel()
         })
         .obstacle(Obstacle::cylinder([0.7, 0.5], 0.2))

@@ -22,10 +22,10 @@ fn channel() -> Scene {
 fn channel_at(nx: usize, ny: usize, dt: f64) -> Scene {
     Scene::builder(nx, ny, [2.0, 1.0])
         .sides(Sides {
-            left: Boundary::Inflow,
-            right: Boundary::Outflow,
-            bottom: Boundary::FreeSlip,
-            top: Boundary::FreeSlip,
+            left: Boundary::inflow(),
+            right: Boundary::outflow(),
+            bottom: Boundary::free_slip(),
+            top: Boundary::free_slip(),
         })
         .obstacle(Obstacle::Rectangle {
             lo: [0.4, 0.3],

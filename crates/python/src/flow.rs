@@ -82,7 +82,7 @@ const DEFAULT_BUFFER_LIMIT: usize = 2 << 30;
 fn side(obj: &Bound<'_, PyAny>) -> PyResult<Boundary> {
     if let Ok((name, speed)) = obj.extract::<(String, f64)>() {
         return match name.as_str() {
-            "moving" | "moving_wall" => Ok(Boundary::MovingWall { speed }),
+            "moving" | "moving_wall" => Ok(Boundary::moving_wall(speed)),
             other => Err(InvalidArgumentError::new_err(format!(
                 "a side given as (name, speed) must be (\"moving\", speed), got {other:?}"
             ))),
@@ -92,11 +92,11 @@ fn side(obj: &Bound<'_, PyAny>) -> PyResult<Boundary> {
         .extract()
         .map_err(|_| PyTypeError::new_err("a side is a name or (\"moving\", speed)"))?;
     match name.as_str() {
-        "no_slip" | "wall" => Ok(Boundary::NoSlip),
-        "free_slip" => Ok(Boundary::FreeSlip),
-        "periodic" => Ok(Boundary::Periodic),
-        "inflow" => Ok(Boundary::Inflow),
-        "outflow" => Ok(Boundary::Outflow),
+        "no_slip" | "wall" => Ok(Boundary::no_slip()),
+        "free_slip" => Ok(Boundary::free_slip()),
+        "periodic" => Ok(Boundary::periodic()),
+        "inflow" => Ok(Boundary::inflow()),
+        "outflow" => Ok(Boundary::outflow()),
         other => Err(InvalidArgumentError::new_err(format!(
             "unknown side condition {other:?}: use \"no_slip\", \"free_slip\", \"periodic\", \
              \"inflow\", \"outflow\" or (\"moving\", speed)"
@@ -109,7 +109,7 @@ fn side(obj: &Bound<'_, PyAny>) -> PyResult<Boundary> {
 /// "bottom": …, "top": …}` (missing sides no-slip).
 fn sides(obj: &Bound<'_, PyAny>) -> PyResult<Sides> {
     if let Ok(d) = obj.cast::<PyDict>() {
-        let mut s = Sides::all(Boundary::NoSlip);
+        let mut s = Sides::all(Boundary::no_slip());
         for (k, v) in d.iter() {
             let b = side(&v)?;
             match k.extract::<String>()?.as_str() {

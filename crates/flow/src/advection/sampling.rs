@@ -3,7 +3,7 @@
 //! transposed scatter), per axis and per lattice.
 
 use crate::grid::{FlowGrid, Lattice};
-use crate::sides::Side;
+use crate::sides::{Ghost, Side};
 
 /// How one axis of a lattice continues beyond its last entries.
 #[derive(Debug, Clone, Copy)]
@@ -218,8 +218,14 @@ impl Sampler {
     pub(super) fn new(grid: &FlowGrid, lattice: Lattice) -> Self {
         let sides = &grid.sides;
         let ghost = |lo: Side, hi: Side, n: usize| {
-            let (fl, wl) = sides.get(lo).ghost();
-            let (fh, wh) = sides.get(hi).ghost();
+            let Ghost {
+                factor: fl,
+                wall: wl,
+            } = sides.get(lo).ghost(grid.normal_size(lo));
+            let Ghost {
+                factor: fh,
+                wall: wh,
+            } = sides.get(hi).ghost(grid.normal_size(hi));
             AxisRule::Ghost {
                 n,
                 lo: (fl, wl, lo.index()),

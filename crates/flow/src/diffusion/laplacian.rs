@@ -9,6 +9,7 @@ use ndarray::{ArrayViewD, ArrayViewMutD, IxDyn};
 use crate::boundaries::{FaceKind, Faces};
 use crate::buffers::{for_row_blocks, give_back, scratch, zeros};
 use crate::grid::{FlowGrid, Lattice};
+use crate::sides::Ghost;
 use crate::sparse::Csr;
 
 /// The Laplacian of one velocity component, split by the kind of column.
@@ -138,7 +139,8 @@ impl ComponentLaplacian {
                         None if normal => plain = false, // zero gradient through an open side
                         None => {
                             plain = false;
-                            let (factor, wall) = grid.sides.get(side).ghost();
+                            let Ghost { factor, wall } =
+                                grid.sides.get(side).ghost(grid.normal_size(side));
                             ff.push((r, r, c * (factor - 1.0)));
                             row.push((k, k, c * (factor - 1.0)));
                             if wall != 0.0 {
@@ -356,10 +358,10 @@ mod tests {
                 m,
                 [1.0, 0.8],
                 Sides {
-                    left: Boundary::NoSlip,
-                    right: Boundary::Outflow,
-                    bottom: Boundary::MovingWall { speed: 0.5 },
-                    top: Boundary::FreeSlip,
+                    left: Boundary::no_slip(),
+                    right: Boundary::outflow(),
+                    bottom: Boundary::moving_wall(0.5),
+                    top: Boundary::free_slip(),
                 },
             );
             let solid = Obstacle::rectangle([0.4, 0.3], [0.7, 0.65])
@@ -372,10 +374,10 @@ mod tests {
             (g, solid)
         };
         let periodic_x = Sides {
-            left: Boundary::Periodic,
-            right: Boundary::Periodic,
-            bottom: Boundary::NoSlip,
-            top: Boundary::MovingWall { speed: -0.3 },
+            left: Boundary::periodic(),
+            right: Boundary::periodic(),
+            bottom: Boundary::no_slip(),
+            top: Boundary::moving_wall(-0.3),
         };
         [
             mixed(8, 7),

@@ -16,7 +16,7 @@ use crate::forcing::{Buoyancy, Forcing};
 use crate::grid::FlowGrid;
 use crate::immersed::{Circle, ImmersedCircle, Interior};
 use crate::pressure::{PressureSolver, PressureSystem};
-use crate::sides::{Boundary, Side, Sides};
+use crate::sides::{check_condition, Boundary, Side, Sides};
 use crate::spectral::PeriodicPoisson;
 use crate::{FlowError, Result};
 
@@ -70,7 +70,7 @@ impl Scene {
             nx,
             ny,
             size,
-            sides: Sides::all(Boundary::NoSlip),
+            sides: Sides::all(Boundary::no_slip()),
             obstacle: Obstacle::None,
             viscosity: 0.01,
             dt: 0.01,
@@ -304,8 +304,8 @@ impl SceneBuilder {
             ));
         }
         for (a, b, axis) in [
-            (sides.left, sides.right, "x"),
-            (sides.bottom, sides.top, "y"),
+            (&sides.left, &sides.right, "x"),
+            (&sides.bottom, &sides.top, "y"),
         ] {
             if a.is_periodic() != b.is_periodic() {
                 return Err(FlowError::scene(
@@ -314,19 +314,15 @@ impl SceneBuilder {
                 ));
             }
         }
+        let cell = [size[0] / nx as f64, size[1] / ny as f64];
         for side in Side::ALL {
-            if let Boundary::MovingWall { speed } = sides.get(side) {
-                if !speed.is_finite() {
-                    return Err(FlowError::scene(
-                        "wall speed",
-                        format!("the {side} wall's speed is {speed}"),
-                    ));
-                }
-            }
+            let h = cell[usize::from(matches!(side, Side::Bottom | Side::Top))];
+            check_condition(sides.get(side), &[h])
+                .map_err(|e| FlowError::scene("sides", format!("the {side} side: {e}")))?;
         }
         let inflow_sides: Vec<Side> = Side::ALL
             .into_iter()
-            .filter(|&s| sides.get(s) == Boundary::Inflow)
+            .filter(|&s| sides.get(s).is_inflow())
             .collect();
         if inflow_sides.len() > 1 {
             return Err(FlowError::scene(
@@ -337,7 +333,7 @@ impl SceneBuilder {
                 ),
             ));
         }
-        let has_outflow = Side::ALL.iter().any(|&s| sides.get(s) == Boundary::Outflow);
+        let has_outflow = Side::ALL.iter().any(|&s| sides.get(s).is_open());
         if !inflow_sides.is_empty() && !has_outflow {
             return Err(FlowError::scene(
                 "sides",

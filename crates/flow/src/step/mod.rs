@@ -53,7 +53,7 @@ use crate::forcing::{Buoyancy, Forcing};
 use crate::grid::FlowGrid;
 use crate::immersed::{ForcingImpulse, ImmersedCircle};
 use crate::pressure::{PressureSystem, SolveCounter};
-use crate::sides::{Boundary, Side};
+use crate::sides::Side;
 use crate::{FlowError, Result};
 
 mod builder;
@@ -167,10 +167,7 @@ impl Scene {
     /// The parameters the scene was built with (viscosity, wall speeds of its
     /// moving walls, inflow profile).
     pub fn params<T: Real>(&self) -> FlowParams<T> {
-        let speed = |s: Side| match self.0.grid.sides.get(s) {
-            Boundary::MovingWall { speed } => speed,
-            _ => 0.0,
-        };
+        let speed = |s: Side| self.0.grid.sides.get(s).wall_speed();
         FlowParams {
             viscosity: T::from_f64(self.0.viscosity),
             wall_speed: Side::ALL.iter().map(|&s| T::from_f64(speed(s))).collect(),

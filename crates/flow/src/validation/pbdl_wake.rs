@@ -16,10 +16,10 @@ use crate::{Advection, Boundary, Obstacle, Scene, SceneBuilder, Sides, Splitting
 pub fn pbdl_wake(res: usize) -> SceneBuilder {
     Scene::builder(res, 2 * res, [100.0, 200.0])
         .sides(Sides {
-            left: Boundary::NoSlip,
-            right: Boundary::NoSlip,
-            bottom: Boundary::Inflow,
-            top: Boundary::Outflow,
+            left: Boundary::no_slip(),
+            right: Boundary::no_slip(),
+            bottom: Boundary::inflow(),
+            top: Boundary::outflow(),
         })
         .obstacle(Obstacle::cylinder([50.0, 50.0], 10.0))
         .uniform_inflow(1.0)

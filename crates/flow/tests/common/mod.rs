@@ -35,10 +35,10 @@ pub fn mixed() -> SceneBuilder {
 /// Every kind of side but inflow and periodic.
 pub fn mixed_sides() -> Sides {
     Sides {
-        left: Boundary::NoSlip,
-        right: Boundary::Outflow,
-        bottom: Boundary::MovingWall { speed: 0.5 },
-        top: Boundary::FreeSlip,
+        left: Boundary::no_slip(),
+        right: Boundary::outflow(),
+        bottom: Boundary::moving_wall(0.5),
+        top: Boundary::free_slip(),
     }
 }
 

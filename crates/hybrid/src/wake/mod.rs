@@ -270,10 +270,10 @@ impl Wake {
         let c = &self.channel;
         Ok(Scene::builder(nx, ny, c.extent)
             .sides(Sides {
-                left: Boundary::Inflow,
-                right: Boundary::Outflow,
-                bottom: Boundary::FreeSlip,
-                top: Boundary::FreeSlip,
+                left: Boundary::inflow(),
+                right: Boundary::outflow(),
+                bottom: Boundary::free_slip(),
+                top: Boundary::free_slip(),
             })
             .obstacle(body)
             .uniform_inflow(c.inflow)

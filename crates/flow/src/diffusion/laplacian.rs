@@ -207,12 +207,40 @@ impl ComponentLaplacian {
                     &v[ap * nb..(ap + 1) * nb],
                 );
                 let m = mask.map(|m| &m[a * nb..(a + 1) * nb]);
-                for (b, ob) in o.iter_mut().enumerate() {
+                let at = |b: usize, bm: usize, bp: usize| {
+                    cx * (below[b] + above[b]) + cy * (row[bm] + row[bp]) + centre * row[b]
+                };
+                // adding −0 leaves any sum as it is: a masked entry, branch-free
+                let keep = |b: usize, s: f64| if m.is_none_or(|m| m[b]) { s } else { -0.0 };
+                // the wrapped ends, then the middle as slices (vector code)
+                for b in [0, nb - 1] {
                     let bm = if b == 0 { nb - 1 } else { b - 1 };
                     let bp = if b + 1 == nb { 0 } else { b + 1 };
-                    let s = cx * (below[b] + above[b]) + cy * (row[bm] + row[bp]) + centre * row[b];
-                    if m.is_none_or(|m| m[b]) {
-                        *ob += s;
+                    o[b] += keep(b, at(b, bm, bp));
+                    if nb == 1 {
+                        break;
+                    }
+                }
+                if nb > 2 {
+                    let mid = 1..nb - 1;
+                    let (c, lo, hi) = (&row[mid.clone()], &row[..nb - 2], &row[2..]);
+                    let (up, down) = (&above[mid.clone()], &below[mid.clone()]);
+                    let om = &mut o[mid];
+                    match m {
+                        Some(m) => {
+                            let m = &m[1..nb - 1];
+                            for l in 0..om.len() {
+                                let s =
+                                    cx * (down[l] + up[l]) + cy * (lo[l] + hi[l]) + centre * c[l];
+                                om[l] += if m[l] { s } else { -0.0 };
+                            }
+                        }
+                        None => {
+                            for l in 0..om.len() {
+                                om[l] +=
+                                    cx * (down[l] + up[l]) + cy * (lo[l] + hi[l]) + centre * c[l];
+                            }
+                        }
                     }
                 }
             }

@@ -215,17 +215,54 @@ fn gradient_into(
             (index(lo), index(hi))
         })
         .unzip();
+    let shift = shifted_run(&lo_of, &hi_of);
     for_row_blocks(gy, nfy, |off, block| {
         let mut pi = vec![0.0; ny + 1];
         for (r, row) in block.chunks_mut(nfy).enumerate() {
             let i = off / nfy + r;
             pi[..ny].copy_from_slice(&p[i * ny..(i + 1) * ny]);
             let kinds = kinds.y(i, nfy);
-            for (f, (out, kind)) in row.iter_mut().zip(kinds).enumerate() {
-                if !(free_only && *kind != FaceKind::Free) {
+            let face = |f: usize, out: &mut f64| {
+                if !(free_only && kinds[f] != FaceKind::Free) {
                     put(out, (pi[hi_of[f]] - pi[lo_of[f]]) / g.dy);
                 }
+            };
+            match &shift {
+                // the faces whose cells are `f − 1` and `f`: the same
+                // differences read as two slices (vector code)
+                Some(run) if !free_only => {
+                    let (a, b) = (run.start, run.end);
+                    (0..a).for_each(|f| face(f, &mut row[f]));
+                    let (hi, lo) = (&pi[a..b], &pi[a - 1..b - 1]);
+                    for ((out, &h), &l) in row[a..b].iter_mut().zip(hi).zip(lo) {
+                        put(out, (h - l) / g.dy);
+                    }
+                    (b..nfy).for_each(|f| face(f, &mut row[f]));
+                }
+                _ => (0..nfy).for_each(|f| face(f, &mut row[f])),
             }
         }
     });
+}
+
+/// The longest run of faces `f` whose cells are `f − 1` (low) and `f`
+/// (high), if any: the interior of a row of y-faces.
+fn shifted_run(lo_of: &[usize], hi_of: &[usize]) -> Option<std::ops::Range<usize>> {
+    let plain = |f: usize| f >= 1 && hi_of[f] == f && lo_of[f] == f - 1;
+    let mut best: Option<std::ops::Range<usize>> = None;
+    let mut f = 0;
+    while f < hi_of.len() {
+        if plain(f) {
+            let start = f;
+            while f < hi_of.len() && plain(f) {
+                f += 1;
+            }
+            if best.as_ref().is_none_or(|r| f - start > r.len()) {
+                best = Some(start..f);
+            }
+        } else {
+            f += 1;
+        }
+    }
+    best
 }

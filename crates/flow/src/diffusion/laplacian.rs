@@ -7,7 +7,7 @@ use diffphys_tape::ArrayD;
 use ndarray::{ArrayViewD, ArrayViewMutD, IxDyn};
 
 use crate::boundaries::{FaceKind, Faces};
-use crate::buffers::{for_row_blocks, give_back, scratch, zeros};
+use crate::buffers::{for_row_blocks, give_back, scratch};
 use crate::grid::{FlowGrid, Lattice};
 use crate::sparse::Csr;
 
@@ -82,9 +82,12 @@ impl ComponentLaplacian {
         let mut walls = Vec::new();
         let mut regular = vec![false; kinds.len()];
         let mut edge = Vec::new();
+        // one row's entries, reused (a vector per face was most of a large
+        // grid's set-up)
+        let mut row = Vec::new();
         for (r, &k) in free.iter().enumerate() {
             let (a, b) = (k / nb, k % nb);
-            let mut row = Vec::new();
+            row.clear();
             let mut plain = true;
             // (axis length, index, periodic, coefficient, is normal axis, sides low/high)
             let axes = [
@@ -151,7 +154,7 @@ impl ComponentLaplacian {
             if plain {
                 regular[k] = true;
             } else {
-                edge.extend(row);
+                edge.append(&mut row);
             }
         }
         ComponentLaplacian {
@@ -175,8 +178,10 @@ impl ComponentLaplacian {
     /// fixed faces: the five-point stencil on the regular rows (on all cores
     /// for a large lattice), the edge rows and the wall terms beside.
     pub(super) fn apply_faces(&self, u: &[f64], walls: &[f64; 4]) -> Vec<f64> {
-        let mut out = zeros(self.len);
-        self.stencil_add(u, Some(&self.regular), &mut out);
+        // every entry is written: `0 + (S u)_k`, or `0 + (−0)` off the
+        // regular rows, as adding to zeros would give
+        let mut out = scratch(self.len);
+        self.stencil(u, Some(&self.regular), &mut out, |_, s| 0.0 + s);
         self.edge.mul_add(1.0, u, &mut out);
         for &(r, s, c) in &self.walls {
             out[self.free[r]] += c * walls[s];
@@ -189,6 +194,18 @@ impl ComponentLaplacian {
     /// symmetric, so with `v` zero off the regular rows this is also the
     /// transpose of the regular rows.
     pub(super) fn stencil_add(&self, v: &[f64], mask: Option<&[bool]>, out: &mut [f64]) {
+        self.stencil(v, mask, out, |o, s| o + s);
+    }
+
+    /// `out_k = put(out_k, (S v)_k)` where `mask`, `put(out_k, −0)`
+    /// elsewhere (adding `−0` leaves a sum as it is).
+    fn stencil(
+        &self,
+        v: &[f64],
+        mask: Option<&[bool]>,
+        out: &mut [f64],
+        put: impl Fn(f64, f64) -> f64 + Sync + Send,
+    ) {
         let [na, nb] = self.shape;
         if na * nb == 0 {
             return;
@@ -216,7 +233,7 @@ impl ComponentLaplacian {
                 for b in [0, nb - 1] {
                     let bm = if b == 0 { nb - 1 } else { b - 1 };
                     let bp = if b + 1 == nb { 0 } else { b + 1 };
-                    o[b] += keep(b, at(b, bm, bp));
+                    o[b] = put(o[b], keep(b, at(b, bm, bp)));
                     if nb == 1 {
                         break;
                     }
@@ -232,13 +249,14 @@ impl ComponentLaplacian {
                             for l in 0..om.len() {
                                 let s =
                                     cx * (down[l] + up[l]) + cy * (lo[l] + hi[l]) + centre * c[l];
-                                om[l] += if m[l] { s } else { -0.0 };
+                                om[l] = put(om[l], if m[l] { s } else { -0.0 });
                             }
                         }
                         None => {
                             for l in 0..om.len() {
-                                om[l] +=
+                                let s =
                                     cx * (down[l] + up[l]) + cy * (lo[l] + hi[l]) + centre * c[l];
+                                om[l] = put(om[l], s);
                             }
                         }
                     }

@@ -13,7 +13,7 @@
 //! reuses them; with no pool current they come from the allocator as before.
 //! [`join`] installs the caller's pool on the second thread too.
 
-use std::borrow::Cow;
+use std::ops::Deref;
 
 use diffphys_tape::pool::{self, BufferPool};
 use diffphys_tape::{parallel, PerPrecision, Real};
@@ -131,17 +131,67 @@ impl PerPrecision for FromWide {
     type Of<T: Real> = fn(Vec<f64>) -> Vec<T>;
 }
 
+/// An array's entries in `f64`, row-major ([`wide`]): borrowed from an
+/// `f64` array, or converted into a buffer from the current pool that goes
+/// back to it when dropped (the step widens its `f32` fields several times
+/// a step; from the allocator, every large one was pages faulted in anew).
+pub(crate) enum Wide<'a> {
+    /// The array's own `f64` entries.
+    Borrowed(&'a [f64]),
+    /// The entries converted, in a pool buffer.
+    Pooled(Vec<f64>),
+}
+
+impl Deref for Wide<'_> {
+    type Target = [f64];
+    fn deref(&self) -> &[f64] {
+        match self {
+            Wide::Borrowed(s) => s,
+            Wide::Pooled(v) => v,
+        }
+    }
+}
+
+impl Drop for Wide<'_> {
+    fn drop(&mut self) {
+        if let Wide::Pooled(v) = self {
+            give_back(std::mem::take(v));
+        }
+    }
+}
+
+impl Wide<'_> {
+    /// The entries as a vector of their own: the converted buffer itself,
+    /// or a copy of the borrowed entries in a buffer from the current pool.
+    pub(crate) fn into_owned(mut self) -> Vec<f64> {
+        match &mut self {
+            Wide::Pooled(v) => std::mem::take(v),
+            Wide::Borrowed(s) => copied(s),
+        }
+    }
+}
+
 /// The entries of `a` in `f64`, row-major: borrowed when `a` is a
-/// standard-layout `f64` array, converted otherwise.
-pub(crate) fn wide<T: Real>(a: ArrayView2<'_, T>) -> Cow<'_, [f64]> {
+/// standard-layout `f64` array, converted (into a pool buffer) otherwise.
+pub(crate) fn wide<T: Real>(a: ArrayView2<'_, T>) -> Wide<'_> {
     let borrow = T::pick::<AsWide>(|_| None, |s| Some(s));
     match a.to_slice() {
         Some(s) => match borrow(s) {
-            Some(s) => Cow::Borrowed(s),
-            // a slice's map collects in one vectorised pass
-            None => Cow::Owned(s.iter().map(|v| v.as_f64()).collect()),
+            Some(s) => Wide::Borrowed(s),
+            None => {
+                let mut v = scratch(s.len());
+                // one vectorised pass
+                v.iter_mut().zip(s).for_each(|(o, x)| *o = x.as_f64());
+                Wide::Pooled(v)
+            }
         },
-        None => Cow::Owned(a.iter().map(|v| v.as_f64()).collect()),
+        None => {
+            let mut v = scratch(a.len());
+            v.iter_mut()
+                .zip(a.iter())
+                .for_each(|(o, x)| *o = x.as_f64());
+            Wide::Pooled(v)
+        }
     }
 }
 
@@ -164,13 +214,10 @@ pub(crate) fn walls_of<T: Real>(w: ArrayView1<'_, T>) -> [f64; 4] {
     [w[0].as_f64(), w[1].as_f64(), w[2].as_f64(), w[3].as_f64()]
 }
 
-/// The values of `c` as a vector of their own: moved if owned, else copied
-/// into a buffer from the current pool.
-pub(crate) fn owned(c: Cow<'_, [f64]>) -> Vec<f64> {
-    match c {
-        Cow::Owned(v) => v,
-        Cow::Borrowed(s) => copied(s),
-    }
+/// The values of `c` as a vector of their own: moved if converted, else
+/// copied into a buffer from the current pool.
+pub(crate) fn owned(c: Wide<'_>) -> Vec<f64> {
+    c.into_owned()
 }
 
 /// A copy of `s` in a buffer from the current pool.

@@ -90,8 +90,29 @@ pub(crate) fn divergence_wide(
             -(v / h)
         }
     };
+    // each cell's two y-face terms as indices into `[plus, minus, −0]`
+    // (a missing face reads −0, which leaves a sum as it is): no branch in
+    // the row loop below
+    let pick: Vec<[usize; 2]> = y_of
+        .iter()
+        .map(|(faces, len)| {
+            let at = |t: usize| {
+                if t < *len {
+                    let (f, low) = faces[t];
+                    if low {
+                        f
+                    } else {
+                        nfy + f
+                    }
+                } else {
+                    2 * nfy
+                }
+            };
+            [at(0), at(1)]
+        })
+        .collect();
     for_row_blocks(&mut d, ny, |off, block| {
-        let (mut plus, mut minus) = (vec![0.0; nfy], vec![0.0; nfy]);
+        let mut terms = vec![-0.0; 2 * nfy + 1];
         for (r, row) in block.chunks_mut(ny).enumerate() {
             let i = off / ny + r;
             // the x-faces of the row, whole face rows at a time
@@ -105,15 +126,15 @@ pub(crate) fn divergence_wide(
             // the y-faces of the row: each face's term for the cell on its
             // low side and on its high side, then each cell's two
             let (u, kinds) = (&uy[i * nfy..(i + 1) * nfy], kinds.y(i, nfy));
-            for (((lo, hi), &v), kind) in plus.iter_mut().zip(minus.iter_mut()).zip(u).zip(kinds) {
+            let (plus, rest) = terms.split_at_mut(nfy);
+            for (((lo, hi), &v), kind) in plus.iter_mut().zip(rest.iter_mut()).zip(u).zip(kinds) {
                 let skip = free_only && *kind != FaceKind::Free;
                 *lo = term(v, g.dy, true, skip);
                 *hi = term(v, g.dy, false, skip);
             }
-            for (acc, (faces_y, len)) in row.iter_mut().zip(&y_of) {
-                for &(f, low) in &faces_y[..*len] {
-                    *acc += if low { plus[f] } else { minus[f] };
-                }
+            for (acc, &[t0, t1]) in row.iter_mut().zip(&pick) {
+                *acc += terms[t0];
+                *acc += terms[t1];
             }
         }
     });
@@ -123,24 +144,56 @@ pub(crate) fn divergence_wide(
 /// `G p` on the faces (`(p_hi − p_lo)/h`, zero outside); with `free` faces
 /// given, on the free faces only (`G_F`). Rows of faces on all cores for a large grid.
 pub(crate) fn gradient_wide(g: &FlowGrid, free: Option<&Faces>, p: &[f64]) -> (Vec<f64>, Vec<f64>) {
-    let (nx, ny) = (g.nx, g.ny);
     let [nfx, _] = g.shape_x();
     let [_, nfy] = g.shape_y();
-    let (free_only, kinds) = FaceKinds::of(free, ny, nfy);
+    let (free_only, _) = FaceKinds::of(free, g.ny, nfy);
     // every face is written, except the fixed ones when they are skipped
     // (and all of them on a grid without a row)
-    let written = !free_only && ny > 0 && nfy > 0;
+    let written = !free_only && g.ny > 0 && nfy > 0;
     let fresh = |n: usize| if written { scratch(n) } else { zeros(n) };
-    let mut gx = fresh(nfx * ny);
-    let mut gy = fresh(nx * nfy);
+    let mut gx = fresh(nfx * g.ny);
+    let mut gy = fresh(g.nx * nfy);
+    gradient_into(g, free, p, &mut gx, &mut gy, |out, v| *out = v);
+    (gx, gy)
+}
+
+/// `u −= c G p` on the faces (`u_F −= c (G_F p)_F` with `free` faces given):
+/// [`gradient_wide`]'s differences subtracted where they are computed, the
+/// same bits as subtracting `c` times its output (and, for `c = 1`, the
+/// output itself: `1 · g` is `g`), without the two arrays between.
+pub(crate) fn subtract_gradient_wide(
+    g: &FlowGrid,
+    free: Option<&Faces>,
+    p: &[f64],
+    c: f64,
+    ux: &mut [f64],
+    uy: &mut [f64],
+) {
+    gradient_into(g, free, p, ux, uy, |out, v| *out -= c * v);
+}
+
+/// `put(out_f, (G p)_f)` at every face `f` of `gx`, `gy` (the free ones
+/// with `free` given).
+fn gradient_into(
+    g: &FlowGrid,
+    free: Option<&Faces>,
+    p: &[f64],
+    gx: &mut [f64],
+    gy: &mut [f64],
+    put: impl Fn(&mut f64, f64) + Sync + Send,
+) {
+    let (nx, ny) = (g.nx, g.ny);
+    let [_, nfy] = g.shape_y();
+    let (free_only, kinds) = FaceKinds::of(free, ny, nfy);
     if ny == 0 || nfy == 0 {
-        return (gx, gy);
+        return;
     }
+    debug_assert_eq!(gy.len(), nx * nfy);
     // `at(c)` is the pressure of cell c, 0 outside: the difference of the
     // two, divided by h, written out per case so that a row is one loop
     let zeros = vec![0.0; ny];
     let row_of = |c: Option<usize>| c.map_or(&zeros[..], |i| &p[i * ny..(i + 1) * ny]);
-    for_row_blocks(&mut gx, ny, |off, block| {
+    for_row_blocks(gx, ny, |off, block| {
         for (r, row) in block.chunks_mut(ny).enumerate() {
             let f = off / ny + r;
             let (lo, hi) = g.x_face_cells(f);
@@ -148,7 +201,7 @@ pub(crate) fn gradient_wide(g: &FlowGrid, free: Option<&Faces>, p: &[f64]) -> (V
             let kinds = kinds.x(f, ny);
             for (((out, &a), &b), kind) in row.iter_mut().zip(ph).zip(pl).zip(kinds) {
                 if !(free_only && *kind != FaceKind::Free) {
-                    *out = (a - b) / g.dx;
+                    put(out, (a - b) / g.dx);
                 }
             }
         }
@@ -162,18 +215,54 @@ pub(crate) fn gradient_wide(g: &FlowGrid, free: Option<&Faces>, p: &[f64]) -> (V
             (index(lo), index(hi))
         })
         .unzip();
-    for_row_blocks(&mut gy, nfy, |off, block| {
+    let shift = shifted_run(&lo_of, &hi_of);
+    for_row_blocks(gy, nfy, |off, block| {
         let mut pi = vec![0.0; ny + 1];
         for (r, row) in block.chunks_mut(nfy).enumerate() {
             let i = off / nfy + r;
             pi[..ny].copy_from_slice(&p[i * ny..(i + 1) * ny]);
             let kinds = kinds.y(i, nfy);
-            for (f, (out, kind)) in row.iter_mut().zip(kinds).enumerate() {
-                if !(free_only && *kind != FaceKind::Free) {
-                    *out = (pi[hi_of[f]] - pi[lo_of[f]]) / g.dy;
+            let face = |f: usize, out: &mut f64| {
+                if !(free_only && kinds[f] != FaceKind::Free) {
+                    put(out, (pi[hi_of[f]] - pi[lo_of[f]]) / g.dy);
                 }
+            };
+            match &shift {
+                // the faces whose cells are `f − 1` and `f`: the same
+                // differences read as two slices (vector code)
+                Some(run) if !free_only => {
+                    let (a, b) = (run.start, run.end);
+                    (0..a).for_each(|f| face(f, &mut row[f]));
+                    let (hi, lo) = (&pi[a..b], &pi[a - 1..b - 1]);
+                    for ((out, &h), &l) in row[a..b].iter_mut().zip(hi).zip(lo) {
+                        put(out, (h - l) / g.dy);
+                    }
+                    (b..nfy).for_each(|f| face(f, &mut row[f]));
+                }
+                _ => (0..nfy).for_each(|f| face(f, &mut row[f])),
             }
         }
     });
-    (gx, gy)
+}
+
+/// The longest run of faces `f` whose cells are `f − 1` (low) and `f`
+/// (high), if any: the interior of a row of y-faces.
+fn shifted_run(lo_of: &[usize], hi_of: &[usize]) -> Option<std::ops::Range<usize>> {
+    let plain = |f: usize| f >= 1 && hi_of[f] == f && lo_of[f] == f - 1;
+    let mut best: Option<std::ops::Range<usize>> = None;
+    let mut f = 0;
+    while f < hi_of.len() {
+        if plain(f) {
+            let start = f;
+            while f < hi_of.len() && plain(f) {
+                f += 1;
+            }
+            if best.as_ref().is_none_or(|r| f - start > r.len()) {
+                best = Some(start..f);
+            }
+        } else {
+            f += 1;
+        }
+    }
+    best
 }

@@ -7,7 +7,7 @@ use diffphys_tape::ArrayD;
 use ndarray::{ArrayViewD, ArrayViewMutD, IxDyn};
 
 use crate::boundaries::{FaceKind, Faces};
-use crate::buffers::{for_row_blocks, give_back, scratch, zeros};
+use crate::buffers::{for_row_blocks, give_back, scratch};
 use crate::grid::{FlowGrid, Lattice};
 use crate::sides::Ghost;
 use crate::sparse::Csr;
@@ -83,9 +83,12 @@ impl ComponentLaplacian {
         let mut walls = Vec::new();
         let mut regular = vec![false; kinds.len()];
         let mut edge = Vec::new();
+        // one row's entries, reused (a vector per face was most of a large
+        // grid's set-up)
+        let mut row = Vec::new();
         for (r, &k) in free.iter().enumerate() {
             let (a, b) = (k / nb, k % nb);
-            let mut row = Vec::new();
+            row.clear();
             let mut plain = true;
             // (axis length, index, periodic, coefficient, is normal axis, sides low/high)
             let axes = [
@@ -153,7 +156,7 @@ impl ComponentLaplacian {
             if plain {
                 regular[k] = true;
             } else {
-                edge.extend(row);
+                edge.append(&mut row);
             }
         }
         ComponentLaplacian {
@@ -177,8 +180,10 @@ impl ComponentLaplacian {
     /// fixed faces: the five-point stencil on the regular rows (on all cores
     /// for a large lattice), the edge rows and the wall terms beside.
     pub(super) fn apply_faces(&self, u: &[f64], walls: &[f64; 4]) -> Vec<f64> {
-        let mut out = zeros(self.len);
-        self.stencil_add(u, Some(&self.regular), &mut out);
+        // every entry is written: `0 + (S u)_k`, or `0 + (−0)` off the
+        // regular rows, as adding to zeros would give
+        let mut out = scratch(self.len);
+        self.stencil(u, Some(&self.regular), &mut out, |_, s| 0.0 + s);
         self.edge.mul_add(1.0, u, &mut out);
         for &(r, s, c) in &self.walls {
             out[self.free[r]] += c * walls[s];
@@ -191,6 +196,18 @@ impl ComponentLaplacian {
     /// symmetric, so with `v` zero off the regular rows this is also the
     /// transpose of the regular rows.
     pub(super) fn stencil_add(&self, v: &[f64], mask: Option<&[bool]>, out: &mut [f64]) {
+        self.stencil(v, mask, out, |o, s| o + s);
+    }
+
+    /// `out_k = put(out_k, (S v)_k)` where `mask`, `put(out_k, −0)`
+    /// elsewhere (adding `−0` leaves a sum as it is).
+    fn stencil(
+        &self,
+        v: &[f64],
+        mask: Option<&[bool]>,
+        out: &mut [f64],
+        put: impl Fn(f64, f64) -> f64 + Sync + Send,
+    ) {
         let [na, nb] = self.shape;
         if na * nb == 0 {
             return;
@@ -209,12 +226,41 @@ impl ComponentLaplacian {
                     &v[ap * nb..(ap + 1) * nb],
                 );
                 let m = mask.map(|m| &m[a * nb..(a + 1) * nb]);
-                for (b, ob) in o.iter_mut().enumerate() {
+                let at = |b: usize, bm: usize, bp: usize| {
+                    cx * (below[b] + above[b]) + cy * (row[bm] + row[bp]) + centre * row[b]
+                };
+                // adding −0 leaves any sum as it is: a masked entry, branch-free
+                let keep = |b: usize, s: f64| if m.is_none_or(|m| m[b]) { s } else { -0.0 };
+                // the wrapped ends, then the middle as slices (vector code)
+                for b in [0, nb - 1] {
                     let bm = if b == 0 { nb - 1 } else { b - 1 };
                     let bp = if b + 1 == nb { 0 } else { b + 1 };
-                    let s = cx * (below[b] + above[b]) + cy * (row[bm] + row[bp]) + centre * row[b];
-                    if m.is_none_or(|m| m[b]) {
-                        *ob += s;
+                    o[b] = put(o[b], keep(b, at(b, bm, bp)));
+                    if nb == 1 {
+                        break;
+                    }
+                }
+                if nb > 2 {
+                    let mid = 1..nb - 1;
+                    let (c, lo, hi) = (&row[mid.clone()], &row[..nb - 2], &row[2..]);
+                    let (up, down) = (&above[mid.clone()], &below[mid.clone()]);
+                    let om = &mut o[mid];
+                    match m {
+                        Some(m) => {
+                            let m = &m[1..nb - 1];
+                            for l in 0..om.len() {
+                                let s =
+                                    cx * (down[l] + up[l]) + cy * (lo[l] + hi[l]) + centre * c[l];
+                                om[l] = put(om[l], if m[l] { s } else { -0.0 });
+                            }
+                        }
+                        None => {
+                            for l in 0..om.len() {
+                                let s =
+                                    cx * (down[l] + up[l]) + cy * (lo[l] + hi[l]) + centre * c[l];
+                                om[l] = put(om[l], s);
+                            }
+                        }
                     }
                 }
             }

@@ -40,6 +40,13 @@ pub trait Exec<T: Real> {
     /// # Errors
     /// The op's error, as a [`FlowError`].
     fn run<O: Op<T> + 'static>(&self, op: O, inputs: &[&Self::V]) -> Result<Vec<Self::V>>;
+
+    /// `values` are no longer used by the step: the plain forward gives
+    /// their buffers back to the current pool (the next op's outputs take
+    /// them), a tape keeps its variables.
+    fn release(&self, values: Vec<Self::V>) {
+        drop(values);
+    }
 }
 
 /// Records on a tape.
@@ -61,6 +68,12 @@ impl<T: Real> Exec<T> for Plain {
     fn run<O: Op<T> + 'static>(&self, mut op: O, inputs: &[&ArrayD<T>]) -> Result<Vec<ArrayD<T>>> {
         let views: Vec<_> = inputs.iter().map(|a| a.view()).collect();
         op.forward(&views).map_err(FlowError::from_tape)
+    }
+
+    fn release(&self, values: Vec<ArrayD<T>>) {
+        values
+            .into_iter()
+            .for_each(diffphys_tape::pool::recycle_array);
     }
 }
 
@@ -126,7 +139,9 @@ pub(super) fn substep<T: Real, E: Exec<T>>(
         scheme: settings.advection,
         dt,
     };
-    let (ux, mut uy) = two(e.run(advect, &[&qx, &qy, &ux, &uy, &p.wall_speed])?);
+    let advected = two(e.run(advect, &[&qx, &qy, &ux, &uy, &p.wall_speed])?);
+    e.release(vec![qx, qy, ux, uy]);
+    let (ux, mut uy) = advected;
     if let Some(b) = scene.0.buoyancy {
         uy = e
             .run(
@@ -152,7 +167,7 @@ pub(super) fn substep<T: Real, E: Exec<T>>(
         )?),
         None => (ux, uy),
     };
-    let (ux, uy) = two(e.run(
+    let diffused = two(e.run(
         Diffuse {
             diffusion: Arc::clone(scene.diffusion()),
             mode: settings.viscosity_mode,
@@ -160,6 +175,8 @@ pub(super) fn substep<T: Real, E: Exec<T>>(
         },
         &[&ux, &uy, &p.viscosity, &p.wall_speed],
     )?);
+    e.release(vec![ux, uy]);
+    let (ux, uy) = diffused;
     let (ux, uy) = match (&scene.0.immersed, &p.body) {
         (Some(body), Some(shape)) => two(e.run(
             ImmersedForcing {
@@ -180,7 +197,9 @@ pub(super) fn substep<T: Real, E: Exec<T>>(
         &[&ux, &uy, &s.pressure],
     )?;
     let pressure = out.pop().expect("three outputs");
-    let (ux, uy) = two(out);
+    let projected = two(out);
+    e.release(vec![ux, uy, s.pressure]);
+    let (ux, uy) = projected;
     Ok(StateOf {
         ux,
         uy,

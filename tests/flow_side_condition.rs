@@ -6,7 +6,6 @@
 //! through several steps matches central finite differences, and a condition
 //! whose answers do not fit together is refused with a typed error.
 
-use std::any::Any;
 use std::sync::Arc;
 
 use diffphys::flow::sides::{FreeSlip, Ghost, NoSlip, NormalVelocity, PressureSide};
@@ -47,14 +46,6 @@ impl SideCondition for NavierSlip {
     fn pressure(&self) -> PressureSide {
         PressureSide::Closed
     }
-
-    fn same_as(&self, other: &dyn SideCondition) -> bool {
-        other.as_any().downcast_ref::<Self>() == Some(self)
-    }
-
-    fn as_any(&self) -> &dyn Any {
-        self
-    }
 }
 
 /// A side that claims a free normal velocity but a closed pressure: the
@@ -77,12 +68,6 @@ impl SideCondition for Inconsistent {
     }
     fn pressure(&self) -> PressureSide {
         PressureSide::Closed
-    }
-    fn same_as(&self, other: &dyn SideCondition) -> bool {
-        other.as_any().downcast_ref::<Self>() == Some(self)
-    }
-    fn as_any(&self) -> &dyn Any {
-        self
     }
 }
 
@@ -298,4 +283,11 @@ fn a_condition_whose_answers_do_not_fit_is_refused() {
         Boundary::new(NavierSlip { slip_length: 0.0 }),
         Boundary::no_slip()
     );
+    // A caller can ask for the condition's type.
+    let wall = Boundary::new(NavierSlip { slip_length: 0.1 });
+    assert_eq!(
+        wall.downcast_ref::<NavierSlip>(),
+        Some(&NavierSlip { slip_length: 0.1 })
+    );
+    assert!(wall.downcast_ref::<NoSlip>().is_none());
 }

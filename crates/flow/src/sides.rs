@@ -91,11 +91,32 @@ pub struct Ghost {
     pub wall: f64,
 }
 
+/// What makes a [`Boundary`] comparable and its condition's type known:
+/// implemented for every `PartialEq` type, so a condition of one's own needs
+/// only `#[derive(Debug, PartialEq)]`.
+pub trait AnyCondition: Any {
+    /// The condition as `Any`, so a caller can ask for its type.
+    fn as_any(&self) -> &dyn Any;
+
+    /// Whether `other` is a value of this type equal to this one.
+    fn eq_any(&self, other: &dyn Any) -> bool;
+}
+
+impl<T: PartialEq + Any> AnyCondition for T {
+    fn as_any(&self) -> &dyn Any {
+        self
+    }
+
+    fn eq_any(&self, other: &dyn Any) -> bool {
+        other.downcast_ref::<T>() == Some(self)
+    }
+}
+
 /// A boundary condition on one side of the domain: what it does to the
 /// normal velocity, the tangential velocity and the pressure (see the
-/// [module docs](self)). Implement it (with `Debug`, `PartialEq` and `Clone`)
-/// for a condition of your own and pass it as [`Boundary::new`].
-pub trait SideCondition: fmt::Debug + Send + Sync + Any {
+/// [module docs](self)). Implement it for a condition of your own (a type
+/// with `Debug` and `PartialEq`) and pass it as [`Boundary::new`].
+pub trait SideCondition: fmt::Debug + Send + Sync + AnyCondition {
     /// A short name for messages (`"no_slip"`, …).
     fn name(&self) -> String;
 
@@ -114,13 +135,6 @@ pub trait SideCondition: fmt::Debug + Send + Sync + Any {
     fn wall_speed(&self) -> f64 {
         0.0
     }
-
-    /// Whether `other` is the same condition (the blanket implementation
-    /// compares two values of one type with `PartialEq`).
-    fn same_as(&self, other: &dyn SideCondition) -> bool;
-
-    /// The condition as `Any`, so a caller can ask for its type.
-    fn as_any(&self) -> &dyn Any;
 }
 
 /// A wall with zero velocity: ghost `−u_i`, zero normal pressure gradient.
@@ -174,12 +188,6 @@ macro_rules! condition {
             $(fn wall_speed(&self) -> f64 {
                 self.$speed
             })?
-            fn same_as(&self, other: &dyn SideCondition) -> bool {
-                other.as_any().downcast_ref::<Self>() == Some(self)
-            }
-            fn as_any(&self) -> &dyn Any {
-                self
-            }
         }
     };
 }
@@ -238,7 +246,7 @@ impl Boundary {
 
     /// The condition as its type `C`, if it is one.
     pub fn downcast_ref<C: SideCondition>(&self) -> Option<&C> {
-        self.0.as_any().downcast_ref()
+        (*self.0).as_any().downcast_ref()
     }
 
     /// Whether this side wraps.
@@ -295,7 +303,7 @@ impl fmt::Debug for Boundary {
 
 impl PartialEq for Boundary {
     fn eq(&self, other: &Self) -> bool {
-        self.0.same_as(other.condition())
+        (*self.0).eq_any((*other.0).as_any())
     }
 }
 

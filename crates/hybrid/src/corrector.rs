@@ -165,12 +165,6 @@ impl LatticeNet {
     }
 }
 
-/// `a` repeated along a new leading axis `n` times.
-fn repeat(a: &ArrayD<f64>, n: usize) -> ArrayD<f64> {
-    let views: Vec<_> = (0..n).map(|_| a.view()).collect();
-    ndarray::stack(ndarray::Axis(0), &views).expect("same shapes")
-}
-
 impl Corrector for LatticeNet {
     fn correction<'t>(
         &self,
@@ -202,7 +196,12 @@ impl Corrector for LatticeNet {
             ],
             1,
         )?;
-        let free = tape.constant(repeat(&self.free, n));
+        let batch: Vec<usize> = std::iter::once(n)
+            .chain(self.free.shape().iter().copied())
+            .collect();
+        let free = (self.free.broadcast(batch).map(|v| v.to_owned()))
+            .ok_or_else(|| TapeError::invalid("lattice corrector", "the free-face mask"))?;
+        let free = tape.constant(free);
         // The viscosity channel is data: read from each sample's parameter.
         let values = nu.to_array();
         let mut code = ArrayD::zeros(vec![n, 1, a, b]);

@@ -73,6 +73,12 @@ use crate::buffers::{narrow, wide};
 use crate::grid::{FlowGrid, Lattice};
 use crate::{FlowError, Result};
 
+mod consistent;
+
+pub use consistent::{
+    consistent_forcing, consistent_forcing_vjp, ConsistentForcing, ForcingScheme,
+};
+
 const NAME: &str = "immersed circle";
 
 /// A circle of `center` and `radius`: the immersed body's shape.

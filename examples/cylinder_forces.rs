@@ -55,10 +55,19 @@
 //! unit time, plus on a solid interior the staircase's exchange) beside the
 //! control volume of half-width 0.10, their difference in % of the drag; on
 //! an immersed body the floors add "within 1 % of the drag" (issue 42).
+//! `--forcing consistent` forces the faces projection-consistently
+//! (`ForcingScheme::ProjectionConsistent`: `F(u − τ∇Pⁿ) + τ∇Pⁿ`, so that the
+//! projection leaves them on the interpolation). The slip line gives two
+//! figures over Um, each the largest over the forced faces after one step
+//! from the steady state: how far the projection moved them
+//! (`|u_projected − u_forced|`) and how far they are from the interpolation of
+//! the projected field (`|u_projected − F(u_projected)|`, the boundary
+//! condition's residual).
 //!
 //! `cargo run --release --example cylinder_forces -- [--cpd 10,20,40]
 //! [--cases 2d1,symmetric] [--tol 1e-4] [--max-time 40] [--courant 0.4]
-//! [--immersed [--interior solid|forced]] [--small] [--out DIR]`
+//! [--immersed [--interior solid|forced] [--forcing direct|consistent]]
+//! [--small] [--out DIR]`
 //! (`--small`: 10 cells across only)
 
 mod common;
@@ -70,13 +79,13 @@ use diffphys::flow::advection::advect_velocity;
 use diffphys::flow::boundaries::enforce_boundaries;
 use diffphys::flow::diagnostics::{obstacle_force, ForceWeights};
 use diffphys::flow::diffusion::diffuse;
-use diffphys::flow::immersed::immersed_forcing;
+use diffphys::flow::immersed::{consistent_forcing, immersed_forcing};
 use diffphys::flow::pressure::{project, subtract_pressure_gradient};
 use diffphys::flow::validation::{
     control_volume_force, Dfg2d1, DfgChannel, FaceBox, FloorCheck, CONTROL_VOLUME_CLEARANCE,
     DFG_2D1, DFG_2D1_HIGH_ACCURACY, DFG_CENTRE, DFG_DIAMETER, DFG_HEIGHT, DFG_NU,
 };
-use diffphys::flow::{FlowState, Interior, Obstacle, Scene, Splitting};
+use diffphys::flow::{FlowState, ForcingScheme, Interior, Obstacle, Scene, Splitting};
 use ndarray::Array2;
 use serde_json::{json, Value};
 
@@ -177,10 +186,12 @@ fn pressure_extrapolated(scene: &Scene, s: &FlowState<f64>) -> [f64; 2] {
 /// the viscous term, the immersed circle's forcing (if any) against nothing
 /// (its faces lie inside the box); the pieces sum to the control-volume force.
 /// Returns `[pressure, viscous, convective, boundaries, immersed forcing]`,
-/// each `[F_x, F_y]`, and the slip of the forced faces: the largest
-/// `|u_projected − u_forced|` over them, over the inflow's peak (0 without an
-/// immersed body): how far the projection moves them off their targets.
-fn step_budget(scene: &Scene, s: &FlowState<f64>, b: FaceBox) -> Result<([[f64; 2]; 5], f64)> {
+/// each `[F_x, F_y]`, and the slip of the forced faces over the inflow's peak
+/// (0 without an immersed body): the largest `|u_projected − u_forced|` over
+/// them (how far the projection moves them) and the largest
+/// `|u_projected − F(u_projected)|` (how far they end from the interpolation
+/// of the projected field: the boundary condition's residual).
+fn step_budget(scene: &Scene, s: &FlowState<f64>, b: FaceBox) -> Result<([[f64; 2]; 5], [f64; 2])> {
     let params = scene.params::<f64>();
     let (g, faces, set, dt) = (scene.grid(), scene.faces(), scene.settings(), scene.dt());
     let (next, info) = scene.forward(s, &params)?;
@@ -218,7 +229,17 @@ fn step_budget(scene: &Scene, s: &FlowState<f64>, b: FaceBox) -> Result<([[f64; 
     let f = match scene.immersed() {
         Some(body) => {
             let shape = ndarray::arr1(&body.circle().shape());
-            immersed_forcing(body, d.0.view(), d.1.view(), shape.view())?
+            match scene.immersed_scheme() {
+                ForcingScheme::ProjectionConsistent => consistent_forcing(
+                    body,
+                    faces,
+                    dt / 2.0,
+                    (d.0.view(), d.1.view()),
+                    s.pressure.view(),
+                    shape.view(),
+                )?,
+                _ => immersed_forcing(body, d.0.view(), d.1.view(), shape.view())?,
+            }
         }
         None => d.clone(),
     };
@@ -259,9 +280,14 @@ fn step_budget(scene: &Scene, s: &FlowState<f64>, b: FaceBox) -> Result<([[f64; 
                     .filter(|(m, _)| **m == 1.0)
                     .fold(0.0f64, |acc, (_, (x, y))| acc.max((x - y).abs()))
             };
-            largest(&mx, &p.ux, &f.0).max(largest(&my, &p.uy, &f.1)) / DFG_2D1.um
+            let shape = ndarray::arr1(&body.circle().shape());
+            let target = immersed_forcing(body, p.ux.view(), p.uy.view(), shape.view())?;
+            [
+                largest(&mx, &p.ux, &f.0).max(largest(&my, &p.uy, &f.1)) / DFG_2D1.um,
+                largest(&mx, &p.ux, &target.0).max(largest(&my, &p.uy, &target.1)) / DFG_2D1.um,
+            ]
         }
-        None => 0.0,
+        None => [0.0; 2],
     };
     let gain = |from: usize, to: usize| [0, 1].map(|k| (m[to][k] - m[from][k]) / dt);
     let cv = control_volume_force(scene, b, s, Some(&next), DFG_NU)?;
@@ -327,6 +353,10 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
         "forced" => Interior::Forced,
         _ => Interior::Solid,
     };
+    case.channel.scheme = match opt.forcing.as_str() {
+        "consistent" => ForcingScheme::ProjectionConsistent,
+        _ => ForcingScheme::Direct,
+    };
     let t0 = Instant::now();
     let result = case.run(&mut |_, _, _| Ok(()))?;
     let seconds = t0.elapsed().as_secs_f64();
@@ -363,34 +393,40 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
         if rate < tol { "steady" } else { "NOT steady" }
     );
     let st = c([0, 1].map(|d| pressure[d] + shear[d]));
-    println!(
-        "  surface        cD {:.4} cL {:+.5}   (pressure cD {:.4} cL {:+.5}; shear cD {:.4} cL {:+.5})",
-        st[0],
-        st[1],
-        c(pressure)[0],
-        c(pressure)[1],
-        c(shear)[0],
-        c(shear)[1]
-    );
-    println!(
-        "  surface variants: pressure extrapolated to the face cD {:.4} cL {:+.5}; shear nu u_t/h cD {:.4} cL {:+.5}",
-        c(variants[0])[0],
-        c(variants[0])[1],
-        c(variants[1])[0],
-        c(variants[1])[1]
-    );
     let links = viscous_lift_by_link(scene, s).map(|f| coefficient * f);
-    println!(
-        "  surface, the step's exchange (ForceWeights::momentum_exchange): cD {:.4} cL {:+.5}   (viscous cL {:+.5}: tangential links {:+.5}, normal links {:+.5})",
-        exchange[0],
-        exchange[1],
-        exchange[1] - c(pressure)[1],
-        links[0],
-        links[1]
-    );
+    // the staircase's formulas read solid cells; a forced interior has none
+    let has_solid = scene.solid().iter().any(|&c| c);
+    if has_solid {
+        println!(
+            "  surface        cD {:.4} cL {:+.5}   (pressure cD {:.4} cL {:+.5}; shear cD {:.4} cL {:+.5})",
+            st[0],
+            st[1],
+            c(pressure)[0],
+            c(pressure)[1],
+            c(shear)[0],
+            c(shear)[1]
+        );
+        println!(
+            "  surface variants: pressure extrapolated to the face cD {:.4} cL {:+.5}; shear nu u_t/h cD {:.4} cL {:+.5}",
+            c(variants[0])[0],
+            c(variants[0])[1],
+            c(variants[1])[0],
+            c(variants[1])[1]
+        );
+        println!(
+            "  surface, the step's exchange (ForceWeights::momentum_exchange): cD {:.4} cL {:+.5}   (viscous cL {:+.5}: tangential links {:+.5}, normal links {:+.5})",
+            exchange[0],
+            exchange[1],
+            exchange[1] - c(pressure)[1],
+            links[0],
+            links[1]
+        );
+    } else {
+        println!("  surface (the staircase's formulas): no solid cells");
+    }
     let mut boxes = Vec::new();
     let mut forcing_exchange = [0.0; 2];
-    let mut slip = 0.0;
+    let mut slip = [0.0; 2];
     // the circle's cells, solid or (a forced interior) fluid
     let body_cells = Obstacle::cylinder(DFG_CENTRE, DFG_DIAMETER / 2.0).rasterise(g)?;
     for a in BOXES {
@@ -440,7 +476,8 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
             with_forcing[0], with_forcing[1]
         );
         println!(
-            "  slip of the forced faces after the projection: max |u_projected - u_forced| / Um = {slip:.3e}"
+            "  slip of the forced faces after the projection: max |u_projected - u_forced| / Um = {:.3e}, max |u_projected - F(u_projected)| / Um = {:.3e}",
+            slip[0], slip[1]
         );
         println!(
             "  two methods: forcing exchange (DfgChannel::body_force) cD {:.4} cL {:+.5} | control volume {:.2} cD {:.4} cL {:+.5} | apart {:+.3} % / {:+.3} % of cD",
@@ -450,14 +487,18 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
     let dp = result.values[2];
     println!("  dp {dp:.5} (reference {:.5})", DFG_2D1_HIGH_ACCURACY[2]);
     let geo = geometry(scene);
-    println!(
-        "  body: {} solid cells, area/disc {:.4}, centroid offset ({:+.1e}, {:+.1e}), cells without a mirror image about y = 0.2: {}",
-        geo["solid_cells"],
-        geo["area_over_disc"].as_f64().unwrap_or(f64::NAN),
-        geo["centroid_offset"][0].as_f64().unwrap_or(f64::NAN),
-        geo["centroid_offset"][1].as_f64().unwrap_or(f64::NAN),
-        geo["cells_without_mirror_image_about_y0.2"]
-    );
+    if has_solid {
+        println!(
+            "  body: {} solid cells, area/disc {:.4}, centroid offset ({:+.1e}, {:+.1e}), cells without a mirror image about y = 0.2: {}",
+            geo["solid_cells"],
+            geo["area_over_disc"].as_f64().unwrap_or(f64::NAN),
+            geo["centroid_offset"][0].as_f64().unwrap_or(f64::NAN),
+            geo["centroid_offset"][1].as_f64().unwrap_or(f64::NAN),
+            geo["cells_without_mirror_image_about_y0.2"]
+        );
+    } else {
+        println!("  body: no solid cells (the circle's faces are forced)");
+    }
     let row = json!({
         "cpd": cpd, "height": height, "immersed": opt.immersed, "nx": g.nx, "ny": g.ny, "h": g.dx, "dt": dt,
         "courant": opt.courant, "steps": steps, "time": steps as f64 * dt, "steady": rate < tol, "tol": tol,
@@ -473,7 +514,9 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
         "body_force": {"cd": body[0], "cl": body[1], "interior": opt.interior,
                        "control_volume_cd_cl": cv,
                        "apart_percent_of_cd": apart,
-                       "forced_face_slip_over_um": slip},
+                       "forcing": opt.forcing,
+                       "forced_face_slip_over_um": slip[0],
+                       "forced_face_residual_over_um": slip[1]},
         "dp": dp,
         "geometry": geo,
         "surface_cl_history": lift_history,
@@ -520,6 +563,11 @@ struct Options {
     /// pinned) or faces forced to zero with the pressure across the body.
     #[arg(long, default_value = "solid", value_parser = ["solid", "forced"])]
     interior: String,
+    /// How the immersed circle's faces are forced: the interpolation before
+    /// the projection (direct), or projection-consistently (the predicted
+    /// pressure gradient taken out before the interpolation and put back).
+    #[arg(long, default_value = "direct", value_parser = ["direct", "consistent"])]
+    forcing: String,
 }
 
 fn parse() -> Result<(common::ExampleArgs, Options)> {

@@ -87,13 +87,13 @@ pub use diffusion::ViscosityMode;
 pub use error::{FlowError, Result};
 pub use forcing::{Buoyancy, Forced, Forcing};
 pub use grid::{FlowGrid, Lattice};
-pub use immersed::{Circle, ImmersedCircle, Interior};
+pub use immersed::{Circle, ForcingScheme, ImmersedCircle, Interior};
 pub use pressure::PressureSolver;
 pub use restrict::{restrict_pressure, restrict_velocity};
 pub use sides::{Boundary, Side, SideCondition, Sides};
 pub use step::{
     Exec, FlowParams, FlowState, FlowVars, ParamVars, Scene, SceneBuilder, Settings, Splitting,
-    StepInfo,
+    StepInfo, StepLog,
 };
 pub use validation::TaylorGreen;
 

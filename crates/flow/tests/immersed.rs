@@ -9,12 +9,15 @@ mod common;
 
 use std::sync::Arc;
 
-use diffphys_flow::immersed::{immersed_forcing, immersed_forcing_vjp, ImmersedForcing};
-use diffphys_flow::{
-    Circle, FlowError, FlowParams, FlowState, FlowVars, ImmersedCircle, Interior, ParamVars, Scene,
-    Sides,
+use diffphys_flow::immersed::{
+    consistent_forcing, consistent_forcing_vjp, immersed_forcing, immersed_forcing_vjp,
+    ImmersedForcing,
 };
-use diffphys_tape::{test_array, ArrayD, Tape};
+use diffphys_flow::{
+    Circle, FlowError, FlowParams, FlowState, FlowVars, ForcingScheme, ImmersedCircle, Interior,
+    ParamVars, Scene, Sides,
+};
+use diffphys_tape::{test_array, ArrayD, Schedule, Tape};
 use ndarray::{arr1, Array1, Array2};
 
 const CENTRE: [f64; 2] = [0.62, 0.47];
@@ -27,10 +30,16 @@ fn scene(shape: [f64; 3]) -> Scene {
 
 /// [`scene`] with the circle's inside `interior`.
 fn scene_with(shape: [f64; 3], interior: Interior) -> Scene {
+    scene_scheme(shape, interior, ForcingScheme::Direct)
+}
+
+/// [`scene_with`] forced by `scheme`.
+fn scene_scheme(shape: [f64; 3], interior: Interior, scheme: ForcingScheme) -> Scene {
     Scene::builder(24, 12, [2.0, 1.0])
         .sides(Sides::channel())
         .immersed(Circle::new([shape[0], shape[1]], shape[2]).unwrap())
         .immersed_interior(interior)
+        .immersed_scheme(scheme)
         .parabolic_inflow(1.0)
         .viscosity(0.02)
         .dt(0.02)
@@ -193,12 +202,12 @@ const STEPS: usize = 20;
 /// `<u_x, w_x> + <u_y, w_y>` of the state after [`STEPS`] steps of the
 /// channel past the circle of `shape`, without a tape.
 fn loss_after_steps(
-    (shape, interior): ([f64; 3], Interior),
+    (shape, interior, scheme): ([f64; 3], Interior, ForcingScheme),
     s0: &FlowState<f64>,
     p: &FlowParams<f64>,
     w: &(Array2<f64>, Array2<f64>),
 ) -> f64 {
-    let scene = scene_with(shape, interior);
+    let scene = scene_scheme(shape, interior, scheme);
     let mut s = s0.clone();
     for _ in 0..STEPS {
         s = scene.forward(&s, p).unwrap().0;
@@ -208,19 +217,25 @@ fn loss_after_steps(
 
 #[test]
 fn gradients_through_twenty_steps_match_central_differences() {
-    gradients_through_twenty_steps(Interior::Solid);
+    gradients_through_twenty_steps(Interior::Solid, ForcingScheme::Direct);
 }
 
 #[test]
 fn gradients_through_twenty_steps_with_a_forced_interior_match_central_differences() {
-    gradients_through_twenty_steps(Interior::Forced);
+    gradients_through_twenty_steps(Interior::Forced, ForcingScheme::Direct);
+}
+
+#[test]
+fn gradients_through_twenty_consistently_forced_steps_match_central_differences() {
+    gradients_through_twenty_steps(Interior::Forced, ForcingScheme::ProjectionConsistent);
+    gradients_through_twenty_steps(Interior::Solid, ForcingScheme::ProjectionConsistent);
 }
 
 /// The gradient of a loss after [`STEPS`] steps with respect to the initial
 /// velocity, the inflow, the centre and the radius, against central
 /// differences.
-fn gradients_through_twenty_steps(interior: Interior) {
-    let scene = scene_with(shape(), interior);
+fn gradients_through_twenty_steps(interior: Interior, scheme: ForcingScheme) {
+    let scene = scene_scheme(shape(), interior, scheme);
     let (ux, uy) = common::velocity(&scene, 0.3, 21);
     let s0 = FlowState::from_velocity(&scene, ux, uy);
     let p = scene.params::<f64>();
@@ -239,7 +254,8 @@ fn gradients_through_twenty_steps(interior: Interior) {
     let loss = s.ux.dot(wx).unwrap().add(s.uy.dot(wy).unwrap()).unwrap();
     let value = loss.item().unwrap();
     assert!(
-        (value - loss_after_steps((shape(), interior), &s0, &p, &w)).abs() <= 1e-12 * value.abs()
+        (value - loss_after_steps((shape(), interior, scheme), &s0, &p, &w)).abs()
+            <= 1e-12 * value.abs()
     );
     let g = tape
         .backward(loss, &[state.ux, state.uy, params.inflow, body])
@@ -255,7 +271,7 @@ fn gradients_through_twenty_steps(interior: Interior) {
         central(1e-6, &|e| {
             let mut s = shape();
             s[k] += e;
-            loss_after_steps((s, interior), &s0, &p, &w)
+            loss_after_steps((s, interior, scheme), &s0, &p, &w)
         })
     };
     let g_body = g.get(body).unwrap();
@@ -266,7 +282,7 @@ fn gradients_through_twenty_steps(interior: Interior) {
                 let mut s = s0.clone();
                 s.ux.scaled_add(e, &dx);
                 s.uy.scaled_add(e, &dy);
-                loss_after_steps((shape(), interior), &s, &p, &w)
+                loss_after_steps((shape(), interior, scheme), &s, &p, &w)
             }),
             sum(g.get(state.ux).unwrap(), dx.as_slice().unwrap())
                 + sum(g.get(state.uy).unwrap(), dy.as_slice().unwrap()),
@@ -276,7 +292,7 @@ fn gradients_through_twenty_steps(interior: Interior) {
             central(1e-6, &|e| {
                 let mut q = p.clone();
                 q.inflow.scaled_add(e, &dinflow);
-                loss_after_steps((shape(), interior), &s0, &q, &w)
+                loss_after_steps((shape(), interior, scheme), &s0, &q, &w)
             }),
             sum(g.get(params.inflow).unwrap(), dinflow.as_slice().unwrap()),
         ),
@@ -285,7 +301,7 @@ fn gradients_through_twenty_steps(interior: Interior) {
         ("radius", along_shape(2), g_body[2]),
     ];
     for (what, fd, ad) in cases {
-        println!("{interior:?}: d loss / d {what}: finite differences {fd:.10e}, tape {ad:.10e}");
+        println!("{interior:?}, {scheme:?}: d loss / d {what}: finite differences {fd:.10e}, tape {ad:.10e}");
         assert!(
             ad.abs() > 1e-4,
             "{what}: the gradient is (nearly) zero: {ad:e}"
@@ -387,4 +403,109 @@ fn bad_bodies_are_typed_errors() {
     let a = tape.var(ArrayD::zeros(ndarray::IxDyn(&[3, 3])));
     let s = tape.constant(arr1(&shape()).into_dyn());
     assert!(tape.apply_multi(op, &[a, a, s]).is_err());
+}
+
+/// The consistent forcing `u' = F(u − τ G P) + τ (1 − Z) G P` is linear in
+/// `(u, P)` at a fixed circle: `<A (u, P), g> = <u, A_uᵀ g> + <P, A_Pᵀ g>`;
+/// at `P = 0` it is the direct forcing; its shape gradient matches central
+/// differences.
+#[test]
+fn the_consistent_forcing_passes_the_dot_product_test() {
+    let tau = 0.013;
+    for interior in [Interior::Solid, Interior::Forced] {
+        let scene = scene_scheme(shape(), interior, ForcingScheme::ProjectionConsistent);
+        let (body, faces) = (scene.immersed().unwrap(), scene.faces());
+        let s = arr1(&shape());
+        let (ux, uy) = common::velocity(&scene, 1.0, 51);
+        let (gx, gy) = common::velocity(&scene, 1.0, 53);
+        let p: Array2<f64> = test_array::<f64>(&scene.grid().cell_shape(), 55)
+            .into_dimensionality()
+            .unwrap();
+        let run = |p: &Array2<f64>, s: &Array1<f64>| {
+            consistent_forcing(body, faces, tau, (ux.view(), uy.view()), p.view(), s.view())
+                .unwrap()
+        };
+        let (ax, ay) = run(&p, &s);
+        let (jx, jy, jp, js) = consistent_forcing_vjp(
+            body,
+            faces,
+            tau,
+            (ux.view(), uy.view()),
+            p.view(),
+            s.view(),
+            (gx.view(), gy.view()),
+        )
+        .unwrap();
+        let lhs = dot(&ax, &gx) + dot(&ay, &gy);
+        let rhs = dot(&ux, &jx) + dot(&uy, &jy) + dot(&p, &jp);
+        assert!(
+            (lhs - rhs).abs() <= 1e-12 * lhs.abs().max(1.0),
+            "{interior:?}: {lhs} {rhs}"
+        );
+        // the pressure enters: its gradient is not zero
+        assert!(jp.iter().any(|v| v.abs() > 1e-6));
+        // P = 0: the direct forcing, to the bit
+        let zero = Array2::zeros(p.raw_dim());
+        let direct = immersed_forcing(body, ux.view(), uy.view(), s.view()).unwrap();
+        assert_eq!(run(&zero, &s), direct);
+        // ∂L/∂shape against central differences
+        for k in 0..3 {
+            let eps = 1e-6;
+            let (mut up, mut down) = (s.clone(), s.clone());
+            up[k] += eps;
+            down[k] -= eps;
+            let loss = |s: &Array1<f64>| {
+                let (a, b) = run(&p, s);
+                dot(&a, &gx) + dot(&b, &gy)
+            };
+            let fd = (loss(&up) - loss(&down)) / (2.0 * eps);
+            assert!(
+                (fd - js[k]).abs() <= 1e-7 * fd.abs().max(1.0),
+                "{interior:?}, shape {k}: fd {fd} vs vjp {}",
+                js[k]
+            );
+        }
+    }
+}
+
+/// A checkpointed rollout recomputes its steps in the backward sweep; its
+/// [`diffphys_flow::StepLog`] keeps one report per step, so the summed force
+/// and pressure iterations equal those of the plain forward steps.
+#[test]
+fn a_recomputed_step_is_logged_once() {
+    let scene = scene_with(shape(), Interior::Forced);
+    let (ux, uy) = common::velocity(&scene, 0.3, 61);
+    let s0 = FlowState::from_velocity(&scene, ux, uy);
+    let p = scene.params::<f64>();
+    let steps = 6;
+    let mut plain = [0.0; 2];
+    let mut s = s0.clone();
+    for _ in 0..steps {
+        let (next, info) = scene.forward(&s, &p).unwrap();
+        (0..2).for_each(|d| plain[d] += scene.dt() * info.immersed_force[d]);
+        s = next;
+    }
+    for schedule in [
+        Schedule::Full,
+        Schedule::Every(2),
+        Schedule::Nested { branches: 2 },
+    ] {
+        let tape = Tape::<f64>::new();
+        let state = FlowVars::variables(&tape, &s0);
+        let params = ParamVars::constants(&tape, &p);
+        let (out, log) = scene
+            .rollout_logged(&tape, schedule, steps, &state, &params)
+            .unwrap();
+        let loss = out.ux.dot(out.ux).unwrap();
+        tape.backward(loss, &[state.ux]).unwrap();
+        assert_eq!(log.len(), steps, "{schedule:?}");
+        assert_eq!(log.pressure_iterations().len(), steps, "{schedule:?}");
+        let logged = log.immersed_impulse(scene.dt());
+        for d in 0..2 {
+            assert!(
+                (logged[d] - plain[d]).abs() <= 1e-12 * plain[d].abs().max(1e-12),
+                "{schedule:?}: {logged:?} vs {plain:?}"
+            );
+        }
+    }
 }

@@ -14,7 +14,7 @@ use crate::diagnostics::ForceWeights;
 use crate::diffusion::{default_viscosity_solver, Diffusion, ViscosityMode};
 use crate::forcing::{Buoyancy, Forcing};
 use crate::grid::FlowGrid;
-use crate::immersed::{Circle, ImmersedCircle, Interior};
+use crate::immersed::{Circle, ForcingScheme, ImmersedCircle, Interior};
 use crate::pressure::{PressureSolver, PressureSystem};
 use crate::sides::{check_condition, Boundary, Side, Sides};
 use crate::spectral::PeriodicPoisson;
@@ -79,6 +79,7 @@ impl Scene {
             forcing: None,
             immersed: None,
             interior: Interior::Solid,
+            scheme: ForcingScheme::Direct,
             scalars: 0,
             settings: Settings::default(),
         }
@@ -101,6 +102,7 @@ pub struct SceneBuilder {
     forcing: Option<Arc<dyn Forcing>>,
     immersed: Option<Circle>,
     interior: Interior,
+    scheme: ForcingScheme,
     scalars: usize,
     settings: Settings,
 }
@@ -134,6 +136,16 @@ impl SceneBuilder {
     /// [`SceneBuilder::immersed`] it does nothing.
     pub fn immersed_interior(mut self, interior: Interior) -> Self {
         self.interior = interior;
+        self
+    }
+
+    /// How the immersed circle's forced faces are set (default
+    /// [`ForcingScheme::Direct`]): [`ForcingScheme::ProjectionConsistent`]
+    /// forces `F(u − τ∇Pⁿ) + τ∇Pⁿ` so that the projection leaves them on the
+    /// interpolation ([`crate::immersed::consistent_forcing`]). Without
+    /// [`SceneBuilder::immersed`] it does nothing.
+    pub fn immersed_scheme(mut self, scheme: ForcingScheme) -> Self {
+        self.scheme = scheme;
         self
     }
 
@@ -269,6 +281,7 @@ impl SceneBuilder {
             forcing,
             immersed,
             interior,
+            scheme,
             scalars,
             settings,
         } = self;
@@ -446,6 +459,7 @@ impl SceneBuilder {
             buoyancy,
             forcing,
             immersed,
+            immersed_scheme: scheme,
             scalars,
             settings,
             buffers: BufferPool::new(),

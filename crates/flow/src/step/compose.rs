@@ -10,7 +10,7 @@ use crate::advection::{AdvectScalar, AdvectVelocity};
 use crate::boundaries::EnforceBoundaries;
 use crate::diffusion::Diffuse;
 use crate::forcing::{Buoyant, Forced};
-use crate::immersed::{ForcingImpulse, ImmersedForcing};
+use crate::immersed::{ConsistentForcing, ForcingImpulse, ForcingScheme, ImmersedForcing};
 use crate::pressure::{Project, SolveCounter, SubtractPressureGradient};
 use crate::{FlowError, Result};
 
@@ -177,17 +177,26 @@ pub(super) fn substep<T: Real, E: Exec<T>>(
     )?);
     e.release(vec![ux, uy]);
     let (ux, uy) = diffused;
-    let (ux, uy) = match (&scene.0.immersed, &p.body) {
-        (Some(body), Some(shape)) => two(e.run(
+    let tau = if incremental { dt / 2.0 } else { dt };
+    let (ux, uy) = match (&scene.0.immersed, &p.body, scene.0.immersed_scheme) {
+        (Some(body), Some(shape), ForcingScheme::Direct) => two(e.run(
             ImmersedForcing {
                 body: Arc::clone(body),
                 impulse: impulse.clone(),
             },
             &[&ux, &uy, shape],
         )?),
+        (Some(body), Some(shape), ForcingScheme::ProjectionConsistent) => two(e.run(
+            ConsistentForcing {
+                body: Arc::clone(body),
+                faces: Arc::clone(faces),
+                tau,
+                impulse: impulse.clone(),
+            },
+            &[&ux, &uy, &s.pressure, shape],
+        )?),
         _ => (ux, uy),
     };
-    let tau = if incremental { dt / 2.0 } else { dt };
     let mut out = e.run(
         Project {
             system: Arc::clone(scene.pressure_system()),

@@ -13,6 +13,7 @@
 //! u ← u + dt β s̄ ŷ                               buoyancy, if any
 //! u ← diffuse(u; ν)                               explicit or implicit
 //! u ← immersed_forcing(u; c, r)                  an immersed circle, if any
+//!     (or consistent_forcing(u, P; c, r))        its projection-consistent scheme
 //! (u, P) ← project(u; guess P)                   τ = dt (plain) or dt/2 (incremental)
 //! ```
 //!
@@ -51,7 +52,7 @@ use crate::diagnostics::ForceWeights;
 use crate::diffusion::{explicit_diffusion_number, Diffusion, ViscosityMode};
 use crate::forcing::{Buoyancy, Forcing};
 use crate::grid::FlowGrid;
-use crate::immersed::{ForcingImpulse, ImmersedCircle};
+use crate::immersed::{ForcingImpulse, ForcingScheme, ImmersedCircle};
 use crate::pressure::{PressureSystem, SolveCounter};
 use crate::sides::Side;
 use crate::{FlowError, Result};
@@ -63,7 +64,7 @@ mod state;
 pub use builder::{SceneBuilder, Settings, Splitting};
 pub use compose::Exec;
 use compose::{substep, OnTape, ParamsOf, Plain, StateOf};
-pub use state::{FlowParams, FlowState, FlowVars, ParamVars, StepInfo};
+pub use state::{FlowParams, FlowState, FlowVars, ParamVars, StepInfo, StepLog};
 
 #[derive(Debug)]
 pub(super) struct SceneInner {
@@ -83,6 +84,8 @@ pub(super) struct SceneInner {
     /// The user's body force, if any.
     pub(super) forcing: Option<Arc<dyn Forcing>>,
     pub(super) immersed: Option<Arc<ImmersedCircle>>,
+    /// How the immersed body's faces are forced.
+    pub(super) immersed_scheme: ForcingScheme,
     pub(super) scalars: usize,
     pub(super) settings: Settings,
     /// The plain forward's buffers, where its caller has no pool current.
@@ -310,6 +313,11 @@ impl Scene {
         self.0.immersed.as_ref()
     }
 
+    /// How the immersed body's faces are forced ([`SceneBuilder::immersed_scheme`]).
+    pub fn immersed_scheme(&self) -> ForcingScheme {
+        self.0.immersed_scheme
+    }
+
     /// `−impulse / dt`: the force of the flow on the immersed body over a step
     /// whose forcing added `impulse` (see [`StepInfo::immersed_force`]).
     fn immersed_force(&self, impulse: &ForcingImpulse) -> [f64; 2] {
@@ -523,6 +531,47 @@ impl Scene {
             Ok(next.to_vec())
         });
         f
+    }
+
+    /// [`Scene::step_fn`] that records each step's [`StepInfo`] in `log`
+    /// under its index (a recomputed step replaces its report).
+    pub fn step_fn_logged<T: Real>(&self, log: &StepLog) -> Rc<StepFn<T>> {
+        let (scene, log) = (self.clone(), log.clone());
+        let f: Rc<StepFn<T>> = Rc::new(move |tape, k, state, params| {
+            let s = FlowVars::from_slice(state).map_err(TapeError::from)?;
+            let p = ParamVars::from_slice(params).map_err(TapeError::from)?;
+            let (next, info) = scene.step(tape, &s, &p).map_err(TapeError::from)?;
+            log.record(k, info);
+            Ok(next.to_vec())
+        });
+        f
+    }
+
+    /// [`Scene::rollout`] with each step's report in the returned [`StepLog`]:
+    /// one report per step however often a checkpointed segment recomputes
+    /// it (the log is shared, so it also holds the backward sweep's
+    /// recomputations, which replace the reports with equal ones).
+    ///
+    /// # Errors
+    /// As [`Scene::rollout`].
+    pub fn rollout_logged<'t, T: Real>(
+        &self,
+        tape: &'t Tape<T>,
+        schedule: Schedule,
+        steps: usize,
+        state: &FlowVars<'t, T>,
+        params: &ParamVars<'t, T>,
+    ) -> Result<(FlowVars<'t, T>, StepLog)> {
+        let log = StepLog::new();
+        let out = checkpointed_steps(
+            tape,
+            schedule,
+            steps,
+            &state.to_vec(),
+            &params.to_vec(),
+            self.step_fn_logged(&log),
+        )?;
+        Ok((FlowVars::from_slice(&out)?, log))
     }
 
     /// `steps` steps on `tape`, stored by `schedule` (checkpointed segments

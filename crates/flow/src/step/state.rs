@@ -1,6 +1,10 @@
 //! The state and the differentiable parameters of a step, without a tape
 //! and on one, and what a step reports.
 
+use std::cell::RefCell;
+use std::collections::BTreeMap;
+use std::rc::Rc;
+
 use diffphys_tape::{ArrayD, Real, Tape, Var};
 use ndarray::{Array1, Array2, IxDyn};
 
@@ -224,7 +228,64 @@ pub struct StepInfo {
     /// that is the whole exchange with the body (for a body at rest, whose
     /// inside holds no momentum after the forcing); with
     /// [`crate::immersed::Interior::Solid`] the staircase's pressure and
-    /// viscous exchange come on top. Recorded by the forwards: a checkpointed
-    /// rollout that recomputes a step counts it again.
+    /// viscous exchange come on top. Each call of a step reports its own; over
+    /// a checkpointed rollout, whose backward sweep calls steps again, read
+    /// them from a [`StepLog`] ([`Scene::rollout_logged`]), which keeps one
+    /// report per step.
     pub immersed_force: [f64; 2],
+}
+
+/// The reports of a rollout's steps, one per step index: a step that a
+/// checkpointed segment recomputes in the backward sweep replaces its own
+/// report instead of adding a second, so the sums over the rollout
+/// ([`StepLog::immersed_impulse`], [`StepLog::pressure_iterations`]) count
+/// each step once however often it ran. Shared by its clones.
+#[derive(Debug, Clone, Default)]
+pub struct StepLog(Rc<RefCell<BTreeMap<usize, StepInfo>>>);
+
+impl StepLog {
+    /// Empty.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Records step `k`'s report, replacing an earlier one of the same step.
+    pub fn record(&self, k: usize, info: StepInfo) {
+        self.0.borrow_mut().insert(k, info);
+    }
+
+    /// How many steps have a report.
+    pub fn len(&self) -> usize {
+        self.0.borrow().len()
+    }
+
+    /// Whether no step has a report.
+    pub fn is_empty(&self) -> bool {
+        self.0.borrow().is_empty()
+    }
+
+    /// The reports in step order.
+    pub fn infos(&self) -> Vec<StepInfo> {
+        self.0.borrow().values().cloned().collect()
+    }
+
+    /// `Σ_k dt F_k`: the momentum the immersed body took from the flow over
+    /// the logged steps (each step's [`StepInfo::immersed_force`] times `dt`).
+    pub fn immersed_impulse(&self, dt: f64) -> [f64; 2] {
+        self.0.borrow().values().fold([0.0; 2], |a, i| {
+            [
+                a[0] + dt * i.immersed_force[0],
+                a[1] + dt * i.immersed_force[1],
+            ]
+        })
+    }
+
+    /// The CG iterations of every pressure solve of the logged steps, in order.
+    pub fn pressure_iterations(&self) -> Vec<usize> {
+        self.0
+            .borrow()
+            .values()
+            .flat_map(|i| i.pressure_iterations.iter().copied())
+            .collect()
+    }
 }

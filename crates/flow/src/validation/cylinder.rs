@@ -40,7 +40,7 @@ use ndarray::Array2;
 use crate::advection::Advection;
 use crate::boundaries::{Obstacle, Sides};
 use crate::diffusion::ViscosityMode;
-use crate::immersed::{Circle, Interior};
+use crate::immersed::{Circle, ForcingScheme, Interior};
 use crate::{FlowError, FlowState, Result, Scene};
 
 use super::{control_volume_force, FaceBox, Shedding};
@@ -146,6 +146,9 @@ pub struct DfgChannel {
     pub immersed: bool,
     /// What lies inside the immersed circle (default [`Interior::Solid`]).
     pub interior: Interior,
+    /// How the immersed circle's faces are forced (default
+    /// [`ForcingScheme::Direct`]).
+    pub scheme: ForcingScheme,
 }
 
 impl DfgChannel {
@@ -168,6 +171,7 @@ impl DfgChannel {
             cv_half_width: DFG_DIAMETER,
             immersed: false,
             interior: Interior::Solid,
+            scheme: ForcingScheme::Direct,
         })
     }
 
@@ -189,7 +193,10 @@ impl DfgChannel {
         let circle = Circle::new(DFG_CENTRE, DFG_DIAMETER / 2.0)?;
         let builder = Scene::builder(nx, ny, [DFG_LENGTH, self.height]);
         if self.immersed {
-            builder.immersed(circle).immersed_interior(self.interior)
+            builder
+                .immersed(circle)
+                .immersed_interior(self.interior)
+                .immersed_scheme(self.scheme)
         } else {
             builder.obstacle(Obstacle::cylinder(circle.center, circle.radius))
         }

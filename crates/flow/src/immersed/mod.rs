@@ -30,6 +30,11 @@
 //! fixed when the body is built (from the solid cells); `δ` follows the
 //! circle `θ = (c_x, c_y, r)` smoothly while that set holds.
 //!
+//! **Schemes.** That is [`ForcingScheme::Direct`], the default. With
+//! [`ForcingScheme::ProjectionConsistent`] the faces next to the wall are set
+//! to `F(u − τ∇Pⁿ) + τ∇Pⁿ` ([`consistent_forcing`]), so that the projection
+//! leaves them on the interpolation at a steady state.
+//!
 //! **Force.** The forcing changes the momentum of the faces by
 //! `Σ_forced (u'_f − u_f) dx dy` per step ([`ImmersedCircle::momentum_change`],
 //! summed by [`ForcingImpulse`]); the force of the flow on the body is minus
@@ -72,6 +77,12 @@ use crate::boundaries::{view1, view2, FaceKind, Faces};
 use crate::buffers::{narrow, wide};
 use crate::grid::{FlowGrid, Lattice};
 use crate::{FlowError, Result};
+
+mod consistent;
+
+pub use consistent::{
+    consistent_forcing, consistent_forcing_vjp, ConsistentForcing, ForcingScheme,
+};
 
 const NAME: &str = "immersed circle";
 

@@ -76,7 +76,7 @@ pub enum ForcingScheme {
 
 /// The projection-consistent forcing `u' = F(u − τ G_F P) + τ G_F P` on the
 /// forced faces of `body` next to the wall, zero on those inside it, `u`
-/// elsewhere (see the [module docs](self)); `P`
+/// elsewhere (see [`ForcingScheme::ProjectionConsistent`]); `P`
 /// is the state's pressure, `τ` the projection's time scale, `faces` the
 /// scene's (the free faces the gradient acts on).
 ///

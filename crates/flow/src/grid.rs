@@ -1,25 +1,19 @@
-//! The staggered (MAC) grid of a flow: cells, faces, and the layout of the
-//! arrays a user holds.
-//!
-//! A domain `[0, lx] × [0, ly]` is cut into `nx × ny` cells of size `dx × dy`;
-//! axis 0 is x, axis 1 is y. Pressure and passive scalars live at cell centres
-//! (`[nx, ny]`, cell `(i, j)` at `((i + ½) dx, (j + ½) dy)`), the x-velocity on
-//! the faces normal to x, the y-velocity on the faces normal to y:
-//!
-//! | array | shape, non-periodic axis | shape, periodic axis | entry `[a, b]` at |
-//! | --- | --- | --- | --- |
-//! | `u_x` | `[nx + 1, ny]` | `[nx, ny]` | `(a dx, (b + ½) dy)` |
-//! | `u_y` | `[nx, ny + 1]` | `[nx, ny]` | `((a + ½) dx, b dy)` |
-//!
-//! Face `f` along an axis lies between cells `f − 1` and `f` (outside the domain
-//! where that index is out of range; wrapped on a periodic axis), so a
-//! non-periodic axis stores its two boundary faces (`0` and `n`), whose values
-//! the side conditions fix or leave free (see [`crate::boundaries`]).
+//! The staggered (MAC) grid of a flow: its cells and faces, in the one layout
+//! of [`diffphys_ops::staggered`] (the table of shapes and positions is
+//! there), and the four side conditions on its boundary faces, whose values
+//! they fix or leave free (see [`crate::boundaries`]). The arrays of a flow
+//! are the arrays of diffphys-ops' pressure projection
+//! ([`diffphys_ops::mac::MacGrid`], built by [`FlowGrid::mac`]).
 
-use ndarray::{ArrayView1, ArrayView2};
+use diffphys_ops::mac::MacGrid;
+use diffphys_ops::{CellMask, Grid2};
+use ndarray::{Array2, ArrayView1, ArrayView2};
+
+use diffphys_ops::staggered::face_cells;
+pub use diffphys_ops::staggered::Lattice;
 
 use crate::error::{FlowError, Result};
-use crate::sides::{Side, Sides};
+use crate::sides::{PressureSide, Side, Sides};
 
 /// The cells and faces of a flow domain with its four side conditions.
 #[derive(Debug, Clone, PartialEq)]
@@ -34,18 +28,6 @@ pub struct FlowGrid {
     pub dy: f64,
     /// The condition on each side.
     pub sides: Sides,
-}
-
-/// One of the two velocity components, or a cell-centred scalar: which lattice
-/// an array lives on.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Lattice {
-    /// The x-velocity on the x-faces.
-    FaceX,
-    /// The y-velocity on the y-faces.
-    FaceY,
-    /// Cell centres (pressure, scalars).
-    Cell,
 }
 
 impl FlowGrid {
@@ -101,6 +83,29 @@ impl FlowGrid {
     pub fn position(&self, lattice: Lattice, a: usize, b: usize) -> [f64; 2] {
         let (oa, ob) = lattice.offsets();
         [(a as f64 + oa) * self.dx, (b as f64 + ob) * self.dy]
+    }
+
+    /// The same grid as diffphys-ops' staggered grid (the same layout and
+    /// arrays), each side open or closed by its condition's pressure side
+    /// ([`crate::sides::SideCondition::pressure`]), the cells where `solid`
+    /// is true inactive: what its pressure projection
+    /// ([`diffphys_ops::projection::PressureProjection`]) and multigrid
+    /// cycle take.
+    ///
+    /// # Errors
+    /// [`FlowError::Shape`] if `solid` is not of [`FlowGrid::cell_shape`].
+    pub fn mac(&self, solid: Option<&Array2<bool>>) -> Result<MacGrid> {
+        let s = &self.sides;
+        let sides = [&s.left, &s.right, &s.bottom, &s.top].map(|b| b.pressure());
+        let g = Grid2::new(self.nx, self.ny, self.dx, self.dy, PressureSide::Closed)?;
+        let mask = match solid {
+            Some(m) if m.iter().any(|&v| v) => {
+                self.check_cells("mac", "solid mask", m.view())?;
+                Some(CellMask::from_array(m.mapv(|v| !v).into_dyn().view()))
+            }
+            _ => None,
+        };
+        Ok(MacGrid::with_sides(g, sides, mask)?)
     }
 
     /// The cells on either side of x-face `f` (`None` outside the domain).
@@ -183,28 +188,5 @@ impl FlowGrid {
         } else {
             Err(FlowError::shape(step, "wall speeds", &[4], w.shape()))
         }
-    }
-}
-
-impl Lattice {
-    /// The fractional offsets of entry `[0, 0]` from the origin, in cells.
-    pub(crate) fn offsets(self) -> (f64, f64) {
-        match self {
-            Lattice::FaceX => (0.0, 0.5),
-            Lattice::FaceY => (0.5, 0.0),
-            Lattice::Cell => (0.5, 0.5),
-        }
-    }
-}
-
-#[inline]
-fn face_cells(f: usize, n: usize, periodic: bool) -> (Option<usize>, Option<usize>) {
-    if periodic {
-        // (f − 1) mod n and f mod n, without a division in the inner loops
-        let hi = if f < n { f } else { f % n };
-        let lo = if hi == 0 { n - 1 } else { hi - 1 };
-        (Some(lo), Some(hi))
-    } else {
-        (f.checked_sub(1), (f < n).then_some(f))
     }
 }

@@ -38,17 +38,15 @@ use std::rc::Rc;
 use std::sync::Arc;
 
 use diffphys_ops::cg::{conjugate_gradient, CgParams, NullSpace, Preconditioning};
-use diffphys_ops::mac::MacGrid;
 use diffphys_ops::multigrid::Multigrid;
 use diffphys_ops::reference::SparseCholesky;
-use diffphys_ops::{Boundary as OpsBoundary, CellMask, Grid2, LinearOperator};
+use diffphys_ops::{CellMask, LinearOperator};
 use diffphys_tape::{ArrayD, ArrayViewD, BackwardArgs, Op, Real, TapeError};
 use ndarray::{Array2, ArrayView2, ArrayViewMutD, IxDyn};
 
 use crate::boundaries::{view2, FaceKind, Faces};
 use crate::buffers::{give_back, narrow, owned, wide};
 use crate::grid::FlowGrid;
-use crate::sides::Boundary;
 use crate::sparse::Csr;
 use crate::spectral::PeriodicPoisson;
 use crate::staggered::{divergence_wide, gradient_wide, subtract_gradient_wide};
@@ -246,7 +244,7 @@ impl PressureSystem {
                 max_iters,
                 sweeps,
             } => {
-                let mg = Multigrid::for_mac(&ops_mac(grid, solid)?, *sweeps)?;
+                let mg = Multigrid::for_mac(&grid.mac(Some(solid))?, *sweeps)?;
                 cg = cg
                     .with_rel_tol(*rel_tol)
                     .with_max_iters(*max_iters)
@@ -326,45 +324,6 @@ impl PressureSystem {
         }
         Ok((x, iterations))
     }
-}
-
-/// The nearest staggered grid of diffphys-ops, for its multigrid cycle: an
-/// axis is open where a side of it is an outflow.
-fn ops_mac(grid: &FlowGrid, solid: &Array2<bool>) -> Result<MacGrid> {
-    let dirichlet = |b: &Boundary| b.pressure() == OpsBoundary::ZeroDirichlet;
-    let axis = |lo: &Boundary, hi: &Boundary| {
-        if lo.is_periodic() {
-            OpsBoundary::Periodic
-        } else if dirichlet(lo) || dirichlet(hi) {
-            OpsBoundary::ZeroDirichlet
-        } else {
-            OpsBoundary::Closed
-        }
-    };
-    let s = &grid.sides;
-    let g = Grid2::new(grid.nx, grid.ny, grid.dx, grid.dy, OpsBoundary::Closed)?
-        .with_boundaries(axis(&s.left, &s.right), axis(&s.bottom, &s.top));
-    let mut mac = if solid.iter().any(|&v| v) {
-        let active = solid.mapv(|v| !v).into_dyn();
-        MacGrid::with_mask(g, CellMask::from_array(active.view()))?
-    } else {
-        MacGrid::new(g)
-    };
-    // An axis with an outflow at one end only: the other end (an inflow, a
-    // wall) is zero Neumann for the pressure, as in the operator itself; the
-    // cycle would otherwise precondition a Dirichlet end there.
-    for (a, lo, hi) in [(0, &s.left, &s.right), (1, &s.bottom, &s.top)] {
-        if lo.is_periodic() {
-            continue;
-        }
-        if !dirichlet(lo) && dirichlet(hi) {
-            mac = mac.with_closed_side(a, false)?;
-        }
-        if !dirichlet(hi) && dirichlet(lo) {
-            mac = mac.with_closed_side(a, true)?;
-        }
-    }
-    Ok(mac)
 }
 
 fn push_face(t: &mut Vec<(usize, usize, f64)>, lo: Option<usize>, hi: Option<usize>, c: f64) {

@@ -121,3 +121,46 @@ fn warm_start_saves_iterations_and_keeps_the_answer() {
         .fold(0.0f64, |m, v| m.max(v.abs()));
     assert!(diff < 1e-8, "{diff:e}");
 }
+
+/// The flow and diffphys-ops share one staggered layout: the velocity arrays
+/// of a scene go unchanged into ops' projection on [`FlowGrid::mac`], which
+/// gives the flow's projected velocity (walls and inflow at rest, so that the
+/// closed faces carry no flow in either).
+#[test]
+fn ops_projection_takes_the_flow_arrays() {
+    use diffphys_ops::cg::CgParams;
+    use diffphys_ops::projection::PressureProjection;
+    for (name, b) in scenes() {
+        let scene = b.pressure_solver(PressureSolver::Cholesky).build().unwrap();
+        let (ux, uy) = velocity(&scene, 1.0, 5);
+        let at_rest = Array1::<f64>::zeros(scene.params::<f64>().inflow.len());
+        let (ux, uy) = enforce_boundaries(
+            scene.grid(),
+            scene.faces(),
+            ux.view(),
+            uy.view(),
+            at_rest.view(),
+        )
+        .unwrap();
+        let flow = project(scene.pressure_system(), 1.0, ux.view(), uy.view(), None).unwrap();
+        let mac = scene.grid().mac(Some(scene.solid())).unwrap();
+        assert_eq!(mac.shape_x(), scene.grid().shape_x(), "{name}");
+        assert_eq!(mac.shape_y(), scene.grid().shape_y(), "{name}");
+        let ops = PressureProjection::new(mac, CgParams::default().with_rel_tol(1e-13))
+            .project(ux.view().into_dyn(), uy.view().into_dyn(), None)
+            .unwrap();
+        let diff = |a: &ndarray::Array2<f64>, b: &ndarray::ArrayD<f64>| {
+            a.iter()
+                .zip(b)
+                .map(|(x, y)| (x - y).abs())
+                .fold(0.0, f64::max)
+        };
+        let scale = ux.iter().chain(&uy).fold(0.0_f64, |m, v| m.max(v.abs()));
+        let (dx, dy) = (
+            diff(&flow.ux, &ops.velocity_x),
+            diff(&flow.uy, &ops.velocity_y),
+        );
+        println!("{name:9}: max |u'_flow − u'_ops| = {dx:.2e}, {dy:.2e} (max |u| {scale:.2})");
+        assert!(dx.max(dy) <= 1e-9 * scale, "{name}: {dx:e}, {dy:e}");
+    }
+}

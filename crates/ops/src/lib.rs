@@ -56,6 +56,7 @@ pub mod multigrid;
 pub mod poisson;
 pub mod projection;
 pub mod reference;
+pub mod staggered;
 pub mod stencil;
 pub mod tape_ops;
 

@@ -76,17 +76,21 @@ fn dot<T: Real>(a: &ArrayD<T>, b: &ArrayD<T>) -> f64 {
 #[test]
 fn face_shapes_follow_the_boundaries() {
     let mac = |b| MacGrid::new(Grid2::new(80, 64, 1.0, 1.0, b).unwrap());
-    // The projection scene: closed walls, unknowns only on interior faces.
-    assert_eq!(mac(Closed).shape_x(), [79, 64]);
-    assert_eq!(mac(Closed).shape_y(), [80, 63]);
+    // One layout for every boundary (diffphys_ops::staggered): a non-periodic
+    // axis stores both boundary faces, closed on a wall.
+    assert_eq!(mac(Closed).shape_x(), [81, 64]);
+    assert_eq!(mac(Closed).shape_y(), [80, 65]);
     assert_eq!(mac(ZeroDirichlet).shape_x(), [81, 64]);
     assert_eq!(mac(ZeroDirichlet).shape_y(), [80, 65]);
     assert_eq!(mac(Periodic).shape_x(), [80, 64]);
-    // Face centres: closed x-face f at x = f + 1, y-faces at cell centres in x.
+    let open = mac(Closed).open_faces_x();
+    assert!(!open[[0, 7]] && !open[[80, 7]] && open[[1, 7]] && open[[79, 7]]);
+    assert!(mac(ZeroDirichlet).open_faces_x()[[0, 7]]);
+    // Face centres: x-face f at x = f, y-faces at cell centres in x.
     let m = mac(Closed);
-    assert_eq!(m.face_center_x(0, 0), [1.0, 0.5]);
-    assert_eq!(m.face_center_x(39, 10), [40.0, 10.5]);
-    assert_eq!(m.face_center_y(39, 0), [39.5, 1.0]);
+    assert_eq!(m.face_center_x(0, 0), [0.0, 0.5]);
+    assert_eq!(m.face_center_x(40, 10), [40.0, 10.5]);
+    assert_eq!(m.face_center_y(39, 1), [39.5, 1.0]);
     assert_eq!(mac(ZeroDirichlet).face_center_x(0, 0), [0.0, 0.5]);
     // Null spaces: closed and periodic are singular, anything open is not.
     assert_eq!(m.null_space(), NullSpace::Constant);
@@ -448,4 +452,26 @@ fn projection_op_warm_starts_records_and_errors() {
         .project(uy.view(), ux.view(), None::<ndarray::ArrayViewD<'_, f64>>)
         .unwrap_err();
     assert!(matches!(err, OpsError::ShapeMismatch { .. }), "{err:?}");
+}
+
+#[test]
+fn sides_one_by_one_make_a_channel() {
+    let g = Grid2::new(6, 5, 0.5, 0.5, Closed).unwrap();
+    // left inflow (closed), right outflow (open), walls below and above
+    let channel = MacGrid::with_sides(g, [Closed, ZeroDirichlet, Closed, Closed], None).unwrap();
+    let open = channel.open_faces_x();
+    assert!(!open[[0, 2]] && open[[6, 2]]);
+    assert!(channel.open_faces_y().iter().enumerate().all(|(k, &o)| {
+        let f = k % 6;
+        o == (f != 0 && f != 5)
+    }));
+    assert_eq!(channel.null_space(), NullSpace::None);
+    let same = MacGrid::new(g.with_boundaries(ZeroDirichlet, Closed))
+        .with_closed_side(0, false)
+        .unwrap();
+    assert_eq!(channel, same);
+    let walls = MacGrid::with_sides(g, [Closed; 4], None).unwrap();
+    assert_eq!(walls, MacGrid::new(g));
+    let err = MacGrid::with_sides(g, [Periodic, Closed, Closed, Closed], None).unwrap_err();
+    assert!(err.to_string().contains("periodic"), "{err}");
 }

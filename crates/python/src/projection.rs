@@ -36,8 +36,8 @@ use crate::solver::{info_dict, Kind, Options};
 /// None is 1e-10 for float64 arrays and 1e-5 for float32 ones.
 ///
 /// Shapes and dtypes: for `shape = (nx, ny)` cells, `ux` is `shape_x`
-/// (`(nx − 1, ny)` between closed walls: the interior faces; `(nx + 1, ny)`
-/// with dirichlet, `(nx, ny)` periodic), `uy` likewise `shape_y` along y, `p`
+/// (`(nx + 1, ny)`, the boundary faces included, closed between walls;
+/// `(nx, ny)` periodic; the layout of `FlowStep`), `uy` likewise `shape_y` along y, `p`
 /// is `(nx, ny)`; all float32 or float64 (the results have the inputs'
 /// dtype).
 ///

@@ -34,29 +34,33 @@ def neg_laplacian(p, spacing=(1.0, 1.0), boundary="dirichlet"):
 
 def mac_gradient_matrix(shape, spacing=(1.0, 1.0), obstacle=None):
     """The face gradient ``G`` of a MAC grid with closed walls as a dense
-    matrix (rows: x-faces ``[nx-1, ny]`` then y-faces ``[nx, ny-1]``,
-    row-major; columns: cells), a face touching an obstacle cell closed
-    (weight 0). Returns ``(G, w)`` with ``w`` the face weights."""
+    matrix (rows: x-faces ``[nx+1, ny]`` then y-faces ``[nx, ny+1]``,
+    row-major, face ``f`` between cells ``f-1`` and ``f``; columns: cells),
+    the wall faces and a face touching an obstacle cell closed (weight 0).
+    Returns ``(G, w)`` with ``w`` the face weights."""
     nx, ny = shape
     dx, dy = spacing
     solid = np.zeros(shape, bool) if obstacle is None else np.asarray(obstacle, bool)
     rows, weights = [], []
-    for f in range(nx - 1):
+
+    def face(lo, hi, closed, h):
+        w = 0.0 if closed else 1.0
+        r = np.zeros(nx * ny)
+        if w:
+            r[hi], r[lo] = w / h, -w / h
+        rows.append(r)
+        weights.append(w)
+
+    for f in range(nx + 1):
         for j in range(ny):
-            lo, hi = f * ny + j, (f + 1) * ny + j
-            w = 0.0 if solid[f, j] or solid[f + 1, j] else 1.0
-            r = np.zeros(nx * ny)
-            r[hi], r[lo] = w / dx, -w / dx
-            rows.append(r)
-            weights.append(w)
+            wall = f == 0 or f == nx
+            closed = wall or solid[f - 1, j] or solid[f, j]
+            face((f - 1) * ny + j, f * ny + j, closed, dx)
     for i in range(nx):
-        for f in range(ny - 1):
-            lo, hi = i * ny + f, i * ny + f + 1
-            w = 0.0 if solid[i, f] or solid[i, f + 1] else 1.0
-            r = np.zeros(nx * ny)
-            r[hi], r[lo] = w / dy, -w / dy
-            rows.append(r)
-            weights.append(w)
+        for f in range(ny + 1):
+            wall = f == 0 or f == ny
+            closed = wall or solid[i, f - 1] or solid[i, f]
+            face(i * ny + f - 1, i * ny + f, closed, dy)
     return np.array(rows), np.array(weights)
 
 
@@ -69,8 +73,8 @@ def project(ux, uy, G, w, shape):
     A = G.T @ G
     p = jnp.linalg.pinv(A, hermitian=True) @ (G.T @ u)
     v = w * u - G @ p
-    k = (nx - 1) * ny
-    return v[:k].reshape(nx - 1, ny), v[k:].reshape(nx, ny - 1), p.reshape(nx, ny)
+    k = (nx + 1) * ny
+    return v[:k].reshape(nx + 1, ny), v[k:].reshape(nx, ny + 1), p.reshape(nx, ny)
 
 
 def semi_lagrangian2(d, u, dt, spacing=(1.0, 1.0)):

@@ -201,21 +201,12 @@ impl Level {
         let mut fx = vec![0.0; nx * ny];
         let mut fy = vec![0.0; nx * ny];
         let mut wall = [vec![0.0; nx * ny], vec![0.0; nx * ny]];
-        // The cells on either side of face `f` of an axis of `n` cells (the
-        // table of the `mac` module).
-        let sides = |f: usize, n: usize, b: Boundary| -> (Option<usize>, Option<usize>) {
-            match b {
-                Boundary::Closed => (Some(f), Some(f + 1)),
-                Boundary::ZeroDirichlet => (f.checked_sub(1), (f < n).then_some(f)),
-                Boundary::Periodic => (Some((f + n - 1) % n), Some(f)),
-            }
-        };
         let open_x = mac.open_faces_x();
         for ((f, j), &open) in open_x.indexed_iter().map(|(ix, o)| ((ix[0], ix[1]), o)) {
             if !open {
                 continue;
             }
-            match sides(f, nx, grid.boundary_x) {
+            match mac.face_cells_x(f) {
                 (Some(lo), Some(hi)) if lo != hi => fx[lo * ny + j] += cx,
                 (Some(c), None) | (None, Some(c)) => wall[0][c * ny + j] += cx,
                 _ => {}
@@ -226,7 +217,7 @@ impl Level {
             if !open {
                 continue;
             }
-            match sides(f, ny, grid.boundary_y) {
+            match mac.face_cells_y(f) {
                 (Some(lo), Some(hi)) if lo != hi => fy[i * ny + lo] += cy,
                 (Some(c), None) | (None, Some(c)) => wall[1][i * ny + c] += cy,
                 _ => {}

@@ -1,18 +1,21 @@
 //! Staggered (MAC) grids: velocity components on cell faces, pressure at cell
 //! centres, and the face gradient and divergence that pressure projection needs.
 //!
-//! On a [`Grid2`] of `nx × ny` cells, x-velocities live on the faces normal to
-//! x (shape `[nfx, ny]`) and y-velocities on the faces normal to y (shape
-//! `[nx, nfy]`). Which faces carry unknowns depends on each axis' [`Boundary`]:
+//! A [`MacGrid`] uses the one staggered layout of diffphys ([`crate::staggered`]):
+//! on a [`Grid2`] of `nx × ny` cells, x-velocities live on the faces normal to
+//! x (shape `[nx + 1, ny]`, `[nx, ny]` on a periodic axis) and y-velocities on
+//! the faces normal to y (`[nx, ny + 1]` or `[nx, ny]`); face `f` lies between
+//! cells `f − 1` and `f`, at `f·h`. Each side's pressure condition
+//! ([`Boundary`]) says whether its boundary faces are open:
 //!
-//! | boundary | faces along the axis | face `f` lies between cells | position |
-//! | --- | --- | --- | --- |
-//! | [`Boundary::Closed`] (walls) | `n − 1`, interior only (the wall faces have zero normal velocity) | `f` and `f + 1` | `(f + 1)·h` |
-//! | [`Boundary::ZeroDirichlet`] (open) | `n + 1`, all (pressure is zero outside) | `f − 1` and `f` | `f·h` |
-//! | [`Boundary::Periodic`] | `n` | `f − 1 (mod n)` and `f` | `f·h` |
+//! | side condition | its boundary faces |
+//! | --- | --- |
+//! | [`Boundary::Closed`] (a wall, an inflow) | closed: weight 0, zero normal velocity, zero normal pressure gradient |
+//! | [`Boundary::ZeroDirichlet`] (an outflow) | open: the pressure is zero outside |
+//! | [`Boundary::Periodic`] | none: the axis wraps |
 //!
-//! So 80 × 64 cells with closed walls have x-faces `79 × 64` and y-faces
-//! `80 × 63`. An optional [`CellMask`] marks obstacle cells: a face touching an
+//! So 80 × 64 cells with closed walls have x-faces `81 × 64` and y-faces
+//! `80 × 65`, the first and last of each closed. An optional [`CellMask`] marks obstacle cells: a face touching an
 //! inactive cell is closed (weight 0, zero normal velocity).
 //!
 //! With the face weights `W` (1 on open faces, 0 on closed ones):
@@ -40,14 +43,19 @@
 use diffphys_tape::Real;
 use ndarray::{ArrayD, ArrayViewD, ArrayViewMutD, IxDyn};
 
-use crate::linear::{wide, NullSpace};
+use crate::linear::NullSpace;
+use crate::staggered::{face_cells, face_count};
 use crate::stencil::Laplacian2;
-use crate::{Boundary, CellMask, Grid2, LinearOperator, OpsError, Result};
+use crate::{Boundary, CellMask, Grid2, OpsError, Result};
+
+mod poisson;
+
+pub use poisson::{MacPoisson, PressureOperator};
 
 /// The faces along one axis.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct AxisFaces {
-    boundary: Boundary,
+    periodic: bool,
     /// Cells along the axis.
     n: usize,
     /// Spacing.
@@ -55,30 +63,28 @@ struct AxisFaces {
 }
 
 impl AxisFaces {
-    fn count(&self) -> usize {
-        match self.boundary {
-            Boundary::Closed => self.n - 1,
-            Boundary::ZeroDirichlet => self.n + 1,
-            Boundary::Periodic => self.n,
+    fn new(boundary: Boundary, n: usize, h: f64) -> Self {
+        AxisFaces {
+            periodic: boundary == Boundary::Periodic,
+            n,
+            h,
         }
     }
 
+    fn count(&self) -> usize {
+        face_count(self.n, self.periodic)
+    }
+
     /// The cells on the low and high side of face `f` (`None`: outside the
-    /// domain, where the pressure is zero).
+    /// domain).
+    #[inline]
     fn sides(&self, f: usize) -> (Option<usize>, Option<usize>) {
-        match self.boundary {
-            Boundary::Closed => (Some(f), Some(f + 1)),
-            Boundary::ZeroDirichlet => (f.checked_sub(1), (f < self.n).then_some(f)),
-            Boundary::Periodic => (Some((f + self.n - 1) % self.n), Some(f)),
-        }
+        face_cells(f, self.n, self.periodic)
     }
 
     /// The face's distance from the grid origin along the axis.
     fn position(&self, f: usize) -> f64 {
-        match self.boundary {
-            Boundary::Closed => (f + 1) as f64 * self.h,
-            Boundary::ZeroDirichlet | Boundary::Periodic => f as f64 * self.h,
-        }
+        f as f64 * self.h
     }
 }
 
@@ -114,30 +120,27 @@ impl MacGrid {
     }
 
     fn build(grid: Grid2, mask: Option<CellMask>) -> Self {
-        let ax = AxisFaces {
-            boundary: grid.boundary_x,
-            n: grid.nx,
-            h: grid.dx,
-        };
-        let ay = AxisFaces {
-            boundary: grid.boundary_y,
-            n: grid.ny,
-            h: grid.dy,
-        };
+        let ax = AxisFaces::new(grid.boundary_x, grid.nx, grid.dx);
+        let ay = AxisFaces::new(grid.boundary_y, grid.ny, grid.dy);
         let (nx, ny) = (grid.nx, grid.ny);
         let active = |i: usize, j: usize| mask.as_ref().is_none_or(|m| m.is_active(i * ny + j));
+        // A face to the outside is open only on an open (zero Dirichlet) axis.
+        let outside = |b: Boundary| b == Boundary::ZeroDirichlet;
+        let (out_x, out_y) = (outside(grid.boundary_x), outside(grid.boundary_y));
         let mut open_x = Vec::with_capacity(ax.count() * ny);
         for f in 0..ax.count() {
             let (lo, hi) = ax.sides(f);
             for j in 0..ny {
-                open_x.push(lo.is_none_or(|i| active(i, j)) && hi.is_none_or(|i| active(i, j)));
+                let cell = |c: Option<usize>| c.map_or(out_x, |i| active(i, j));
+                open_x.push(cell(lo) && cell(hi));
             }
         }
         let mut open_y = Vec::with_capacity(nx * ay.count());
         for i in 0..nx {
             for f in 0..ay.count() {
                 let (lo, hi) = ay.sides(f);
-                open_y.push(lo.is_none_or(|j| active(i, j)) && hi.is_none_or(|j| active(i, j)));
+                let cell = |c: Option<usize>| c.map_or(out_y, |j| active(i, j));
+                open_y.push(cell(lo) && cell(hi));
             }
         }
         MacGrid {
@@ -190,6 +193,65 @@ impl MacGrid {
             }
         }
         Ok(self)
+    }
+
+    /// The staggered grid of `grid`'s cells whose four sides have the
+    /// pressure conditions `sides` (left, right, bottom, top), with only the
+    /// cells of `mask` active: the sides of an axis with an open side
+    /// ([`Boundary::ZeroDirichlet`]) are open or closed one by one, so an
+    /// inflow (closed) and an outflow (open) make a channel. `grid`'s own
+    /// per-axis boundaries are replaced.
+    ///
+    /// # Errors
+    /// [`OpsError::InvalidArgument`] if one side of an axis is periodic and
+    /// the other not; [`OpsError::ShapeMismatch`] if `mask` is not of the
+    /// grid's shape.
+    pub fn with_sides(grid: Grid2, sides: [Boundary; 4], mask: Option<CellMask>) -> Result<Self> {
+        let axis = |a: usize| -> Result<Boundary> {
+            let (lo, hi) = (sides[2 * a], sides[2 * a + 1]);
+            match (lo == Boundary::Periodic, hi == Boundary::Periodic) {
+                (true, true) => Ok(Boundary::Periodic),
+                (false, false)
+                    if lo == Boundary::ZeroDirichlet || hi == Boundary::ZeroDirichlet =>
+                {
+                    Ok(Boundary::ZeroDirichlet)
+                }
+                (false, false) => Ok(Boundary::Closed),
+                _ => Err(OpsError::invalid(
+                    "mac_grid",
+                    format!(
+                        "axis {a} has a periodic side facing {lo:?}/{hi:?}: both or neither wrap"
+                    ),
+                )),
+            }
+        };
+        let grid = grid.with_boundaries(axis(0)?, axis(1)?);
+        let mut mac = match mask {
+            Some(m) => Self::with_mask(grid, m)?,
+            None => Self::new(grid),
+        };
+        for (a, axis_boundary) in [(0, grid.boundary_x), (1, grid.boundary_y)] {
+            if axis_boundary != Boundary::ZeroDirichlet {
+                continue;
+            }
+            for (high, side) in [(false, sides[2 * a]), (true, sides[2 * a + 1])] {
+                if side == Boundary::Closed {
+                    mac = mac.with_closed_side(a, high)?;
+                }
+            }
+        }
+        Ok(mac)
+    }
+
+    /// The cells on the low and high side of x-face `f` (`None` outside the
+    /// domain; see [`crate::staggered::face_cells`]).
+    pub fn face_cells_x(&self, f: usize) -> (Option<usize>, Option<usize>) {
+        self.ax.sides(f)
+    }
+
+    /// The cells on the low and high side of y-face `f`.
+    pub fn face_cells_y(&self, f: usize) -> (Option<usize>, Option<usize>) {
+        self.ay.sides(f)
     }
 
     /// The cell grid.
@@ -432,260 +494,5 @@ impl MacGrid {
             }
         }
         Ok(())
-    }
-}
-
-/// The face-weighted pressure operator `A = Gᵀ W G + (I − P_active)` of a
-/// [`MacGrid`]: per active cell, `(A p)_c = Σ_open faces (p_c − p_other)/h²`
-/// (`p_other = 0` outside an open boundary); inactive cells map to themselves.
-/// Symmetric positive semidefinite (definite with an open boundary); adjoint
-/// `Aᵀ = A`.
-#[derive(Debug, Clone, PartialEq)]
-pub struct MacPoisson {
-    mac: MacGrid,
-    shape: [usize; 2],
-    /// `1/dx²`, `1/dy²`.
-    coef: [f64; 2],
-}
-
-impl MacPoisson {
-    /// The operator of `mac`.
-    pub fn new(mac: MacGrid) -> Self {
-        let g = mac.grid;
-        MacPoisson {
-            shape: g.shape(),
-            coef: [1.0 / (g.dx * g.dx), 1.0 / (g.dy * g.dy)],
-            mac,
-        }
-    }
-
-    /// The staggered grid.
-    pub fn mac(&self) -> &MacGrid {
-        &self.mac
-    }
-
-    /// Every open face as `(low cell, high cell, coefficient)` with flat cell
-    /// indices (`None` outside); faces whose two sides are the same cell (a
-    /// periodic axis of one cell) carry no flux and are skipped.
-    fn faces(&self) -> Vec<(Option<usize>, Option<usize>, f64)> {
-        let m = &self.mac;
-        let (nx, ny) = (m.grid.nx, m.grid.ny);
-        let mut faces = Vec::new();
-        for f in 0..m.ax.count() {
-            let (lo, hi) = m.ax.sides(f);
-            for j in 0..ny {
-                if m.open_x[f * ny + j] && (lo != hi) {
-                    faces.push((lo.map(|i| i * ny + j), hi.map(|i| i * ny + j), self.coef[0]));
-                }
-            }
-        }
-        let nfy = m.ay.count();
-        for i in 0..nx {
-            for f in 0..nfy {
-                let (lo, hi) = m.ay.sides(f);
-                if m.open_y[i * nfy + f] && (lo != hi) {
-                    faces.push((lo.map(|j| i * ny + j), hi.map(|j| i * ny + j), self.coef[1]));
-                }
-            }
-        }
-        faces
-    }
-
-    fn inactive(&self) -> impl Iterator<Item = usize> + '_ {
-        self.mac.mask.iter().flat_map(|m| {
-            m.as_slice()
-                .iter()
-                .enumerate()
-                .filter(|(_, &a)| !a)
-                .map(|(c, _)| c)
-        })
-    }
-
-    /// `out = A x` on row-major slices.
-    fn run<T: Real>(&self, x: &[T], out: &mut [T]) {
-        let m = &self.mac;
-        let (nx, ny) = (m.grid.nx, m.grid.ny);
-        out.fill(T::zero());
-        let cx = T::from_f64(self.coef[0]);
-        for f in 0..m.ax.count() {
-            let (lo, hi) = m.ax.sides(f);
-            if lo == hi {
-                continue;
-            }
-            let open = &m.open_x[f * ny..(f + 1) * ny];
-            for (j, _) in open.iter().enumerate().filter(|(_, &o)| o) {
-                let at = |c: Option<usize>| c.map_or(T::zero(), |i| x[i * ny + j]);
-                let flux = (at(hi) - at(lo)) * cx;
-                if let Some(i) = lo {
-                    out[i * ny + j] -= flux;
-                }
-                if let Some(i) = hi {
-                    out[i * ny + j] += flux;
-                }
-            }
-        }
-        let cy = T::from_f64(self.coef[1]);
-        let nfy = m.ay.count();
-        for f in 0..nfy {
-            let (lo, hi) = m.ay.sides(f);
-            if lo == hi {
-                continue;
-            }
-            for i in 0..nx {
-                if m.open_y[i * nfy + f] {
-                    let at = |c: Option<usize>| c.map_or(T::zero(), |j| x[i * ny + j]);
-                    let flux = (at(hi) - at(lo)) * cy;
-                    if let Some(j) = lo {
-                        out[i * ny + j] -= flux;
-                    }
-                    if let Some(j) = hi {
-                        out[i * ny + j] += flux;
-                    }
-                }
-            }
-        }
-        for c in self.inactive() {
-            out[c] = x[c];
-        }
-    }
-
-    /// `out = A x`, returning `<x, A x>` accumulated in `f64`.
-    fn apply_slices<T: Real>(&self, x: ArrayViewD<'_, T>, mut out: ArrayViewMutD<'_, T>) -> f64 {
-        let x = x.as_standard_layout();
-        let xs = x.as_slice().expect("standard layout is contiguous");
-        let dot = |o: &[T]| {
-            xs.iter()
-                .zip(o)
-                .fold(0.0, |acc, (&a, &b)| acc + wide(a) * wide(b))
-        };
-        if let Some(o) = out.as_slice_mut() {
-            self.run(xs, o);
-            return dot(o);
-        }
-        let mut buf = vec![T::zero(); xs.len()];
-        self.run(xs, &mut buf);
-        for (o, &b) in out.iter_mut().zip(&buf) {
-            *o = b;
-        }
-        dot(&buf)
-    }
-}
-
-impl<T: Real> LinearOperator<T> for MacPoisson {
-    fn name(&self) -> &str {
-        "mac_poisson"
-    }
-    fn input_shape(&self) -> &[usize] {
-        &self.shape
-    }
-    fn output_shape(&self) -> &[usize] {
-        &self.shape
-    }
-    fn apply_into(&self, x: ArrayViewD<'_, T>, out: ArrayViewMutD<'_, T>) {
-        self.apply_slices(x, out);
-    }
-    fn apply_transpose_into(&self, y: ArrayViewD<'_, T>, out: ArrayViewMutD<'_, T>) {
-        self.apply_slices(y, out);
-    }
-    fn apply_into_dot(&self, x: ArrayViewD<'_, T>, out: ArrayViewMutD<'_, T>) -> f64 {
-        self.apply_slices(x, out)
-    }
-    fn is_symmetric(&self) -> bool {
-        true
-    }
-    fn diagonal(&self) -> Option<ArrayD<T>> {
-        let mut d = vec![0.0; self.shape[0] * self.shape[1]];
-        for (lo, hi, c) in self.faces() {
-            for cell in [lo, hi].into_iter().flatten() {
-                d[cell] += c;
-            }
-        }
-        for c in self.inactive() {
-            d[c] = 1.0;
-        }
-        Some(
-            ArrayD::from_shape_vec(IxDyn(&self.shape), d.into_iter().map(T::from_f64).collect())
-                .expect("one per cell"),
-        )
-    }
-    fn triplets(&self) -> Option<Vec<(usize, usize, T)>> {
-        let n = self.shape[0] * self.shape[1];
-        let mut t: Vec<(usize, usize, f64)> = (0..n).map(|c| (c, c, 0.0)).collect();
-        for (lo, hi, c) in self.faces() {
-            for cell in [lo, hi].into_iter().flatten() {
-                t.push((cell, cell, c));
-            }
-            if let (Some(a), Some(b)) = (lo, hi) {
-                t.push((a, b, -c));
-                t.push((b, a, -c));
-            }
-        }
-        for c in self.inactive() {
-            t.push((c, c, 1.0));
-        }
-        t.sort_by_key(|e| (e.0, e.1));
-        let mut merged: Vec<(usize, usize, T)> = Vec::with_capacity(t.len());
-        let mut k = 0;
-        while k < t.len() {
-            let (r, c) = (t[k].0, t[k].1);
-            let mut v = 0.0;
-            while k < t.len() && (t[k].0, t[k].1) == (r, c) {
-                v += t[k].2;
-                k += 1;
-            }
-            if v != 0.0 || r == c {
-                merged.push((r, c, T::from_f64(v)));
-            }
-        }
-        Some(merged)
-    }
-}
-
-/// The pressure operator of a [`MacGrid`]: H1's 5-point stencil where it is the
-/// same matrix, else the face-weighted operator. Both are `A = −D G`.
-#[derive(Debug, Clone, PartialEq)]
-pub enum PressureOperator {
-    /// [`Laplacian2::negative`] (no mask; closed or periodic boundaries).
-    Stencil(Laplacian2),
-    /// [`MacPoisson`] (masks, open boundaries).
-    Faces(MacPoisson),
-}
-
-macro_rules! delegate {
-    ($self:ident, $op:ident => $e:expr) => {
-        match $self {
-            PressureOperator::Stencil($op) => $e,
-            PressureOperator::Faces($op) => $e,
-        }
-    };
-}
-
-impl<T: Real> LinearOperator<T> for PressureOperator {
-    fn name(&self) -> &str {
-        delegate!(self, a => LinearOperator::<T>::name(a))
-    }
-    fn input_shape(&self) -> &[usize] {
-        delegate!(self, a => LinearOperator::<T>::input_shape(a))
-    }
-    fn output_shape(&self) -> &[usize] {
-        delegate!(self, a => LinearOperator::<T>::output_shape(a))
-    }
-    fn apply_into(&self, x: ArrayViewD<'_, T>, out: ArrayViewMutD<'_, T>) {
-        delegate!(self, a => a.apply_into(x, out))
-    }
-    fn apply_transpose_into(&self, y: ArrayViewD<'_, T>, out: ArrayViewMutD<'_, T>) {
-        delegate!(self, a => a.apply_transpose_into(y, out))
-    }
-    fn apply_into_dot(&self, x: ArrayViewD<'_, T>, out: ArrayViewMutD<'_, T>) -> f64 {
-        delegate!(self, a => a.apply_into_dot(x, out))
-    }
-    fn is_symmetric(&self) -> bool {
-        true
-    }
-    fn diagonal(&self) -> Option<ArrayD<T>> {
-        delegate!(self, a => a.diagonal())
-    }
-    fn triplets(&self) -> Option<Vec<(usize, usize, T)>> {
-        delegate!(self, a => a.triplets())
     }
 }

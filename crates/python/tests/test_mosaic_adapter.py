@@ -202,6 +202,42 @@ def test_immersed_profile_gradient_of_the_drag_matches_central_differences(immer
     assert float(np.sum(g["v0"].reshape(e.shape) * e)) == pytest.approx(fd_v0, rel=1e-5, abs=1e-10)
 
 
+def test_forced_column_keeps_x_periodic(ta):
+    plan = ta._plan_uncached(_bc("periodic", "periodic"), True, "forced-column")
+    assert [spec for _, _, spec, _ in plan] == ["periodic", "periodic", "no_slip", "no_slip"]
+
+
+@pytest.mark.parametrize("body", ["staircase", "immersed"])
+def test_forced_column_gradients_match_central_differences(ta, monkeypatch, body):
+    # x periodic, the x = 0 face column set to the profile before each step:
+    # <w, result> + drag, to the profile, v0 and the viscosity
+    monkeypatch.setattr(ta, "BODY", body)
+    monkeypatch.setattr(ta, "INFLOW", "forced-column")
+    rng = np.random.default_rng(3)
+    raw = _drag_opt_inputs(profile=0.5 + 0.05 * rng.standard_normal(16))
+    raw["v0"] = raw["v0"] + 0.01 * rng.standard_normal(raw["v0"].shape)
+    scene, _, _, lay, _ = ta._setup(raw)
+    assert lay.column is not None and lay.q is None and scene.inflow_len == 0
+    w = rng.standard_normal((16, 16, 1, 2))
+    g = ta._vjp(raw, {"inflow_profile", "v0", "viscosity"}, {"result", "drag"},
+                {"result": w, "drag": np.array([1.0])})
+
+    def loss(r):
+        result, drag = ta._forward(r)
+        return float(np.sum(w[:, :, 0, :] * result)) + drag
+
+    h = 1e-6
+    for key in ("inflow_profile", "v0"):
+        d = rng.standard_normal(np.shape(raw[key]))
+        fd = (loss(dict(raw, **{key: raw[key] + h * d}))
+              - loss(dict(raw, **{key: raw[key] - h * d}))) / (2 * h)
+        assert float(np.sum(np.reshape(g[key], d.shape) * d)) == pytest.approx(fd, rel=1e-6), key
+    h = 1e-4 * 0.0025
+    fd = (loss(dict(raw, viscosity=[0.0025 + h]))
+          - loss(dict(raw, viscosity=[0.0025 - h]))) / (2 * h)
+    assert g["viscosity"] == pytest.approx(fd, rel=1e-6)
+
+
 @pytest.mark.parametrize("profile", [np.array([]), np.full((16, 2), 0.5)])
 def test_a_profile_that_is_not_one_row_of_values_is_refused(ta, profile):
     with pytest.raises(ValueError, match="inflow_profile has shape"):

@@ -65,6 +65,14 @@ x_hi re-enters at x_lo around the forced column. The price: the flow the
 drag is measured in differs from PhiFlow's and XLB's, so the drags differ
 between entrants (Mosaic ranks the relative reduction).
 
+The other reading can be run for comparison: with the environment variable
+``DIFFPHYS_TESSERACT_INFLOW=forced-column`` (default ``channel``) x stays
+periodic and the x = 0 face column is set to the profile before every step
+(PhiFlow's entrant's reading; no Dirichlet side, so the projection then
+moves the column as it moves every face). Its VJP runs every step on its
+own (200 single-step VJPs at drag_opt's horizon): setting a face is, in
+the adjoint, zeroing its gradient and adding it to the profile's.
+
 An ``inflow_profile`` whose length is not N is resampled linearly onto the N
 cells along x_lo (on ``linspace(0, 1)``, as Mosaic's JAX-CFD, PhiFlow and
 INS.jl entrants do); its gradient is the transpose of that resampling.
@@ -190,6 +198,13 @@ if DTYPE not in (np.float32, np.float64):
 _IMMERSED = {"immersed": ("forced", "direct"), "immersed-solid": ("solid", "direct"),
              "immersed-consistent": ("forced", "consistent")}
 BODY = os.environ.get("DIFFPHYS_TESSERACT_BODY", "staircase")
+# How an inflow_profile given with x periodic is read (see the module docs):
+# "channel" (x_lo a Dirichlet inflow, x_hi an outflow) or "forced-column"
+# (x stays periodic, the x = 0 face column is set to the profile before
+# every step, as Mosaic's PhiFlow entrant does).
+INFLOW = os.environ.get("DIFFPHYS_TESSERACT_INFLOW", "channel")
+if INFLOW not in ("channel", "forced-column"):
+    raise ValueError(f"DIFFPHYS_TESSERACT_INFLOW must be channel or forced-column, not {INFLOW!r}")
 if BODY != "staircase" and BODY not in _IMMERSED:
     raise ValueError("DIFFPHYS_TESSERACT_BODY must be staircase, "
                      f"{', '.join(_IMMERSED)}, not {BODY!r}")
@@ -205,9 +220,9 @@ def _kind(face: dict) -> str:
 
 
 @functools.lru_cache(maxsize=64)
-def _plan_cached(bc_key: tuple, has_profile: bool):
+def _plan_cached(bc_key: tuple, has_profile: bool, inflow: str = "channel"):
     bc = {name: {"type": t, "value": None if v is None else list(v)} for name, t, v in bc_key}
-    return _plan_uncached(bc, has_profile)
+    return _plan_uncached(bc, has_profile, inflow)
 
 
 def _plan(bc: dict, has_profile: bool):
@@ -222,10 +237,15 @@ def _plan(bc: dict, has_profile: bool):
          None if bc[name].get("value") is None else tuple(float(x) for x in bc[name]["value"]))
         for name in ("x_lo", "x_hi", "y_lo", "y_hi", "z_lo", "z_hi")
     )
-    return _plan_cached(key, bool(has_profile))
+    return _plan_cached(key, bool(has_profile), INFLOW)
 
 
-def _plan_uncached(bc: dict, has_profile: bool):
+def _column(bc: dict, has_profile: bool, inflow: str) -> bool:
+    """Whether the profile is a forced face column in the periodic x axis."""
+    return has_profile and inflow == "forced-column" and _kind(bc["x_lo"]) == "periodic"
+
+
+def _plan_uncached(bc: dict, has_profile: bool, inflow: str = "channel"):
     for name in ("z_lo", "z_hi"):
         if _kind(bc[name]) != "periodic":
             raise ValueError(
@@ -236,7 +256,8 @@ def _plan_uncached(bc: dict, has_profile: bool):
             raise ValueError(
                 f"diffphys' adapter: {lo} is {_kind(bc[lo])!r} and {hi} is {_kind(bc[hi])!r}; "
                 "diffphys makes an axis periodic on both faces or on neither")
-    if not has_profile and all(_kind(bc[name]) == "periodic" for name, _, _ in _FACES):
+    column = _column(bc, has_profile, inflow)
+    if (not has_profile or column) and all(_kind(bc[name]) == "periodic" for name, _, _ in _FACES):
         return None
     plan = []
     for name, side, axis in _FACES:
@@ -271,7 +292,7 @@ def _plan_uncached(bc: dict, has_profile: bool):
                         "tangential velocity and its moving wall no normal one")
         else:
             raise ValueError(f"diffphys' adapter: {name} has the unknown kind {kind!r}")
-        if name == "x_lo" and has_profile:
+        if name == "x_lo" and has_profile and not column:
             if kind == "neumann":
                 raise ValueError(
                     "diffphys' adapter: inflow_profile with x_lo 'neumann': the profile "
@@ -279,7 +300,7 @@ def _plan_uncached(bc: dict, has_profile: bool):
                     "'no_slip' or 'periodic' (Mosaic's drag_opt: x_lo becomes the inflow, "
                     "x_hi the outflow)")
             spec, uniform = "inflow", None
-        if name == "x_hi" and has_profile and kind == "periodic":
+        if name == "x_hi" and has_profile and kind == "periodic" and not column:
             # the profile's Dirichlet x_lo ends the x axis's periodicity: its
             # periodic partner x_hi becomes the open side the mass leaves by
             spec = "outflow"
@@ -384,11 +405,17 @@ class _Layout:
     cells along the inflow side (None without one), ``resample`` its
     resampling matrix from ``inflow_profile`` (None if none or the identity)."""
 
-    def __init__(self, plan, n: int, profile):
+    def __init__(self, plan, n: int, profile, column: bool = False):
         self.periodic = plan is None
         self.q = None
+        self.column = None
         self.resample = None
         self.profile_given = profile is not None
+        if column:
+            # the profile as the x = 0 face column of a periodic x axis
+            p = self._profile(profile)
+            self.resample = _resample(p.shape[0], n)
+            self.column = np.asarray(p if self.resample is None else self.resample @ p, DTYPE)
         if plan is None:
             self.lo = self.hi = (("periodic", None), ("periodic", None))
             return
@@ -402,11 +429,7 @@ class _Layout:
                 if uniform is not None:
                     self.q = np.full(n, uniform, DTYPE)
                 else:
-                    p = np.asarray(profile, np.float64)
-                    if p.ndim != 1 or p.size == 0:
-                        raise ValueError(
-                            f"diffphys' adapter: inflow_profile has shape {p.shape}; it is "
-                            "u_x(y), one value or more along x_lo, shape (M,)")
+                    p = self._profile(profile)
                     self.resample = _resample(p.shape[0], n)
                     q = p if self.resample is None else self.resample @ p
                     self.q = np.asarray(q, DTYPE)
@@ -415,6 +438,15 @@ class _Layout:
                 ends[name] = ("wall", None)
         self.lo = (ends["x_lo"], ends["y_lo"])
         self.hi = (ends["x_hi"], ends["y_hi"])
+
+    @staticmethod
+    def _profile(profile) -> np.ndarray:
+        p = np.asarray(profile, np.float64)
+        if p.ndim != 1 or p.size == 0:
+            raise ValueError(
+                f"diffphys' adapter: inflow_profile has shape {p.shape}; it is "
+                "u_x(y), one value or more along x_lo, shape (M,)")
+        return p
 
 
 def _setup(inputs: dict):
@@ -431,7 +463,8 @@ def _setup(inputs: dict):
     extent = float(inputs["domain_extent"])
     scene = _scene(n, extent, dt, nu, key, plan, BODY)
     drag = None if circle is None else _Drag(scene, circle, extent)
-    return scene, v0[:, :, 0, :], nu, _Layout(plan, n, profile), drag
+    column = _column(inputs["boundary_conditions"], profile is not None, INFLOW)
+    return scene, v0[:, :, 0, :], nu, _Layout(plan, n, profile, column), drag
 
 
 def _along(a: np.ndarray, axis: int, s) -> tuple:
@@ -660,25 +693,84 @@ class _Drag:
         return gux, guy, gp, None, gnu
 
 
-def _rollout(scene, ux, uy, steps: int, nu: float, kw: dict, drag=None):
+def _force_column(vx, column):
+    """The x-faces with the face column x = 0 set to ``column``."""
+    vx = vx.copy()
+    vx[0, :] = column
+    return vx
+
+
+def _advance(scene, vx, vy, p, k: int, nu: float, kw: dict, column=None):
+    """``k`` steps from ``(vx, vy, p)``: ``(vx', vy', p', force)``; with a
+    ``column``, one step at a time, each from the state with its x = 0 face
+    column set to it."""
+    if column is None:
+        return scene.forward(vx, vy, steps=k, pressure=p, viscosity=nu, **kw)
+    f = None
+    for _ in range(k):
+        vx, vy, p, f = scene.forward(_force_column(vx, column), vy, steps=1, pressure=p,
+                                     viscosity=nu, **kw)
+    return vx, vy, p, f
+
+
+def _rollout(scene, ux, uy, steps: int, nu: float, kw: dict, drag=None, column=None):
     """``steps`` steps from the faces ``(ux, uy)`` (pressure zero): the end
     faces, the tail states ``s_0 .. s_m`` ``(ux, uy, P)`` of the last ``m =
     _tail(steps)`` steps (``s_0`` entering the first of them; None without
-    an obstacle), and the drag (``_Drag``; 0 without an obstacle)."""
+    an obstacle), and the drag (``_Drag``; 0 without an obstacle). With a
+    ``column`` (the forced-column inflow) every step starts from the state
+    with its x = 0 face column set to it."""
     if drag is None:
-        vx, vy, _, _ = scene.forward(ux, uy, steps=steps, viscosity=nu, **kw)
+        vx, vy, _, _ = _advance(scene, ux, uy, None, steps, nu, kw, column)
         return vx, vy, None, 0.0
     m = _tail(steps)
     if steps > m:
-        vx, vy, p, _ = scene.forward(ux, uy, steps=steps - m, viscosity=nu, **kw)
+        vx, vy, p, _ = _advance(scene, ux, uy, None, steps - m, nu, kw, column)
     else:
         vx, vy, p = ux, uy, np.zeros(scene.shape, ux.dtype)
     states, forces = [(vx, vy, p)], []
     for _ in range(m):
-        vx, vy, p, f = scene.forward(vx, vy, steps=1, pressure=p, viscosity=nu, **kw)
+        vx, vy, p, f = _advance(scene, vx, vy, p, 1, nu, kw, column)
         states.append((vx, vy, p))
         forces.append(f)
     return vx, vy, states, drag.value(states, forces, nu)
+
+
+def _vjp_column(scene, ux, uy, gx, gy, gd: float, steps: int, nu: float, drag, column):
+    """The gradients ``(ux, uy, P, viscosity, wall_speed, column)`` of
+    ``<gx, ux'> + <gy, uy'> + gd * drag`` through ``steps`` steps of the
+    forced-column inflow: every step recorded, then one single-step VJP per
+    step in reverse, each at the state with its column set, the column's
+    faces' gradient moved to the profile (setting a face is the adjoint's
+    zeroing it and adding its gradient to the value it was set to)."""
+    states = [(ux, uy, np.zeros(scene.shape, ux.dtype))]
+    forces = []
+    for _ in range(steps):
+        vx, vy, p, f = _advance(scene, *states[-1], 1, nu, {}, column)
+        states.append((vx, vy, p))
+        forces.append(f)
+    m = _tail(steps) if drag is not None else 0
+    if gx is None:
+        gx, gy = np.zeros(scene.shape_x, ux.dtype), np.zeros(scene.shape_y, ux.dtype)
+    gp = np.zeros(scene.shape, ux.dtype)
+    gnu, gcol = 0.0, np.zeros_like(column)
+    for i in range(steps, 0, -1):
+        sforce = None
+        k = i - (steps - m)  # the tail index of the state s_i
+        if drag is not None and gd != 0.0 and k >= 1:
+            sux, suy, sp, sforce, snu = drag.seeds(k, states[i], m, gd, nu)
+            gx, gy, gp, gnu = gx + sux, gy + suy, gp + sp, gnu + snu
+        vx, vy, p = states[i - 1]
+        g = scene.vjp(_force_column(vx, column), vy, gx, gy, gp, sforce, steps=1, pressure=p,
+                      viscosity=nu, checkpoint_every=1)
+        gx, gy, gp = g[0].copy(), g[1], g[2]
+        gnu += g[3]
+        gcol += gx[0, :]
+        gx[0, :] = 0.0
+        if drag is not None and gd != 0.0 and i - 1 == steps - m:
+            sux, suy, sp, _, _ = drag.seeds(0, states[i - 1], m, gd, nu)
+            gx, gy, gp = gx + sux, gy + suy, gp + sp
+    return gx, gy, None, gnu, None, gcol
 
 
 def _forward(raw: dict):
@@ -688,7 +780,7 @@ def _forward(raw: dict):
     scene, v0, nu, lay, drag = _setup(raw)
     ux, uy = _zero_solid(scene, lay, *_to_faces(v0, lay))
     kw = {} if lay.q is None else {"inflow": lay.q}
-    vx, vy, _, d = _rollout(scene, ux, uy, int(raw["steps"]), nu, kw, drag)
+    vx, vy, _, d = _rollout(scene, ux, uy, int(raw["steps"]), nu, kw, drag, lay.column)
     return _to_cells(vx, vy, lay), d
 
 
@@ -756,7 +848,9 @@ def _vjp(raw: dict, vjp_inputs, vjp_outputs, cotangent_vector) -> dict:
     _keep_buffers_of(scene)
     steps = int(raw["steps"])
     gd = 0.0 if g_drag is None else float(np.asarray(g_drag).reshape(-1)[0])
-    if gd == 0.0 or drag is None:
+    if lay.column is not None:
+        g = _vjp_column(scene, ux, uy, gx, gy, gd, steps, nu, drag, lay.column)
+    elif gd == 0.0 or drag is None:
         # every step kept on the tape, as JAX's scan keeps its residuals (100
         # steps at 256² in f64: about 470 MB); no recomputation in the
         # reverse sweep

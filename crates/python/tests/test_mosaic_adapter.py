@@ -166,7 +166,7 @@ def test_immersed_drag_is_the_control_volume_force_and_near_the_exchange(immerse
     assert d < 0  # Mosaic's sign
     # the forcing's own momentum exchange (the binding's force) over the same
     # tail: the box's balance also carries the scheme's momentum error inside
-    # it (measured 7 % apart here, docs/results/mosaic.md)
+    # it (measured 8 % apart here: −0.0551 and −0.0508, docs/results/mosaic.md)
     ux, uy = ta._to_faces(v0, lay)
     _, _, states, _ = ta._rollout(scene, ux, uy, 200, nu, {"inflow": lay.q}, drag)
     exchange = [scene.forward(a, b, pressure=p, inflow=lay.q)[3][0] for a, b, p in states[:-1]]

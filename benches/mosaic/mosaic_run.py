@@ -66,8 +66,17 @@ every ε; forward/baseline: ``l2_error_rel`` per N; cost/vjp_cost/by_N and
 by_steps: mean and trials per N or per step count; the two fd_checks alike;
 optimization/drag_opt and drag_opt_1000it: initial and final drag, drag
 reduction %, iterations, wall time per solver). Set
-``DIFFPHYS_TESSERACT_DTYPE=float32`` to run our Tesseract in float32 (see
-tesseract_api.py).
+``DIFFPHYS_TESSERACT_DTYPE=float32`` to run our Tesseract in float32,
+``DIFFPHYS_TESSERACT_BODY=immersed`` (or ``immersed-solid``,
+``immersed-consistent``) for the immersed circle of the nominal radius
+instead of the staircase, ``DIFFPHYS_TESSERACT_INFLOW=forced-column`` for
+drag_opt's profile as a forced face column in the periodic box instead of
+the inflow/outflow channel (see tesseract_api.py).
+
+``gradient/fd_check_drag_opt`` runs Mosaic's ``fd_check`` in drag_opt's
+unit box: Mosaic's generic kernels take the problem's domain extent (2π for
+ns-grid) over the run's, so the kernel is wrapped to give it the run's
+(``_in_the_runs_box``; before 2026-11-29 it ran in the 2π box).
 """
 
 from __future__ import annotations
@@ -155,6 +164,30 @@ def _registered(prob, key: str) -> tuple[dict, list]:
     return run, list(exp.params.get("status_check", []))
 
 
+def _in_the_runs_box(kernel):
+    """``kernel`` on the domain extent of the run's own physics.
+
+    Mosaic's generic kernels get ``ctx.phys`` with the problem's
+    ``domain_extent`` (2π for ns-grid) written over the run's
+    (``experiment.py``: ``phys = {**base_phys, "domain_extent":
+    domain_extent}``); drag_opt's own kernel reads the run's physics (1.0).
+    Without this, fd_check on drag_opt's inputs runs in a 2π box, where the
+    cylinder of radius 0.05 is a fifth of a cell wide (one solid cell on the
+    staircase). The wrapper keeps the kernel's Mosaic configuration."""
+    import functools
+
+    from mosaic.benchmarks.core.experiment import _KERNEL_CONFIG_ATTR
+
+    @functools.wraps(kernel)
+    def wrapped(t, ctx):
+        de = ctx.run.get("physics", {}).get("domain_extent", ctx.domain_extent)
+        ctx = dataclasses.replace(ctx, phys={**ctx.phys, "domain_extent": de}, domain_extent=de)
+        return kernel(t, ctx)
+
+    setattr(wrapped, _KERNEL_CONFIG_ATTR, getattr(kernel, _KERNEL_CONFIG_ATTR))
+    return wrapped
+
+
 def register_extra_experiments() -> None:
     """Two experiments Mosaic 0.2.0 does not have, both ours, built from its
     own kernels and settings (see the module docs):
@@ -178,7 +211,7 @@ def register_extra_experiments() -> None:
     drag, _ = _registered(prob, "optimization/drag_opt")
     fd, fd_checks = _registered(prob, "gradient/fd_check")
     prob.add_experiment(
-        "gradient/fd_check_drag_opt", fd_check,
+        "gradient/fd_check_drag_opt", _in_the_runs_box(fd_check),
         plot_description="diffphys' addition: fd_check on drag_opt's inflow profile and drag.",
         status_check=fd_checks,
         ic=drag["ic"], physics=drag["physics"], fd=fd["fd"],

@@ -4,8 +4,8 @@
 
 use diffphys_flow::diagnostics::{obstacle_force, ObstacleForce};
 use diffphys_flow::{
-    Advection, Boundary, FlowParams, FlowState, FlowVars, Obstacle, ParamVars, PressureSolver,
-    Scene, Sides, Splitting, ViscosityMode,
+    Advection, Boundary, Circle, FlowParams, FlowState, FlowVars, ForcingScheme, Interior,
+    Obstacle, ParamVars, PressureSolver, Scene, Sides, Splitting, ViscosityMode,
 };
 use diffphys_tape::pool::BufferPool;
 use diffphys_tape::{ArrayD, Real, Schedule, Tape, Var};
@@ -33,8 +33,16 @@ use crate::errors::{check, InvalidArgumentError, ShapeError};
 /// viscosity=0.01, dt=0.01, inflow=None, advection="semi_lagrangian",
 /// viscosity_mode="explicit", pressure_solver="cholesky",
 /// pressure_rel_tol=1e-10, splitting="incremental", substepping=False,
-/// max_courant=1.0, buffer_limit_bytes=2**31)`. `shape` is the cells
+/// max_courant=1.0, buffer_limit_bytes=2**31, immersed=None,
+/// immersed_interior="solid", immersed_scheme="direct")`. `shape` is the cells
 /// `(nx, ny)`, `size` the domain `(lx, ly)`; `obstacle` a bool array of the cell shape (true: solid);
+/// `immersed` a circle `(cx, cy, r)` as a direct-forcing immersed boundary
+/// (`diffphys_flow::immersed`, in place of `obstacle`): the free faces next
+/// to it are forced by interpolation to the true wall; `immersed_interior`
+/// `"solid"` (the circle's cells solid, as `obstacle` would make them) or
+/// `"forced"` (no solid cell, the faces inside the circle forced to zero);
+/// `immersed_scheme` `"direct"` or `"consistent"` (the projection-consistent
+/// forcing);
 /// `sides` a preset (`"periodic"`, `"channel"`, `"cavity"`, or one side
 /// condition for all four) or a dict `{"left": …, "right": …, "bottom": …,
 /// "top": …}` of `"no_slip"`, `"free_slip"`, `"periodic"`, `"inflow"`,
@@ -50,9 +58,22 @@ use crate::errors::{check, InvalidArgumentError, ShapeError};
 /// (the y-faces), the pressure is `shape` (the cells `(nx, ny)`), the force
 /// is `(2,)`; all float32 or float64 of one dtype, results in that dtype.
 ///
-/// Raises: `InvalidArgumentError` (an unknown side, advection, solver or
-/// splitting name, a non-positive `dt` or viscosity, `steps=0`, an inflow
-/// profile of the wrong length), `ShapeError` (arrays not of the grid's
+/// The force: on an `obstacle`, the surface integral of pressure and wall
+/// shear over the staircase at the end state, differentiable (`grad_force`).
+/// On an `immersed` circle, the momentum exchange of the immersed boundary
+/// method: minus the forcing's momentum per unit time over the last step
+/// (`StepInfo::immersed_force`, the whole force with a forced interior), plus
+/// with a solid interior the staircase's surface integral at the end state.
+/// The forcing's exchange is not recorded on the tape, so `vjp` refuses a
+/// `grad_force` seed on an immersed scene: a force by the momentum balance
+/// over a box about the body is a function of the state, whose gradient
+/// goes in through `grad_ux`, `grad_uy` and `grad_pressure`.
+///
+/// Raises: `InvalidArgumentError` (an unknown side, advection, solver,
+/// splitting, immersed interior or scheme name, a non-positive `dt` or
+/// viscosity, `steps=0`, an inflow profile of the wrong length, an obstacle
+/// and an immersed circle together, a circle of radius ≤ 0, `grad_force` on
+/// an immersed circle), `ShapeError` (arrays not of the grid's
 /// shapes, an obstacle not of the cell shape), `TypeError` (not float arrays,
 /// an obstacle not a bool array), `NonFiniteError` (NaN or infinity in the
 /// state), `UnstableError` (a Courant number above `max_courant` without
@@ -141,7 +162,8 @@ impl FlowStep {
         shape, size, *, sides = None, obstacle = None, viscosity = 0.01, dt = 0.01,
         inflow = None, advection = "semi_lagrangian", viscosity_mode = "explicit",
         pressure_solver = "cholesky", pressure_rel_tol = 1e-10, splitting = "incremental",
-        substepping = false, max_courant = 1.0, buffer_limit_bytes = DEFAULT_BUFFER_LIMIT
+        substepping = false, max_courant = 1.0, buffer_limit_bytes = DEFAULT_BUFFER_LIMIT,
+        immersed = None, immersed_interior = "solid", immersed_scheme = "direct"
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -160,6 +182,9 @@ impl FlowStep {
         substepping: bool,
         max_courant: f64,
         buffer_limit_bytes: usize,
+        immersed: Option<(f64, f64, f64)>,
+        immersed_interior: &str,
+        immersed_scheme: &str,
     ) -> PyResult<Self> {
         let sides = match sides {
             Some(s) => self::sides(s)?,
@@ -216,6 +241,25 @@ impl FlowStep {
                 .into_dimensionality::<Ix2>()
                 .map_err(|_| ShapeError::new_err("obstacle must be a 2D array"))?;
             b = b.obstacle(Obstacle::Mask(mask));
+        }
+        if let Some((cx, cy, r)) = immersed {
+            if obstacle.is_some() {
+                return Err(InvalidArgumentError::new_err(
+                    "the flow step takes an obstacle or an immersed circle, not both",
+                ));
+            }
+            b = b
+                .immersed(check(Circle::new([cx, cy], r))?)
+                .immersed_interior(match immersed_interior {
+                    "solid" => Interior::Solid,
+                    "forced" => Interior::Forced,
+                    other => return Err(unknown("immersed_interior", other, "solid, forced")),
+                })
+                .immersed_scheme(match immersed_scheme {
+                    "direct" => ForcingScheme::Direct,
+                    "consistent" => ForcingScheme::ProjectionConsistent,
+                    other => return Err(unknown("immersed_scheme", other, "direct, consistent")),
+                });
         }
         if let Some(inflow) = inflow {
             b = match inflow.extract::<f64>() {
@@ -336,8 +380,8 @@ impl FlowStep {
     /// the inputs' shapes, `∂L/∂viscosity` a float, `∂L/∂wall_speed` `(4,)`,
     /// `∂L/∂inflow` `(inflow_len,)`.
     ///
-    /// Raises `InvalidArgumentError` (`steps=0`, `checkpoint_every=0`),
-    /// `ShapeError` (a seed not of its output's shape), `TypeError`,
+    /// Raises `InvalidArgumentError` (`steps=0`, `checkpoint_every=0`,
+    /// `grad_force` on an immersed circle), `ShapeError` (a seed not of its output's shape), `TypeError`,
     /// `NonFiniteError`, `UnstableError`, `NotConvergedError`.
     #[pyo3(signature = (ux, uy, grad_ux = None, grad_uy = None, grad_pressure = None,
                         grad_force = None, *, steps = 1, pressure = None, viscosity = None,
@@ -370,6 +414,13 @@ impl FlowStep {
             wall_speed,
             inflow,
         };
+        if grad_force.is_some() && self.scene.immersed().is_some() {
+            return Err(InvalidArgumentError::new_err(
+                "grad_force on an immersed circle: the forcing's momentum exchange is not on the \
+                 tape; seed a force of the state (a momentum balance over a box) through \
+                 grad_ux, grad_uy and grad_pressure",
+            ));
+        }
         let seeds = [grad_ux, grad_uy, grad_pressure, grad_force];
         match dtype_of(ux, "ux")? {
             Dtype::F32 => self.vjp_t::<f32>(ux, uy, seeds, &args, checkpoint_every),
@@ -457,16 +508,23 @@ impl FlowStep {
         let (end, force) = check(py.detach(|| {
             scene.on_pool(|| {
                 let mut s = state;
+                let mut exchange = [0.0; 2];
                 for _ in 0..steps {
-                    s = scene.forward(&s, &params)?.0;
+                    let (next, info) = scene.forward(&s, &params)?;
+                    (s, exchange) = (next, info.immersed_force);
                 }
-                let f = obstacle_force(
+                let mut f = obstacle_force(
                     scene.force_weights(),
                     s.ux.view(),
                     s.uy.view(),
                     s.pressure.view(),
                     params.viscosity,
                 )?;
+                // an immersed body's force is the forcing's exchange over
+                // the last step (zero on a scene without one), see the class
+                for (a, e) in f.iter_mut().zip(exchange) {
+                    *a += T::from_f64(e);
+                }
                 Ok::<_, diffphys_flow::FlowError>((s, f))
             })
         }))?;

@@ -142,6 +142,9 @@ class FlowStep:
         substepping: bool = False,
         max_courant: float = 1.0,
         buffer_limit_bytes: int = ...,
+        immersed: tuple[float, float, float] | None = None,
+        immersed_interior: Literal["solid", "forced"] = "solid",
+        immersed_scheme: Literal["direct", "consistent"] = "direct",
     ) -> FlowStep: ...
     @property
     def held_bytes(self) -> int: ...

@@ -69,9 +69,12 @@ struct Scene {
 impl Scene {
     fn new() -> Result<Self, BoxError> {
         let mac = MacGrid::new(Grid2::new(80, 64, 1.0, 1.0, Boundary::Closed)?);
+        // the wall faces are closed: no velocity, no target, no control there
+        let open = mac.open_faces_x().mapv(|o| f64::from(u8::from(o)));
+        let open_y = mac.open_faces_y().mapv(|o| f64::from(u8::from(o)));
         let indicator = |keep: fn(f64) -> bool| Faces {
-            x: mac.sample_x(|c| f64::from(u8::from(keep(c[0])))),
-            y: mac.sample_y(|c| f64::from(u8::from(keep(c[0])))),
+            x: mac.sample_x(|c| f64::from(u8::from(keep(c[0])))) * &open,
+            y: mac.sample_y(|c| f64::from(u8::from(keep(c[0])))) * &open_y,
         };
         let left = indicator(|x| x <= 40.0);
         let right = indicator(|x| x >= 40.0);
@@ -95,8 +98,8 @@ impl Scene {
     fn initial_velocity(&self, seed: u64) -> Faces {
         let mut rng = StdRng::seed_from_u64(seed);
         let (nx, ny) = (SmoothNoise::new(&mut rng), SmoothNoise::new(&mut rng));
-        let x = nx.normalised(self.mac.sample_x(|c| nx.value(c)));
-        let y = ny.normalised(self.mac.sample_y(|c| ny.value(c)));
+        let x = nx.normalised(self.mac.sample_x(|c| nx.value(c)), &self.mac.open_faces_x());
+        let y = ny.normalised(self.mac.sample_y(|c| ny.value(c)), &self.mac.open_faces_y());
         Faces { x, y }.zip(&self.left, |v, l| 0.1 * v * l)
     }
 }
@@ -137,15 +140,16 @@ impl SmoothNoise {
             .sum()
     }
 
-    /// `field` shifted and scaled to zero mean and unit standard deviation.
-    fn normalised(&self, field: ArrayD<f64>) -> ArrayD<f64> {
-        let mean = field.mean().unwrap_or(0.0);
-        let std = field
-            .mapv(|v| (v - mean).powi(2))
-            .mean()
-            .unwrap_or(1.0)
-            .sqrt();
-        field.mapv(|v| (v - mean) / std)
+    /// `field` shifted and scaled to zero mean and unit standard deviation
+    /// over the `open` faces, zero on the closed ones.
+    fn normalised(&self, field: ArrayD<f64>, open: &ArrayD<bool>) -> ArrayD<f64> {
+        let on_open = || field.iter().zip(open).filter(|(_, &o)| o).map(|(&v, _)| v);
+        let n = on_open().count().max(1) as f64;
+        let mean = on_open().sum::<f64>() / n;
+        let std = (on_open().map(|v| (v - mean).powi(2)).sum::<f64>() / n).sqrt();
+        Zip::from(&field)
+            .and(open)
+            .map_collect(|&v, &o| if o { (v - mean) / std } else { 0.0 })
     }
 }
 

@@ -28,10 +28,7 @@ pub fn parse_re_list(
     text: &str,
     split: Split,
 ) -> Result<Vec<f64>> {
-    let list = text
-        .split(',')
-        .map(str::trim)
-        .filter(|s| !s.is_empty())
+    let list = entries(text)
         .map(|s| {
             s.parse::<f64>().map_err(|_| HybridError::Argument {
                 option: option.into(),
@@ -50,8 +47,13 @@ pub fn parse_re_list(
     Ok(list)
 }
 
-/// A comma-separated list, each entry parsed by `parse` (`None`: not
-/// `what`).
+/// The non-empty, trimmed entries of a comma-separated list.
+fn entries(text: &str) -> impl Iterator<Item = &str> {
+    text.split(',').map(str::trim).filter(|s| !s.is_empty())
+}
+
+/// A comma-separated list, each entry parsed by `parse` (`Err`: why the
+/// entry is not `what`).
 ///
 /// # Errors
 /// [`HybridError::Argument`] for an entry `parse` refuses, or no entry.
@@ -59,17 +61,14 @@ pub fn checked_list<T>(
     option: &str,
     what: &str,
     text: &str,
-    parse: impl Fn(&str) -> Option<T>,
+    parse: impl Fn(&str) -> std::result::Result<T, String>,
 ) -> Result<Vec<T>> {
     let argument = |message: String| HybridError::Argument {
         option: option.into(),
         message,
     };
-    let list = text
-        .split(',')
-        .map(str::trim)
-        .filter(|s| !s.is_empty())
-        .map(|s| parse(s).ok_or_else(|| argument(format!("not {what}: {s:?}"))))
+    let list = entries(text)
+        .map(|s| parse(s).map_err(argument))
         .collect::<Result<Vec<T>>>()?;
     if list.is_empty() {
         return Err(argument(format!("lists no {what}")));
@@ -361,7 +360,8 @@ impl Options {
         }
         if let Some(list) = &args.variants {
             let mut variants = vec![Variant::Src];
-            for name in list.split(',').filter(|s| !s.trim().is_empty()) {
+            // each entry's own typed error (an unknown variant, an unroll of 0)
+            for name in entries(list) {
                 let variant: Variant = name.parse()?;
                 if !variants.contains(&variant) {
                     variants.push(variant);
@@ -373,8 +373,8 @@ impl Options {
             o.learning_rates =
                 checked_list("--lrs", "a positive learning rate", list, |s| {
                     match s.parse::<f64>() {
-                        Ok(x) if x.is_finite() && x > 0.0 => Some(x),
-                        _ => None,
+                        Ok(x) if x.is_finite() && x > 0.0 => Ok(x),
+                        _ => Err(format!("not a positive learning rate: {s:?}")),
                     }
                 })?;
         }
@@ -382,19 +382,12 @@ impl Options {
             o.capacity = Vec::new();
         }
         if let Some(list) = &args.capacity_sizes {
-            o.capacity = list
-                .split(',')
-                .filter(|s| !s.trim().is_empty())
-                .map(|s| {
-                    s.trim()
-                        .parse::<NetSize>()
-                        .map_err(|e| HybridError::Argument {
-                            option: "--capacity-sizes".into(),
-                            message: e.to_string(),
-                        })
-                })
-                .filter(|s| s.as_ref().map_or(true, |s| *s != main_size))
-                .collect::<Result<_>>()?;
+            o.capacity = checked_list("--capacity-sizes", "a network size", list, |s| {
+                s.parse::<NetSize>().map_err(|e| e.to_string())
+            })?
+            .into_iter()
+            .filter(|s| *s != main_size)
+            .collect();
         }
         o.speed = !args.no_speed;
         Ok(o)
@@ -406,8 +399,11 @@ impl Options {
 /// # Errors
 /// [`HybridError::Argument`] for a list that is not seeds, or an empty one.
 pub fn seeds(args: &TrainArgs) -> Result<(Vec<u64>, Vec<u64>)> {
-    let list =
-        |option: &str, text: &str| checked_list(option, "a seed", text, |s| s.parse::<u64>().ok());
+    let list = |option: &str, text: &str| {
+        checked_list(option, "a seed", text, |s| {
+            s.parse::<u64>().map_err(|_| format!("not a seed: {s:?}"))
+        })
+    };
     let data = match (&args.data_seeds, args.data_seed) {
         (Some(list_text), _) => list("--data-seeds", list_text)?,
         (None, Some(seed)) => vec![seed],

@@ -5,15 +5,23 @@
 //! L2 error and the velocity's deviation from the free stream), and each
 //! level's forces on the body over the window (the mean drag coefficient,
 //! the lift's periods and the Strouhal number from them).
+//!
+//! Two levels run apart from a common start drift out of phase where the
+//! wake sheds; a hybrid, though, is trained and scored on rollouts that start
+//! from the reference's own states. So the check also measures the
+//! difference over that horizon ([`Windows::horizon`]): the coarser level
+//! restarted from the finer level's state at each rollout start, against
+//! the finer level over the rollout.
 
 use diffphys_flow::diagnostics::obstacle_force;
+use diffphys_flow::restrict::restrict_velocity;
 use diffphys_flow::validation::Shedding;
 use diffphys_flow::{FlowState, Scene};
 use ndarray::{ArrayD, ArrayViewD};
 use serde_json::{json, Value};
 
 use crate::metrics::{deviation_error, velocity_error};
-use crate::reference::Recorder;
+use crate::reference::{advance, Recorder};
 use crate::{HybridError, Result};
 
 /// One level of the check: a fine scene at `factor` × the coarse grid.
@@ -33,6 +41,8 @@ pub struct Window {
     pub states: Vec<FlowState<f64>>,
     /// `(c_D, c_L)` after each coarse step.
     pub forces: Vec<[f64; 2]>,
+    /// The fine velocity at each of the rollout starts asked for.
+    pub fine_starts: Vec<(ndarray::Array2<f64>, ndarray::Array2<f64>)>,
 }
 
 /// What every window of a check shares.
@@ -51,7 +61,8 @@ pub struct Windows<'a> {
 
 impl Windows<'_> {
     /// `record` coarse steps of `level` at `(re, nu)` after `warm` from
-    /// `base`; `tick` counts the fine steps.
+    /// `base`, keeping the fine velocity at the recorded steps `starts`;
+    /// `tick` counts the coarse steps.
     ///
     /// # Errors
     /// Whatever the recording and the force evaluation return.
@@ -60,6 +71,7 @@ impl Windows<'_> {
         level: &Level,
         base: &FlowState<f64>,
         (re, nu): (f64, f64),
+        starts: &[usize],
         tick: &(dyn Fn(u64) + Sync),
     ) -> Result<Window> {
         let u = self.free_stream[0];
@@ -71,7 +83,7 @@ impl Windows<'_> {
             factor: level.factor,
             warm: self.warm,
             record: self.record,
-            starts: &[],
+            starts,
         };
         let reference = recorder.record(base, (re, nu), tick, &mut |s| {
             let w = level.fine.force_weights();
@@ -82,7 +94,70 @@ impl Windows<'_> {
         Ok(Window {
             states: reference.states,
             forces,
+            fine_starts: reference.fine_starts,
         })
+    }
+
+    /// The difference over a rollout's horizon at `(re, nu)`: from the finer
+    /// level's fine velocity at each start it kept (its window's
+    /// `fine_starts`, at the recorded steps `starts`), restricted to `ours`'
+    /// grid, `ours` runs `rollout` coarse steps (a zero-pressure start, as a
+    /// rollout's); each step is compared, on the coarse grid, with the finer
+    /// window's state. Mean over starts and steps: `(state, deviation)`.
+    ///
+    /// # Errors
+    /// [`HybridError::Trajectory`] if the finer window kept other starts, a
+    /// start's rollout leaves the window, or the difference is not finite;
+    /// a step's or a restriction's error.
+    pub fn horizon(
+        &self,
+        (ours, finer): (&Level, &Window),
+        (starts, rollout, ratio): (&[usize], usize, usize),
+        (re, nu): (f64, f64),
+        tick: &(dyn Fn(u64) + Sync),
+    ) -> Result<(f64, f64)> {
+        let bad = |message: String| HybridError::Trajectory {
+            what: "reference convergence over a rollout",
+            message,
+        };
+        if finer.fine_starts.len() != starts.len() || rollout == 0 {
+            return Err(bad(format!(
+                "{} kept starts for {} asked, a rollout of {rollout} steps",
+                finer.fine_starts.len(),
+                starts.len()
+            )));
+        }
+        let (mut state, mut deviation, mut n) = (0.0, 0.0, 0.0);
+        for (&t0, (fx, fy)) in starts.iter().zip(&finer.fine_starts) {
+            if t0 + rollout >= finer.states.len() {
+                return Err(bad(format!(
+                    "a rollout of {rollout} steps from step {t0} leaves the window of {}",
+                    finer.states.len()
+                )));
+            }
+            let grid = ours.fine.grid();
+            let (ux, uy) = restrict_velocity(grid, ratio, fx.view(), fy.view())?;
+            let mut s = FlowState::from_velocity(&ours.fine, ux, uy);
+            for k in 1..=rollout {
+                s = advance(&ours.fine, ours.factor, s, nu, 1, tick)?;
+                let (cx, cy) =
+                    restrict_velocity(self.coarse.grid(), ours.factor, s.ux.view(), s.uy.view())?;
+                let reached = FlowState::from_velocity(self.coarse, cx, cy);
+                let truth = &finer.states[t0 + k];
+                state += velocity_error((&reached.ux, &reached.uy), truth);
+                let (p, r) = (
+                    self.coarse.sample_of(&reached),
+                    self.coarse.sample_of(truth),
+                );
+                deviation += deviation_error(self.coarse, self.free_stream, &views(&p), &views(&r));
+                n += 1.0;
+            }
+        }
+        let (state, deviation) = (state / n, deviation / n);
+        if !(state.is_finite() && deviation.is_finite()) {
+            return Err(bad(format!("a non-finite difference at Re {re}")));
+        }
+        Ok((state, deviation))
     }
 
     /// The difference of two levels' windows at one Reynolds number `re`,

@@ -70,18 +70,30 @@ impl Wake {
             free_stream: [c.inflow, 0.0],
             length: c.diameter,
         };
+        // the finer level keeps its fine velocity at the rollout starts
+        let kept = |l: usize| if l + 1 == n { &s.starts[..] } else { &[][..] };
         let windows = run_jobs(&jobs, threads, |&(i, re, l)| {
             let base = &base_states[i * n + l];
-            w.window(&levels[l], base, (re, c.viscosity(re)), &tick)
+            w.window(&levels[l], base, (re, c.viscosity(re)), kept(l), &tick)
         })?;
         bar.finish_and_clear();
+        // the reference restarted from the finer level over each rollout
+        let ratio = levels[1].factor / levels[0].factor;
+        let per_pair: Vec<usize> = (0..jobs.len() / n).collect();
+        let horizons = run_jobs(&per_pair, threads, |&k| {
+            let re = jobs[k * n].1;
+            let finer = &windows[k * n + 1];
+            let setting = (&s.starts[..], s.rollout, ratio);
+            w.horizon((&levels[0], finer), setting, (re, c.viscosity(re)), &|_| {})
+        })?;
         let mut per_re = Vec::new();
-        for (pair, level_windows) in jobs.chunks(n).zip(windows.chunks(n)) {
+        let pairs = jobs.chunks(n).zip(windows.chunks(n)).zip(&horizons);
+        for ((pair, level_windows), &(h_state, h_deviation)) in pairs {
             let (i, re, _) = pair[0];
             let (ours, finer) = (&level_windows[0], &level_windows[1]);
             let (state, deviation) = w.difference(ours, finer, re)?;
             println!(
-                "  {:?} Re {re:>6}: reference against one level finer, state {state:.4}, deviation {deviation:.4}",
+                "  {:?} Re {re:>6}: reference against one level finer, state {state:.4}, deviation {deviation:.4}; over a rollout from the finer state {h_state:.4}, {h_deviation:.4}",
                 splits[i]
             );
             let forces =
@@ -91,6 +103,8 @@ impl Wake {
                 "re": re,
                 "state_difference": state,
                 "deviation_difference": deviation,
+                "rollout_state_difference": h_state,
+                "rollout_deviation_difference": h_deviation,
                 format!("forces_{}x", levels[0].factor): forces(ours),
                 format!("forces_{}x", levels[1].factor): forces(finer),
             }));
@@ -99,6 +113,8 @@ impl Wake {
             "data_seed": data_seed,
             "levels": levels.iter().map(|l| [l.fine.grid().ny, l.fine.grid().nx]).collect::<Vec<_>>(),
             "recorded_steps": s.record,
+            "rollout_starts": s.starts,
+            "rollout_steps": s.rollout,
             "per_re": per_re,
         }))
     }

@@ -16,7 +16,14 @@ limited), nothing in the adapter changed by them:
   a(t) = a(0) exp(-2 k^2 nu_eff t), k = 2 pi, at nu = 0.0025 and nu = 1e-9
   (the numerical part alone).
 
-    python benches/mosaic/drag_opt_advection.py
+* ``sensitivity``: at N = 32 (Mosaic's drag_opt, flat profile) the drag's
+  gradient to the profile, and what a first Adam step (each value moved by
+  the learning rate 5e-4 against its gradient's sign) and a change of 0.125
+  (250 such steps) would take off |drag| to first order, in %.
+
+    python benches/mosaic/drag_opt_advection.py              # all three
+    python benches/mosaic/drag_opt_advection.py sensitivity  # the last only,
+                                                             # into the file
 
 Prints one JSON line and writes it to benches/mosaic/drag_opt_advection.json.
 """
@@ -55,7 +62,6 @@ def _inputs(n: int) -> dict:
 
 def refinement(ta, scheme: str, n: int) -> dict:
     ta.BODY, ta.ADVECTION = "immersed", scheme
-    ta._scene.cache_clear()
     raw = _inputs(n)
     t = time.perf_counter()
     scene, v0, nu, lay, drag = ta._setup(raw)
@@ -87,8 +93,25 @@ def tgv(scheme: str, nu: float, n: int = 32, dt: float = 0.02, steps: int = 200)
             "nu_eff": float(nu_eff), "nu_numerical": float(nu_eff - nu)}
 
 
+def sensitivity(ta, scheme: str) -> dict:
+    ta.BODY, ta.ADVECTION = "immersed", scheme
+    raw = _inputs(32)
+    d = ta._forward(raw)[1]
+    g = ta._vjp(raw, {"inflow_profile"}, {"drag"}, {"drag": np.array([1.0])})["inflow_profile"]
+    l1 = float(np.abs(g).sum())
+    return {"advection": scheme, "drag": d, "grad_l1": l1,
+            "first_step_pct": 100 * 5e-4 * l1 / abs(d), "change_0.125_pct": 100 * 0.125 * l1 / abs(d)}
+
+
 def main() -> None:
     ta = _adapter()
+    if sys.argv[1:] == ["sensitivity"]:
+        out = json.loads(OUT.read_text())
+        out["sensitivity"] = [sensitivity(ta, s) for s in SCHEMES]
+        line = json.dumps(out)
+        OUT.write_text(line + "\n")
+        print(line)
+        return
     out = {"check": "drag_opt_advection", "U": U, "D": D, "nu": NU,
            "tgv": [tgv(s, nu) for s in SCHEMES for nu in (NU, 1e-9)], "refinement": []}
     print(json.dumps(out["tgv"]), flush=True)
@@ -96,6 +119,7 @@ def main() -> None:
         for s in SCHEMES:
             out["refinement"].append(refinement(ta, s, n))
             print(json.dumps(out["refinement"][-1]), flush=True)
+    out["sensitivity"] = [sensitivity(ta, s) for s in SCHEMES]
     line = json.dumps(out)
     OUT.write_text(line + "\n")
     print(line)

@@ -368,7 +368,8 @@ def _obstacle_mask(circle: tuple[float, float, float], n: int) -> np.ndarray:
 
 @functools.lru_cache(maxsize=8)
 def _scene(n: int, extent: float, dt: float, nu: float, circle: tuple | None,
-           plan: tuple | None = None, kind: str = "staircase"):
+           plan: tuple | None = None, kind: str = "staircase",
+           advection: str = "semi_lagrangian"):
     # the body (module docs, BODY): a staircase mask, or the immersed circle
     # with its interior and forcing scheme
     solid, body = None, {}
@@ -392,14 +393,14 @@ def _scene(n: int, extent: float, dt: float, nu: float, circle: tuple | None,
     if plan is None:
         return dp.FlowStep((n, n), (extent, extent), sides="periodic", obstacle=solid,
                            viscosity=nu, dt=dt, pressure_solver=solver, substepping=True,
-                           viscosity_mode=viscosity_mode, advection=ADVECTION, **body)
+                           viscosity_mode=viscosity_mode, advection=advection, **body)
     sides = {side: spec for _, side, spec, _ in plan}
     # the scene's default profile is a placeholder: every call passes its own
     inflow = [0.0] * n if any(spec == "inflow" for _, _, spec, _ in plan) else None
     try:
         return dp.FlowStep((n, n), (extent, extent), sides=sides, obstacle=solid,
                            viscosity=nu, dt=dt, inflow=inflow, pressure_solver=solver,
-                           substepping=True, viscosity_mode=viscosity_mode, advection=ADVECTION,
+                           substepping=True, viscosity_mode=viscosity_mode, advection=advection,
                            **body)
     except dp.DiffphysError as e:
         faces = ", ".join(f"{name} -> {spec!r}" for name, _, spec, _ in plan)
@@ -478,7 +479,7 @@ def _setup(inputs: dict):
     profile = inputs.get("inflow_profile")
     plan = _plan(inputs["boundary_conditions"], profile is not None)
     extent = float(inputs["domain_extent"])
-    scene = _scene(n, extent, dt, nu, key, plan, BODY)
+    scene = _scene(n, extent, dt, nu, key, plan, BODY, ADVECTION)
     drag = None if circle is None else _Drag(scene, circle, extent)
     column = _column(inputs["boundary_conditions"], profile is not None, INFLOW)
     return scene, v0[:, :, 0, :], nu, _Layout(plan, n, profile, column), drag

@@ -121,6 +121,16 @@ inside the box over the tail), which is a function of the states and so
 has a gradient through the steps (the forcing's own momentum exchange,
 which ``FlowStep`` reports as its force, is not on diffphys' tape).
 
+The advection. Every step advects the velocity semi-Lagrangian by default
+(``FlowStep(advection="semi_lagrangian")``: a backward trace and a linear
+interpolation, first order, whose interpolation diffuses). Set the
+environment variable ``DIFFPHYS_TESSERACT_ADVECTION`` (before the
+Tesseract is loaded) to ``maccormack`` for diffphys' MacCormack advection
+(a forward and a backward semi-Lagrangian trace, second order, with its
+limiter; ``FlowStep(advection="maccormack")``, with its adjoint). The
+default stays semi-Lagrangian so that the figures measured with it stand;
+docs/results/mosaic.md (optimization/drag_opt) measures what each gives.
+
 Not supported (each raises a ValueError naming the face and kind): a
 ``dirichlet`` value with both a normal and a tangential component (diffphys'
 inflow has no tangential velocity, its moving wall no normal one); a value
@@ -205,6 +215,12 @@ BODY = os.environ.get("DIFFPHYS_TESSERACT_BODY", "staircase")
 INFLOW = os.environ.get("DIFFPHYS_TESSERACT_INFLOW", "channel")
 if INFLOW not in ("channel", "forced-column"):
     raise ValueError(f"DIFFPHYS_TESSERACT_INFLOW must be channel or forced-column, not {INFLOW!r}")
+# The advection of every step (see the module docs): "semi_lagrangian" or
+# "maccormack" (limited), the names FlowStep takes.
+ADVECTION = os.environ.get("DIFFPHYS_TESSERACT_ADVECTION", "semi_lagrangian")
+if ADVECTION not in ("semi_lagrangian", "maccormack"):
+    raise ValueError("DIFFPHYS_TESSERACT_ADVECTION must be semi_lagrangian or maccormack, "
+                     f"not {ADVECTION!r}")
 if BODY != "staircase" and BODY not in _IMMERSED:
     raise ValueError("DIFFPHYS_TESSERACT_BODY must be staircase, "
                      f"{', '.join(_IMMERSED)}, not {BODY!r}")
@@ -352,7 +368,8 @@ def _obstacle_mask(circle: tuple[float, float, float], n: int) -> np.ndarray:
 
 @functools.lru_cache(maxsize=8)
 def _scene(n: int, extent: float, dt: float, nu: float, circle: tuple | None,
-           plan: tuple | None = None, kind: str = "staircase"):
+           plan: tuple | None = None, kind: str = "staircase",
+           advection: str = "semi_lagrangian"):
     # the body (module docs, BODY): a staircase mask, or the immersed circle
     # with its interior and forcing scheme
     solid, body = None, {}
@@ -376,14 +393,15 @@ def _scene(n: int, extent: float, dt: float, nu: float, circle: tuple | None,
     if plan is None:
         return dp.FlowStep((n, n), (extent, extent), sides="periodic", obstacle=solid,
                            viscosity=nu, dt=dt, pressure_solver=solver, substepping=True,
-                           viscosity_mode=viscosity_mode, **body)
+                           viscosity_mode=viscosity_mode, advection=advection, **body)
     sides = {side: spec for _, side, spec, _ in plan}
     # the scene's default profile is a placeholder: every call passes its own
     inflow = [0.0] * n if any(spec == "inflow" for _, _, spec, _ in plan) else None
     try:
         return dp.FlowStep((n, n), (extent, extent), sides=sides, obstacle=solid,
                            viscosity=nu, dt=dt, inflow=inflow, pressure_solver=solver,
-                           substepping=True, viscosity_mode=viscosity_mode, **body)
+                           substepping=True, viscosity_mode=viscosity_mode, advection=advection,
+                           **body)
     except dp.DiffphysError as e:
         faces = ", ".join(f"{name} -> {spec!r}" for name, _, spec, _ in plan)
         raise ValueError(f"diffphys' adapter: diffphys cannot build this scene ({faces}): {e}") from e
@@ -461,7 +479,7 @@ def _setup(inputs: dict):
     profile = inputs.get("inflow_profile")
     plan = _plan(inputs["boundary_conditions"], profile is not None)
     extent = float(inputs["domain_extent"])
-    scene = _scene(n, extent, dt, nu, key, plan, BODY)
+    scene = _scene(n, extent, dt, nu, key, plan, BODY, ADVECTION)
     drag = None if circle is None else _Drag(scene, circle, extent)
     column = _column(inputs["boundary_conditions"], profile is not None, INFLOW)
     return scene, v0[:, :, 0, :], nu, _Layout(plan, n, profile, column), drag

@@ -515,7 +515,15 @@ impl ForcingImpulse {
         self.0.get()
     }
 
-    fn add(&self, m: [f64; 2]) {
+    /// Adds the momentum the forcing of `body` changed in going from
+    /// `before` to `after` ([`ImmersedCircle::momentum_change`]).
+    fn record<T: Real>(
+        &self,
+        body: &ImmersedCircle,
+        before: (ArrayView2<'_, T>, ArrayView2<'_, T>),
+        after: (ArrayView2<'_, T>, ArrayView2<'_, T>),
+    ) {
+        let m = body.momentum_change(before, after);
         let t = self.0.get();
         self.0.set([t[0] + m[0], t[1] + m[1]]);
     }
@@ -551,10 +559,8 @@ impl<T: Real> Op<T> for ImmersedForcing {
         TapeError::check_arity(NAME, 3, inputs.len())?;
         let (ux0, uy0) = (view2(&inputs[0])?, view2(&inputs[1])?);
         let (ux, uy) = immersed_forcing(&self.body, ux0, uy0, view1(&inputs[2])?)?;
-        self.impulse.add(
-            self.body
-                .momentum_change((ux0, uy0), (ux.view(), uy.view())),
-        );
+        self.impulse
+            .record(&self.body, (ux0, uy0), (ux.view(), uy.view()));
         Ok(vec![ux.into_dyn(), uy.into_dyn()])
     }
 

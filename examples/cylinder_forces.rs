@@ -50,7 +50,9 @@
 //! a fifth piece, the momentum the forcing takes out of the faces next to the
 //! body. `--interior forced` makes no cell of the circle solid (every face
 //! inside it forced to zero, the pressure across the body): the forcing is
-//! then the whole exchange with the body. The "two methods" line sets the
+//! then the whole exchange with the body; `--interior closed` also closes
+//! those faces in the pressure operator (the body's force then adds the
+//! pressure on them). The "two methods" line sets the
 //! body's own force (`DfgChannel::body_force`: the forcing's momentum per
 //! unit time, plus on a solid interior the staircase's exchange) beside the
 //! control volume of half-width 0.10, their difference in % of the drag; on
@@ -66,7 +68,7 @@
 //!
 //! `cargo run --release --example cylinder_forces -- [--cpd 10,20,40]
 //! [--cases 2d1,symmetric] [--tol 1e-4] [--max-time 40] [--courant 0.4]
-//! [--immersed [--interior solid|forced] [--forcing direct|consistent]]
+//! [--immersed [--interior solid|forced|closed] [--forcing direct|consistent]]
 //! [--small] [--out DIR]`
 //! (`--small`: 10 cells across only)
 
@@ -351,6 +353,7 @@ fn run(cpd: usize, height: f64, opt: &Options) -> Result<(Value, Vec<FloorCheck>
     case.channel.immersed = opt.immersed;
     case.channel.interior = match opt.interior.as_str() {
         "forced" => Interior::Forced,
+        "closed" => Interior::Closed,
         _ => Interior::Solid,
     };
     case.channel.scheme = match opt.forcing.as_str() {
@@ -560,8 +563,9 @@ struct Options {
     #[arg(long)]
     immersed: bool,
     /// What lies inside the immersed circle: solid cells (the staircase's,
-    /// pinned) or faces forced to zero with the pressure across the body.
-    #[arg(long, default_value = "solid", value_parser = ["solid", "forced"])]
+    /// pinned), faces forced to zero with the pressure across the body
+    /// (forced), or those faces also closed in the pressure operator (closed).
+    #[arg(long, default_value = "solid", value_parser = ["solid", "forced", "closed"])]
     interior: String,
     /// How the immersed circle's faces are forced: the interpolation before
     /// the projection (direct), or projection-consistently (the predicted

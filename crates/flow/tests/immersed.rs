@@ -79,7 +79,7 @@ fn the_body_forces_the_free_faces_next_to_it() {
 
 #[test]
 fn the_forcing_passes_the_dot_product_test() {
-    for interior in [Interior::Solid, Interior::Forced] {
+    for interior in [Interior::Solid, Interior::Forced, Interior::Closed] {
         forcing_passes_the_dot_product_test(&scene_with(shape(), interior));
     }
 }
@@ -197,6 +197,57 @@ fn a_forced_interior_is_fluid_and_its_force_is_the_forcings_momentum() {
     assert_eq!(info.immersed_force, [0.0; 2]);
 }
 
+/// A closed interior: the faces the forcing zeroes are closed in the
+/// pressure operator too, so a whole step (projection included) leaves every
+/// face inside the circle at zero; no cell is solid for the velocity, and
+/// without a closed face the pressure's force on them is zero.
+#[test]
+fn a_closed_interior_leaves_the_faces_inside_the_circle_at_zero_after_the_step() {
+    let scene = scene_with(shape(), Interior::Closed);
+    assert!(scene.solid().iter().all(|&c| !c));
+    let (ux, uy) = common::velocity(&scene, 1.0, 43);
+    let s0 = FlowState::from_velocity(&scene, ux, uy);
+    let (s1, _) = scene.forward(&s0, &scene.params()).unwrap();
+    let g = scene.grid();
+    let inside =
+        |[x, y]: [f64; 2]| (x - CENTRE[0]).powi(2) + (y - CENTRE[1]).powi(2) < RADIUS * RADIUS;
+    let mut zeros = 0;
+    for ((i, j), v) in s1.ux.indexed_iter() {
+        if inside([i as f64 * g.dx, (j as f64 + 0.5) * g.dy]) {
+            assert_eq!(*v, 0.0, "x-face ({i}, {j})");
+            zeros += 1;
+        }
+    }
+    for ((i, j), v) in s1.uy.indexed_iter() {
+        if inside([(i as f64 + 0.5) * g.dx, j as f64 * g.dy]) {
+            assert_eq!(*v, 0.0, "y-face ({i}, {j})");
+            zeros += 1;
+        }
+    }
+    assert!(zeros > 20, "{zeros}");
+    let force = scene
+        .immersed()
+        .unwrap()
+        .closed_pressure_force(s1.pressure.view());
+    assert!(
+        force.iter().all(|f| f.is_finite() && *f != 0.0),
+        "{force:?}"
+    );
+    // a forced interior (the pressure spans the body) moves them off zero
+    let open = scene_with(shape(), Interior::Forced);
+    let (s1, _) = open.forward(&s0, &open.params()).unwrap();
+    let moved = s1
+        .ux
+        .indexed_iter()
+        .any(|((i, j), v)| inside([i as f64 * g.dx, (j as f64 + 0.5) * g.dy]) && *v != 0.0);
+    assert!(moved);
+    let none = open
+        .immersed()
+        .unwrap()
+        .closed_pressure_force(s1.pressure.view());
+    assert_eq!(none, [0.0; 2]);
+}
+
 const STEPS: usize = 20;
 
 /// `<u_x, w_x> + <u_y, w_y>` of the state after [`STEPS`] steps of the
@@ -223,6 +274,11 @@ fn gradients_through_twenty_steps_match_central_differences() {
 #[test]
 fn gradients_through_twenty_steps_with_a_forced_interior_match_central_differences() {
     gradients_through_twenty_steps(Interior::Forced, ForcingScheme::Direct);
+}
+
+#[test]
+fn gradients_through_twenty_steps_with_a_closed_interior_match_central_differences() {
+    gradients_through_twenty_steps(Interior::Closed, ForcingScheme::Direct);
 }
 
 #[test]
@@ -412,7 +468,7 @@ fn bad_bodies_are_typed_errors() {
 #[test]
 fn the_consistent_forcing_passes_the_dot_product_test() {
     let tau = 0.013;
-    for interior in [Interior::Solid, Interior::Forced] {
+    for interior in [Interior::Solid, Interior::Forced, Interior::Closed] {
         let scene = scene_scheme(shape(), interior, ForcingScheme::ProjectionConsistent);
         let (body, faces) = (scene.immersed().unwrap(), scene.faces());
         let s = arr1(&shape());

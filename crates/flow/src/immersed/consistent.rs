@@ -52,7 +52,7 @@ use std::sync::Arc;
 use super::{immersed_forcing, immersed_forcing_vjp, ForcingImpulse, ImmersedCircle};
 use crate::boundaries::{view1, view2, Faces};
 use crate::buffers::{narrow, wide};
-use crate::pressure::subtract_pressure_gradient;
+use crate::grid::FlowGrid;
 use crate::staggered::{divergence_wide, gradient_wide};
 use crate::Result;
 
@@ -87,14 +87,12 @@ pub fn consistent_forcing<T: Real>(
     body: &ImmersedCircle,
     faces: &Faces,
     tau: f64,
-    (ux, uy): (ArrayView2<'_, T>, ArrayView2<'_, T>),
+    u: (ArrayView2<'_, T>, ArrayView2<'_, T>),
     pressure: ArrayView2<'_, T>,
     shape: ArrayView1<'_, T>,
 ) -> Result<(Array2<T>, Array2<T>)> {
-    let grid = body.grid();
-    let (vx, vy) = subtract_pressure_gradient(grid, faces, tau, ux, uy, pressure)?;
-    let (fx, fy) = immersed_forcing(body, vx.view(), vy.view(), shape)?;
-    let (gx, gy) = gradient_wide(grid, Some(faces), &wide(pressure));
+    let p = Prediction::new(body.grid(), faces, tau, u, pressure)?;
+    let (fx, fy) = immersed_forcing(body, p.v.0.view(), p.v.1.view(), shape)?;
     let [(forced_x, sx), (forced_y, sy)] = body.components();
     let put = |forced: &[super::ForcedFace],
                shape: [usize; 2],
@@ -114,9 +112,42 @@ pub fn consistent_forcing<T: Real>(
         narrow(shape, out)
     };
     Ok((
-        put(forced_x, sx, ux, &fx, &gx),
-        put(forced_y, sy, uy, &fy, &gy),
+        put(forced_x, sx, u.0, &fx, &p.g.0),
+        put(forced_y, sy, u.1, &fy, &p.g.1),
     ))
+}
+
+/// The pressure gradient `g = G_F P` on the free faces and the predicted
+/// projected velocity `v = u − τ g`, computed once for the forward and the
+/// VJP (which needs `v` for the shape gradient of `F`).
+struct Prediction<T> {
+    g: (Vec<f64>, Vec<f64>),
+    v: (Array2<T>, Array2<T>),
+}
+
+impl<T: Real> Prediction<T> {
+    fn new(
+        grid: &FlowGrid,
+        faces: &Faces,
+        tau: f64,
+        (ux, uy): (ArrayView2<'_, T>, ArrayView2<'_, T>),
+        pressure: ArrayView2<'_, T>,
+    ) -> Result<Self> {
+        grid.check_velocity(NAME, ux, uy)?;
+        grid.check_cells(NAME, "pressure", pressure)?;
+        let g = gradient_wide(grid, Some(faces), &wide(pressure));
+        // `u − τ g`, as `subtract_pressure_gradient` computes it (0 on fixed faces)
+        let minus = |u: ArrayView2<'_, T>, g: &[f64], shape: [usize; 2]| {
+            let mut v = wide(u).into_owned();
+            v.iter_mut().zip(g).for_each(|(v, g)| *v -= tau * g);
+            narrow(shape, v)
+        };
+        let v = (
+            minus(ux, &g.0, grid.shape_x()),
+            minus(uy, &g.1, grid.shape_y()),
+        );
+        Ok(Prediction { g, v })
+    }
 }
 
 /// The vector–Jacobian product of [`consistent_forcing`]: `(∂L/∂u_x,
@@ -129,13 +160,13 @@ pub fn consistent_forcing_vjp<T: Real>(
     body: &ImmersedCircle,
     faces: &Faces,
     tau: f64,
-    (ux, uy): (ArrayView2<'_, T>, ArrayView2<'_, T>),
+    u: (ArrayView2<'_, T>, ArrayView2<'_, T>),
     pressure: ArrayView2<'_, T>,
     shape: ArrayView1<'_, T>,
     (gx, gy): (ArrayView2<'_, T>, ArrayView2<'_, T>),
 ) -> Result<(Array2<T>, Array2<T>, Array2<T>, Array1<T>)> {
     let grid = body.grid();
-    let (vx, vy) = subtract_pressure_gradient(grid, faces, tau, ux, uy, pressure)?;
+    let Prediction { v: (vx, vy), .. } = Prediction::new(grid, faces, tau, u, pressure)?;
     let (jx, jy, js) = immersed_forcing_vjp(body, vx.view(), vy.view(), shape, gx, gy)?;
     // τ D_F (F*(ḡ) − (1 − Z) ḡ), Z the forced faces without links
     let [(forced_x, _), (forced_y, _)] = body.components();
@@ -188,8 +219,7 @@ impl<T: Real> Op<T> for ConsistentForcing {
             view2(&inputs[2])?,
             view1(&inputs[3])?,
         )?;
-        self.impulse
-            .add(self.body.momentum_change(u, (ux.view(), uy.view())));
+        self.impulse.record(&self.body, u, (ux.view(), uy.view()));
         Ok(vec![ux.into_dyn(), uy.into_dyn()])
     }
 

@@ -5,7 +5,10 @@
 //! the circle stay solid (their faces pinned to zero, the pressure system
 //! without them), as for [`crate::Obstacle::cylinder`]; with
 //! [`Interior::Forced`] no cell is solid, the pressure spans the body, and
-//! every face inside the circle is forced to zero. Every *free* face that the Laplacian links
+//! every face inside the circle is forced to zero; with [`Interior::Closed`]
+//! those faces are also closed in the pressure operator
+//! ([`ImmersedCircle::pressure_faces`]), so the projection leaves them at
+//! zero and no flux crosses the body's inside. Every *free* face that the Laplacian links
 //! to a solid face, along either axis, is **forced**: after advection and
 //! viscosity, before the projection, its velocity is replaced by the linear
 //! interpolation between zero at the true wall and the next face outward.
@@ -40,7 +43,8 @@
 //! summed by [`ForcingImpulse`]); the force of the flow on the body is minus
 //! that per unit time ([`crate::StepInfo::immersed_force`]), the whole force
 //! with a forced interior and a steady flow, the forcing's share of it with
-//! a solid one.
+//! a solid one. On a closed interior the pressure on the closed faces is the
+//! rest ([`ImmersedCircle::closed_pressure_force`]).
 //!
 //! **Adjoint.** The map is linear in the velocity; with `g` the gradient of
 //! the output,
@@ -272,6 +276,9 @@ fn forced_faces(
 pub struct ImmersedCircle {
     grid: FlowGrid,
     circle: Circle,
+    /// Whether its zero faces are closed in the pressure operator
+    /// ([`Interior::Closed`]).
+    closed: bool,
     x: Vec<ForcedFace>,
     y: Vec<ForcedFace>,
 }
@@ -311,6 +318,7 @@ impl ImmersedCircle {
         Ok(ImmersedCircle {
             grid: grid.clone(),
             circle,
+            closed: false,
             x: forced_faces(
                 grid,
                 Lattice::FaceX,
@@ -378,6 +386,80 @@ impl ImmersedCircle {
             sum(&self.x, before.0, after.0),
             sum(&self.y, before.1, after.1),
         ]
+    }
+
+    /// The body with its zero faces closed in the pressure operator
+    /// ([`Interior::Closed`]: the scene builds its pressure system on
+    /// [`ImmersedCircle::pressure_faces`]).
+    pub(crate) fn closed(mut self) -> Self {
+        self.closed = true;
+        self
+    }
+
+    /// `−Σ_closed (G P)_f dx dy`: the force of the pressure `P` on the faces
+    /// closed in the pressure operator (zero unless [`Interior::Closed`]).
+    /// The projection moves no closed face, so the momentum `τ G P` it would
+    /// give them is the body's: on a closed interior the force on the body is
+    /// the forcing's exchange plus `τ/dt` times this, `P` the projection's.
+    ///
+    /// # Panics
+    /// For a pressure not on the grid's cells (a broken internal invariant).
+    pub fn closed_pressure_force(&self, pressure: ArrayView2<'_, f64>) -> [f64; 2] {
+        if !self.closed {
+            return [0.0; 2];
+        }
+        let g = &self.grid;
+        let cell = g.dx * g.dy;
+        let p = |i: usize, j: usize| pressure[[i, j]];
+        let mut f = [0.0; 2];
+        for ff in self.x.iter().filter(|f| f.links.is_empty()) {
+            let (a, j) = (ff.face / g.ny, ff.face % g.ny);
+            if let (Some(lo), Some(hi)) = g.x_face_cells(a) {
+                f[0] -= cell * (p(hi, j) - p(lo, j)) / g.dx;
+            }
+        }
+        let [_, nfy] = g.shape_y();
+        for ff in self.y.iter().filter(|f| f.links.is_empty()) {
+            let (i, b) = (ff.face / nfy, ff.face % nfy);
+            if let (Some(lo), Some(hi)) = g.y_face_cells(b) {
+                f[1] -= cell * (p(i, hi) - p(i, lo)) / g.dy;
+            }
+        }
+        f
+    }
+
+    /// `faces` with the faces that the forcing sets to zero (the forced faces
+    /// without links: inside the circle, or without a fluid face outward)
+    /// closed, and the cells of `grid` left with no open face: the faces and
+    /// the solid cells of the pressure operator for [`Interior::Closed`].
+    pub fn pressure_faces(&self, faces: &Faces) -> (Faces, Array2<bool>) {
+        let mut closed = faces.clone();
+        for (forced, kinds) in [(&self.x, &mut closed.x), (&self.y, &mut closed.y)] {
+            for f in forced.iter().filter(|f| f.links.is_empty()) {
+                kinds[f.face] = FaceKind::Zero;
+            }
+        }
+        let g = &self.grid;
+        let mut open = Array2::from_elem(g.cell_shape(), false);
+        let [nfx, _] = g.shape_x();
+        for f in 0..nfx {
+            let (lo, hi) = g.x_face_cells(f);
+            for j in 0..g.ny {
+                if closed.x[f * g.ny + j] == FaceKind::Free {
+                    lo.into_iter().chain(hi).for_each(|i| open[[i, j]] = true);
+                }
+            }
+        }
+        let [_, nfy] = g.shape_y();
+        for i in 0..g.nx {
+            for f in 0..nfy {
+                if closed.y[i * nfy + f] == FaceKind::Free {
+                    let (lo, hi) = g.y_face_cells(f);
+                    lo.into_iter().chain(hi).for_each(|j| open[[i, j]] = true);
+                }
+            }
+        }
+        (closed, open.mapv(|o| !o))
     }
 
     fn components(&self) -> [(&[ForcedFace], [usize; 2]); 2] {
@@ -495,6 +577,12 @@ pub enum Interior {
     /// whole exchange with the body, and the force on it is minus the
     /// forcing's momentum per unit time ([`crate::StepInfo::immersed_force`]).
     Forced,
+    /// As [`Interior::Forced`] for the velocity, and the faces the forcing
+    /// sets to zero (those inside the circle) are also closed in the pressure
+    /// operator, as a solid cell's faces are ([`ImmersedCircle::pressure_faces`]):
+    /// the projection leaves them at zero, so no flux crosses the body's inside.
+    /// The cells with no open face drop out of the pressure system.
+    Closed,
 }
 
 /// The momentum the immersed forcing has added to the faces,
@@ -515,7 +603,15 @@ impl ForcingImpulse {
         self.0.get()
     }
 
-    fn add(&self, m: [f64; 2]) {
+    /// Adds the momentum the forcing of `body` changed in going from
+    /// `before` to `after` ([`ImmersedCircle::momentum_change`]).
+    fn record<T: Real>(
+        &self,
+        body: &ImmersedCircle,
+        before: (ArrayView2<'_, T>, ArrayView2<'_, T>),
+        after: (ArrayView2<'_, T>, ArrayView2<'_, T>),
+    ) {
+        let m = body.momentum_change(before, after);
         let t = self.0.get();
         self.0.set([t[0] + m[0], t[1] + m[1]]);
     }
@@ -551,10 +647,8 @@ impl<T: Real> Op<T> for ImmersedForcing {
         TapeError::check_arity(NAME, 3, inputs.len())?;
         let (ux0, uy0) = (view2(&inputs[0])?, view2(&inputs[1])?);
         let (ux, uy) = immersed_forcing(&self.body, ux0, uy0, view1(&inputs[2])?)?;
-        self.impulse.add(
-            self.body
-                .momentum_change((ux0, uy0), (ux.view(), uy.view())),
-        );
+        self.impulse
+            .record(&self.body, (ux0, uy0), (ux.view(), uy.view()));
         Ok(vec![ux.into_dyn(), uy.into_dyn()])
     }
 

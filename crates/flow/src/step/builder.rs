@@ -132,8 +132,9 @@ impl SceneBuilder {
 
     /// What lies inside the immersed circle (default [`Interior::Solid`]):
     /// with [`Interior::Forced`] no cell is solid, the faces inside the
-    /// circle are forced to zero and the pressure spans the body. Without
-    /// [`SceneBuilder::immersed`] it does nothing.
+    /// circle are forced to zero and the pressure spans the body; with
+    /// [`Interior::Closed`] those faces are also closed in the pressure
+    /// operator. Without [`SceneBuilder::immersed`] it does nothing.
     pub fn immersed_interior(mut self, interior: Interior) -> Self {
         self.interior = interior;
         self
@@ -411,7 +412,7 @@ impl SceneBuilder {
         // a forced interior: the circle's cells were rasterised for the checks
         // above, and are fluid
         let solid = match (immersed, interior) {
-            (Some(_), Interior::Forced) => Array2::from_elem(solid.dim(), false),
+            (Some(_), Interior::Forced | Interior::Closed) => Array2::from_elem(solid.dim(), false),
             _ => solid,
         };
         if let Some(b) = buoyancy {
@@ -434,17 +435,31 @@ impl SceneBuilder {
             settings.viscosity_solver.clone(),
             spectral.clone(),
         );
+        let immersed = immersed
+            .map(|c| {
+                let body = ImmersedCircle::new(&grid, &faces, &solid, c)?;
+                Ok::<_, FlowError>(Arc::new(match interior {
+                    Interior::Closed => body.closed(),
+                    _ => body,
+                }))
+            })
+            .transpose()?;
+        // a closed interior: the forcing's zero faces are closed in the pressure
+        let (pressure_faces, pressure_solid) = match (&immersed, interior) {
+            (Some(body), Interior::Closed) => {
+                let (f, s) = body.pressure_faces(&faces);
+                (Arc::new(f), s)
+            }
+            _ => (Arc::clone(&faces), solid.clone()),
+        };
         let pressure = PressureSystem::with_spectral(
             &grid,
-            &faces,
-            &solid,
+            &pressure_faces,
+            &pressure_solid,
             &settings.pressure_solver,
             spectral.as_ref(),
         )?;
         let forces = ForceWeights::new(&grid, &solid);
-        let immersed = immersed
-            .map(|c| ImmersedCircle::new(&grid, &faces, &solid, c).map(Arc::new))
-            .transpose()?;
         Ok(Scene(Arc::new(SceneInner {
             grid,
             solid,

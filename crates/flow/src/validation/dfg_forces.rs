@@ -3,7 +3,7 @@
 //! balance over a control volume (see [`super::Dfg2d1`]).
 
 use crate::diagnostics::{obstacle_force, ForceWeights};
-use crate::{FlowState, Result, Scene, StepInfo};
+use crate::{FlowState, Result, Scene, Splitting, StepInfo};
 
 use super::{control_volume_force, DfgChannel, FaceBox, DFG_CENTRE, DFG_DIAMETER, DFG_NU};
 
@@ -40,8 +40,19 @@ impl DfgChannel {
         if scene.immersed().is_none() {
             return Self::force(scene, s, DFG_NU);
         }
-        let (_, info) = scene.forward(s, &scene.params())?;
-        Self::exchange_force(scene, s, &info)
+        let (next, info) = scene.forward(s, &scene.params())?;
+        let f = Self::exchange_force(scene, s, &info)?;
+        let Some(body) = scene.immersed() else {
+            return Ok(f);
+        };
+        // a closed interior: the pressure on the closed faces, over the
+        // projection's share τ/dt of the step
+        let share = match scene.settings().splitting {
+            Splitting::Incremental => 0.5,
+            Splitting::Plain => 1.0,
+        };
+        let p = body.closed_pressure_force(next.pressure.view());
+        Ok([f[0] + share * p[0], f[1] + share * p[1]])
     }
 
     /// The force on an immersed body over the step from `s` that reported

@@ -158,12 +158,16 @@ pub fn defaults(small: bool) -> Options {
         validation_re: if small {
             list(&[566.0])
         } else {
-            list(&[85.0, 141.0, 566.0, 1900.0])
+            // The first validation set, then the spent held-out split of
+            // data seed 1's runs (docs/11, "The new held-out split").
+            list(&[85.0, 141.0, 566.0, 1900.0, 71.0, 283.0, 1131.0, 2263.0])
         },
         held_out_re: if small {
             list(&[283.0, 2263.0])
         } else {
-            list(&[71.0, 283.0, 1131.0, 2263.0])
+            // Pre-registered on 2026-11-29 (docs/11); read once, by the
+            // final configuration.
+            list(&[65.0, 250.0, 1000.0, 2100.0])
         },
         learning_rates: if small { vec![1e-3] } else { vec![1e-3, 3e-3] },
         capacity: vec![SIZES[0], SIZES[2]],

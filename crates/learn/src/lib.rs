@@ -126,7 +126,7 @@ pub use metrics::{
     batch_of, relative_l2, relative_l2_fields, rollout, rollout_each, rollout_measured, states_at,
     Metric, Rollout, Trajectory,
 };
-pub use report::{missed_floors, Figures, Report, RunRecord, Summary};
+pub use report::{missed_floors, Figures, Report, RunRecord, RunSeeds, Summary};
 pub use saved::{ModelCard, SavedModel};
 pub use state::{State, StateVars};
 pub use strategy::{standard_normal, Budget, LrSchedule, Strategy};

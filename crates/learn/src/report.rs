@@ -39,6 +39,9 @@ impl Summary {
     }
 }
 
+/// A run's data seed and training seed (`None` for a baseline).
+pub type RunSeeds = (u64, Option<u64>);
+
 /// One run's figure.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct RunRecord {
@@ -173,8 +176,8 @@ impl Report {
 pub struct Figures {
     metrics: Vec<String>,
     overall: Vec<Report>,
-    /// Condition → method → runs → one value per metric.
-    per_condition: BTreeMap<String, BTreeMap<String, Vec<Vec<f64>>>>,
+    /// Condition → method → runs → the run's seeds and one value per metric.
+    per_condition: BTreeMap<String, BTreeMap<String, Vec<(RunSeeds, Vec<f64>)>>>,
     curves: BTreeMap<String, Vec<Vec<f64>>>,
 }
 
@@ -230,7 +233,7 @@ impl Figures {
                 .or_default()
                 .entry(method.to_string())
                 .or_default()
-                .push(v.clone());
+                .push(((data_seed, train_seed), v.clone()));
         }
         self.curves
             .entry(method.to_string())
@@ -284,17 +287,38 @@ impl Figures {
     pub fn mean_at(&self, condition: &str, method: &str, metric: &str) -> Option<f64> {
         let k = self.metrics.iter().position(|m| m == metric)?;
         let runs = self.per_condition.get(condition)?.get(method)?;
-        Summary::of(&runs.iter().map(|v| v[k]).collect::<Vec<_>>()).map(|s| s.mean)
+        Summary::of(&runs.iter().map(|(_, v)| v[k]).collect::<Vec<_>>()).map(|s| s.mean)
+    }
+
+    /// Every run of `method` at `condition` under `metric`, with its seeds,
+    /// in the order added (empty where there is none).
+    pub fn runs_at(&self, condition: &str, method: &str, metric: &str) -> Vec<RunRecord> {
+        let Some(k) = self.metrics.iter().position(|m| m == metric) else {
+            return Vec::new();
+        };
+        (self.per_condition.get(condition))
+            .and_then(|m| m.get(method))
+            .map(|runs| {
+                runs.iter()
+                    .map(|&((data_seed, train_seed), ref v)| RunRecord {
+                        data_seed,
+                        train_seed,
+                        value: v[k],
+                    })
+                    .collect()
+            })
+            .unwrap_or_default()
     }
 
     /// `{condition: {method: {mean, min, max, runs, <metric>_mean, ...}}}`:
     /// the primary metric's mean, minimum and maximum over the runs, and each
     /// other metric's mean.
     pub fn per_condition_json(&self) -> Value {
-        let methods = |m: &BTreeMap<String, Vec<Vec<f64>>>| -> serde_json::Map<String, Value> {
+        type Runs = Vec<(RunSeeds, Vec<f64>)>;
+        let methods = |m: &BTreeMap<String, Runs>| -> serde_json::Map<String, Value> {
             m.iter()
                 .filter_map(|(method, runs)| {
-                    let of = |k: usize| Summary::of(&runs.iter().map(|v| v[k]).collect::<Vec<_>>());
+                    let of = |k: usize| Summary::of(&runs.iter().map(|(_, v)| v[k]).collect::<Vec<_>>());
                     let primary = of(0)?;
                     let mut entry = json!({"mean": primary.mean, "min": primary.min, "max": primary.max, "runs": primary.runs});
                     for (k, name) in self.metrics.iter().enumerate().skip(1) {
@@ -382,6 +406,16 @@ mod tests {
         assert!(f.report("vorticity").is_none());
         assert!((f.mean_at("71", "sol", "state").unwrap() - 0.03).abs() < 1e-15);
         assert!(f.mean_at("71", "non", "state").is_none());
+        let runs = f.runs_at("283", "sol", "long");
+        assert_eq!(
+            runs.iter()
+                .map(|r| (r.data_seed, r.train_seed))
+                .collect::<Vec<_>>(),
+            vec![(1, Some(1)), (1, Some(2))]
+        );
+        assert!((runs[1].value - 0.8).abs() < 1e-15);
+        assert!(f.runs_at("283", "sol", "vorticity").is_empty());
+        assert!(f.runs_at("85", "sol", "state").is_empty());
         assert_eq!(f.conditions().collect::<Vec<_>>(), vec!["283", "71"]);
         let j = f.per_condition_json();
         assert_eq!(j["71"]["sol"]["runs"], 2);

@@ -14,7 +14,8 @@
 mod record;
 
 pub use record::{
-    dir_name, HeldOutRun, Record, Results, DEVIATION, LONG, METRICS, STATE, VORTICITY,
+    dir_name, HeldOutRun, Record, Results, DEVIATION, LONG, METRICS, STATE, SWEEP_FIGURES,
+    VORTICITY,
 };
 
 use std::path::PathBuf;
@@ -452,7 +453,7 @@ impl Setup<'_> {
                 params: t.params.count(),
                 variant: variant.into(),
                 seed: job.seed.0,
-                figures: vec![run.mean(), run.long_mean()],
+                figures: vec![run.mean(), run.long_mean(), run.deviation_mean()],
             });
         }
         if job.size == self.main_size {

@@ -8,7 +8,7 @@ use std::collections::BTreeMap;
 
 use diffphys_flow::FlowState;
 use diffphys_learn::study::{Log, Sweep};
-use diffphys_learn::Figures;
+use diffphys_learn::{Figures, Summary};
 use serde_json::{json, Map, Value};
 
 use crate::reference::Rollouts;
@@ -27,6 +27,11 @@ pub const DEVIATION: &str = "deviation";
 /// The vorticity's relative L2 error.
 pub const VORTICITY: &str = "vorticity";
 
+/// The figures of the capacity sweep's runs, in order: the state's error
+/// over the rollouts (the sweep's primary, keyed by the variant alone), over
+/// the long rollout, and the deviation's over the rollouts.
+pub const SWEEP_FIGURES: [&str; 3] = ["", LONG, DEVIATION];
+
 /// One model's held-out rollouts at every held-out Reynolds number.
 #[derive(Debug, Clone)]
 pub struct HeldOutRun {
@@ -43,6 +48,11 @@ impl HeldOutRun {
     /// The same for the long rollout.
     pub fn long_mean(&self) -> f64 {
         self.per_re.iter().map(|r| r.long).sum::<f64>() / self.per_re.len().max(1) as f64
+    }
+
+    /// The same for the deviation from the free stream.
+    pub fn deviation_mean(&self) -> f64 {
+        self.per_re.iter().map(|r| r.deviation).sum::<f64>() / self.per_re.len().max(1) as f64
     }
 
     /// The per-step error, mean over the Reynolds numbers.
@@ -129,8 +139,9 @@ pub struct Record {
     pub log: Log,
     /// The held-out figures.
     pub results: Results,
-    /// The capacity sweep's held-out figures (100 steps, long) of `non` and
-    /// the first SOL variant (`sol`) at every size.
+    /// The capacity sweep's held-out figures (the state over the rollouts,
+    /// the long rollout, the deviation over the rollouts) of `non` and the
+    /// first SOL variant (`sol`) at every size.
     pub capacity: Sweep,
     /// The input noise of `noise` (the last data seed's).
     pub sigma: f64,
@@ -143,7 +154,7 @@ impl Default for Record {
         Record {
             log: Log::default(),
             results: Results::default(),
-            capacity: Sweep::new(&["", "long"]),
+            capacity: Sweep::new(&SWEEP_FIGURES),
             sigma: 0.0,
             pinned_face_error: Map::new(),
         }
@@ -207,15 +218,43 @@ impl Record {
         crate::metrics::vorticity_chart(&out.join("vorticity.svg"), title, &states, scene, body)
     }
 
-    /// Per held-out Re, the mean of method `a` over that of `b` under the
-    /// primary metric (`None` where either was not measured).
-    pub fn ratio_per_re(&self, a: &str, b: &str) -> BTreeMap<String, Option<f64>> {
+    /// Per held-out Re, the mean of method `a` over that of `b` under
+    /// `metric` (`None` where either was not measured).
+    pub fn ratio_per_re(&self, a: &str, b: &str, metric: &str) -> BTreeMap<String, Option<f64>> {
         let f = &self.results.figures;
         (f.conditions())
             .map(|re| {
-                let mean = |m: &str| f.mean_at(re, m, STATE);
+                let mean = |m: &str| f.mean_at(re, m, metric);
                 let ratio = mean(a).zip(mean(b)).map(|(a, b)| a / b);
                 (re.to_string(), ratio)
+            })
+            .collect()
+    }
+
+    /// Per held-out Re, every run of `a` over the mean of `b`'s runs of the
+    /// same data seed under `metric`: `(data seed, training seed, ratio)`;
+    /// a run whose data seed has no run of `b` gives `None`.
+    pub fn ratio_per_run(
+        &self,
+        a: &str,
+        b: &str,
+        metric: &str,
+    ) -> BTreeMap<String, Vec<(u64, Option<u64>, Option<f64>)>> {
+        let f = &self.results.figures;
+        (f.conditions())
+            .map(|re| {
+                let base = f.runs_at(re, b, metric);
+                let ratios = (f.runs_at(re, a, metric).into_iter())
+                    .map(|r| {
+                        let same: Vec<f64> = (base.iter())
+                            .filter(|q| q.data_seed == r.data_seed)
+                            .map(|q| q.value)
+                            .collect();
+                        let mean = Summary::of(&same).map(|s| s.mean);
+                        (r.data_seed, r.train_seed, mean.map(|m| r.value / m))
+                    })
+                    .collect();
+                (re.to_string(), ratios)
             })
             .collect()
     }
@@ -243,4 +282,68 @@ impl Record {
 /// A saved model's directory name: `sol_4_w16b2_data1_seed2`.
 pub fn dir_name(variant: &str, size: NetSize, data_seed: u64, seed: u64) -> String {
     format!("{variant}_{}_data{data_seed}_seed{seed}", size.label())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ndarray::Array2;
+
+    fn run(per_re: &[(f64, f64, f64)]) -> HeldOutRun {
+        let z = Array2::zeros((1, 1));
+        let last = FlowState {
+            ux: z.clone(),
+            uy: z.clone(),
+            pressure: z,
+            scalars: Vec::new(),
+        };
+        HeldOutRun {
+            per_re: (per_re.iter())
+                .map(|&(re, mean, deviation)| Rollouts {
+                    re,
+                    mean,
+                    deviation,
+                    vorticity: 0.0,
+                    curve: vec![mean],
+                    long: mean,
+                    last: last.clone(),
+                })
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn ratios_per_run_divide_by_the_same_data_seed() {
+        let mut r = Record::default();
+        let results = &mut r.results;
+        results
+            .record("src", 1, None, &run(&[(65.0, 0.2, 1.0), (250.0, 0.4, 2.0)]))
+            .unwrap();
+        results
+            .record("src", 2, None, &run(&[(65.0, 0.1, 0.5), (250.0, 0.2, 1.0)]))
+            .unwrap();
+        for (ds, ts, d) in [(1, 1, 0.2), (1, 2, 0.4), (2, 1, 0.1)] {
+            let sol = run(&[(65.0, 0.01, d), (250.0, 0.02, 2.0 * d)]);
+            results.record("sol", ds, Some(ts), &sol).unwrap();
+        }
+        let per_run = r.ratio_per_run("sol", "src", DEVIATION);
+        let ratios: Vec<_> = per_run["65"]
+            .iter()
+            .map(|&(ds, ts, q)| (ds, ts, q.unwrap()))
+            .collect();
+        let expected = [(1, Some(1), 0.2), (1, Some(2), 0.4), (2, Some(1), 0.2)];
+        for ((ds, ts, q), (eds, ets, eq)) in ratios.iter().zip(expected) {
+            assert_eq!((*ds, *ts), (eds, ets));
+            assert!((q - eq).abs() < 1e-14, "{q} against {eq}");
+        }
+        // On the mean over the runs: (0.7 / 3) / 0.75 under the deviation,
+        // 0.01 / 0.15 under the state.
+        let on_mean = r.ratio_per_re("sol", "src", DEVIATION)["65"].unwrap();
+        assert!((on_mean - 0.7 / 3.0 / 0.75).abs() < 1e-14);
+        let state = r.ratio_per_re("sol", "src", STATE)["65"].unwrap();
+        assert!((state - 0.01 / 0.15).abs() < 1e-14);
+        // A method never run has no ratio.
+        assert!(r.ratio_per_run("non", "src", DEVIATION)["65"].is_empty());
+        assert!(r.ratio_per_re("non", "src", DEVIATION)["65"].is_none());
+    }
 }

@@ -42,6 +42,10 @@ impl Summary {
 /// A run's data seed and training seed (`None` for a baseline).
 pub type RunSeeds = (u64, Option<u64>);
 
+/// A method's runs at one condition: each run's seeds and its values, one
+/// per metric.
+type SeededRuns = Vec<(RunSeeds, Vec<f64>)>;
+
 /// One run's figure.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct RunRecord {
@@ -177,7 +181,7 @@ pub struct Figures {
     metrics: Vec<String>,
     overall: Vec<Report>,
     /// Condition → method → runs → the run's seeds and one value per metric.
-    per_condition: BTreeMap<String, BTreeMap<String, Vec<(RunSeeds, Vec<f64>)>>>,
+    per_condition: BTreeMap<String, BTreeMap<String, SeededRuns>>,
     curves: BTreeMap<String, Vec<Vec<f64>>>,
 }
 
@@ -314,8 +318,7 @@ impl Figures {
     /// the primary metric's mean, minimum and maximum over the runs, and each
     /// other metric's mean.
     pub fn per_condition_json(&self) -> Value {
-        type Runs = Vec<(RunSeeds, Vec<f64>)>;
-        let methods = |m: &BTreeMap<String, Runs>| -> serde_json::Map<String, Value> {
+        let methods = |m: &BTreeMap<String, SeededRuns>| -> serde_json::Map<String, Value> {
             m.iter()
                 .filter_map(|(method, runs)| {
                     let of = |k: usize| Summary::of(&runs.iter().map(|(_, v)| v[k]).collect::<Vec<_>>());

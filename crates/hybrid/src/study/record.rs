@@ -32,6 +32,25 @@ pub const VORTICITY: &str = "vorticity";
 /// the long rollout, and the deviation's over the rollouts.
 pub const SWEEP_FIGURES: [&str; 3] = ["", LONG, DEVIATION];
 
+/// One run's figure over a baseline's of the same data seed
+/// ([`Record::ratio_per_run`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RunRatio {
+    /// The run's data seed.
+    pub data_seed: u64,
+    /// Its training seed (`None` for a baseline).
+    pub train_seed: Option<u64>,
+    /// Its figure over the baseline's (`None` without a baseline run).
+    pub ratio: Option<f64>,
+}
+
+impl RunRatio {
+    /// `{"data_seed", "train_seed", "ratio"}`.
+    pub fn to_json(self) -> Value {
+        json!({"data_seed": self.data_seed, "train_seed": self.train_seed, "ratio": self.ratio})
+    }
+}
+
 /// One model's held-out rollouts at every held-out Reynolds number.
 #[derive(Debug, Clone)]
 pub struct HeldOutRun {
@@ -232,14 +251,9 @@ impl Record {
     }
 
     /// Per held-out Re, every run of `a` over the mean of `b`'s runs of the
-    /// same data seed under `metric`: `(data seed, training seed, ratio)`;
-    /// a run whose data seed has no run of `b` gives `None`.
-    pub fn ratio_per_run(
-        &self,
-        a: &str,
-        b: &str,
-        metric: &str,
-    ) -> BTreeMap<String, Vec<(u64, Option<u64>, Option<f64>)>> {
+    /// same data seed under `metric` (a run whose data seed has no run of
+    /// `b` has no ratio).
+    pub fn ratio_per_run(&self, a: &str, b: &str, metric: &str) -> BTreeMap<String, Vec<RunRatio>> {
         let f = &self.results.figures;
         (f.conditions())
             .map(|re| {
@@ -251,7 +265,11 @@ impl Record {
                             .map(|q| q.value)
                             .collect();
                         let mean = Summary::of(&same).map(|s| s.mean);
-                        (r.data_seed, r.train_seed, mean.map(|m| r.value / m))
+                        RunRatio {
+                            data_seed: r.data_seed,
+                            train_seed: r.train_seed,
+                            ratio: mean.map(|m| r.value / m),
+                        }
                     })
                     .collect();
                 (re.to_string(), ratios)
@@ -329,7 +347,7 @@ mod tests {
         let per_run = r.ratio_per_run("sol", "src", DEVIATION);
         let ratios: Vec<_> = per_run["65"]
             .iter()
-            .map(|&(ds, ts, q)| (ds, ts, q.unwrap()))
+            .map(|r| (r.data_seed, r.train_seed, r.ratio.unwrap()))
             .collect();
         let expected = [(1, Some(1), 0.2), (1, Some(2), 0.4), (2, Some(1), 0.2)];
         for ((ds, ts, q), (eds, ets, eq)) in ratios.iter().zip(expected) {

@@ -86,6 +86,7 @@ fn run(variant: Variant, inp: &Inputs) -> ([ArrayD<f64>; 3], TapeStats) {
                 } else {
                     Arithmetic::Single
                 },
+                threads: 1,
             },
             &[x, w, b],
         ),

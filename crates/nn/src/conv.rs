@@ -292,16 +292,17 @@ impl<U: Real> Correlation<'_, U> {
                 row = tail;
             }
         }
-        if let [rows] = runs.as_mut_slice() {
-            self.cells::<L>(x, 0, rows);
+        let Some((first, rest)) = runs.split_first_mut() else {
             return;
-        }
+        };
+        // The calling thread computes the first run while the others run.
         std::thread::scope(|s| {
-            let mut start = 0;
-            for (p, rows) in runs.iter_mut().enumerate() {
+            let mut start = cells(0);
+            for (p, rows) in (1..).zip(rest) {
                 s.spawn(move || self.cells::<L>(x, start, rows));
                 start += cells(p);
             }
+            self.cells::<L>(x, 0, first);
         });
     }
 

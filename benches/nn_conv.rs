@@ -8,6 +8,10 @@
 //! channels, kernel 5, 128 cells (the widest layer of the Burgers scenes'
 //! U-Net, whose weight gradient was once 9× slower than it is).
 //!
+//! A second group times the forward pass alone at batch 1 (a corrector
+//! inside a rollout), 16 → 16 channels, 3×3, in f32 arithmetic on the f64
+//! tape, at 32×64 and 64×64 cells: on one thread and split over all cores.
+//!
 //! Run: `cargo bench --bench nn_conv` (`-- --quick` for a short run). Before
 //! timing it prints, for each variant, the tape's peak bytes, the best of five
 //! forward + backward times, their ratios, and the largest gradient difference
@@ -17,6 +21,7 @@ use std::hint::black_box;
 use std::time::Instant;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use diffphys::nn::conv::conv_forward;
 use diffphys::nn::reference::conv_from_primitives;
 use diffphys::nn::{Arithmetic, ConvOp, Padding};
 use diffphys::prelude::*;
@@ -86,6 +91,7 @@ fn run(variant: Variant, inp: &Inputs) -> ([ArrayD<f64>; 3], TapeStats) {
                 } else {
                     Arithmetic::Single
                 },
+                threads: 1,
             },
             &[x, w, b],
         ),
@@ -163,5 +169,36 @@ fn bench(c: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, bench);
+/// The forward pass alone at batch 1, 16 → 16 channels, 3×3, f32 arithmetic,
+/// zero padding: one thread against all cores.
+fn bench_threads(c: &mut Criterion) {
+    let cores = std::thread::available_parallelism().map_or(1, usize::from);
+    let w = test_array::<f64>(&[16, 16, 3, 3], 2);
+    let b = test_array::<f64>(&[16], 3);
+    let mut group = c.benchmark_group("conv2d_forward_batch1_threads");
+    group.sample_size(20);
+    for (h, wd) in [(32, 64), (64, 64)] {
+        let x = test_array::<f64>(&[1, 16, h, wd], 1);
+        group.throughput(Throughput::Elements((h * wd) as u64));
+        for threads in std::iter::once(1).chain((cores > 1).then_some(cores)) {
+            let name = format!("{h}x{wd}/{threads}_threads");
+            group.bench_function(name, |bench| {
+                bench.iter(|| {
+                    black_box(conv_forward(
+                        "conv",
+                        x.view(),
+                        w.view(),
+                        b.view(),
+                        Padding::Zero,
+                        Arithmetic::Single,
+                        threads,
+                    ))
+                })
+            });
+        }
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench, bench_threads);
 criterion_main!(benches);

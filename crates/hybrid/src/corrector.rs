@@ -163,6 +163,35 @@ impl LatticeNet {
             params,
         ))
     }
+
+    /// The corrector with every convolution's forward pass split over
+    /// `threads` threads ([`Conv2::with_threads`]; new correctors run on
+    /// one): the same corrections bit for bit, faster where the cores are
+    /// free. Its backward pass stays on one thread.
+    ///
+    /// # Errors
+    /// [`HybridError::Nn`] for zero threads.
+    pub fn with_threads(self, threads: usize) -> Result<Self> {
+        let LatticeNet {
+            stem,
+            blocks,
+            head,
+            free,
+            code,
+            c_out,
+        } = self;
+        let blocks = (blocks.into_iter())
+            .map(|(a, b)| Ok((a.with_threads(threads)?, b.with_threads(threads)?)))
+            .collect::<Result<Vec<_>>>()?;
+        Ok(LatticeNet {
+            stem: stem.with_threads(threads)?,
+            blocks,
+            head: head.with_threads(threads)?,
+            free,
+            code,
+            c_out,
+        })
+    }
 }
 
 impl Corrector for LatticeNet {

@@ -27,6 +27,12 @@
 //! products and sums run in the tape's type or, with [`Arithmetic::Single`],
 //! in `f32` on any tape.
 //!
+//! The forward pass can split each batch element's flat cells over several
+//! threads (scoped, started per call): every cell's sums run in the same order
+//! whatever the split, so the output is the single-threaded one bit for bit.
+//! The backward pass runs on one thread (trainings run side by side, one per
+//! core).
+//!
 //! # References
 //! K. Chellapilla, S. Puri, P. Simard, *High performance convolutional neural
 //! networks for document processing*, IWFHR 2006 (the column lowering this
@@ -254,32 +260,80 @@ struct Correlation<'a, U> {
 }
 
 impl<U: Real> Correlation<'_, U> {
-    fn run(&self, x: &[U], out: &mut [U]) {
+    /// The correlation of `x` into `out`, its cells split over up to
+    /// `threads` threads.
+    fn run(&self, x: &[U], out: &mut [U], threads: usize) {
         if size_of::<U>() == size_of::<f32>() {
-            self.run_in::<{ LANES_F32 * VECTORS }>(x, out);
+            self.run_in::<{ LANES_F32 * VECTORS }>(x, out, threads);
         } else {
-            self.run_in::<{ LANES_F64 * VECTORS }>(x, out);
+            self.run_in::<{ LANES_F64 * VECTORS }>(x, out, threads);
         }
     }
 
-    fn run_in<const L: usize>(&self, x: &[U], out: &mut [U]) {
+    /// Splits the flat cells into runs of whole `L`-cell blocks, one run per
+    /// thread (at most one thread per block), and computes each run's cells of
+    /// every output channel on its own thread. A cell's sums do not depend on
+    /// which run it falls in, so every split gives the same values bit for bit.
+    fn run_in<const L: usize>(&self, x: &[U], out: &mut [U], threads: usize) {
+        let span = self.lat.span;
+        if span == 0 || self.c_out == 0 {
+            return;
+        }
+        let blocks = span / L;
+        let parts = threads.clamp(1, blocks);
+        let cells = |p: usize| (blocks / parts + usize::from(p < blocks % parts)) * L;
+        // Run p's cells of every output row: disjoint slices of `out`.
+        let mut runs: Vec<Vec<&mut [U]>> =
+            (0..parts).map(|_| Vec::with_capacity(self.c_out)).collect();
+        for mut row in out.chunks_exact_mut(span).take(self.c_out) {
+            for (p, run) in runs.iter_mut().enumerate() {
+                let (head, tail) = std::mem::take(&mut row).split_at_mut(cells(p));
+                run.push(head);
+                row = tail;
+            }
+        }
+        let Some((first, rest)) = runs.split_first_mut() else {
+            return;
+        };
+        // The calling thread computes the first run while the others run.
+        std::thread::scope(|s| {
+            let mut start = cells(0);
+            for (p, rows) in (1..).zip(rest) {
+                s.spawn(move || self.cells::<L>(x, start, rows));
+                start += cells(p);
+            }
+            self.cells::<L>(x, 0, first);
+        });
+    }
+
+    /// The cells `start..start + rows[o].len()` of every output channel `o`
+    /// into `rows[o]`, [`CHANNELS`] channels at a time.
+    fn cells<const L: usize>(&self, x: &[U], start: usize, rows: &mut [&mut [U]]) {
         let full = self.c_out / CHANNELS * CHANNELS;
         for o in (0..full).step_by(CHANNELS) {
-            self.block::<CHANNELS, L>(o, x, out);
+            self.block::<CHANNELS, L>(o, x, start, &mut rows[o..o + CHANNELS]);
         }
         for o in full..self.c_out {
-            self.block::<1, L>(o, x, out);
+            self.block::<1, L>(o, x, start, &mut rows[o..=o]);
         }
     }
 
-    /// Output channels `o0..o0 + OB`, every cell, `L` cells at a time with the
-    /// sums held in registers.
+    /// Output channels `o0..o0 + OB`, the cells from `start` on (as many as
+    /// `rows` holds of each channel), `L` cells at a time with the sums held in
+    /// registers.
     #[inline(always)]
-    fn block<const OB: usize, const L: usize>(&self, o0: usize, x: &[U], out: &mut [U]) {
-        let (span, plane) = (self.lat.span, self.lat.plane);
+    fn block<const OB: usize, const L: usize>(
+        &self,
+        o0: usize,
+        x: &[U],
+        start: usize,
+        rows: &mut [&mut [U]],
+    ) {
+        let plane = self.lat.plane;
         let row = self.c_in * self.offsets.len();
         let w: [&[U]; OB] = std::array::from_fn(|k| &self.w[(o0 + k) * row..][..row]);
-        for t0 in (0..span).step_by(L) {
+        for t in (0..rows[0].len()).step_by(L) {
+            let t0 = start + t;
             let mut acc: [[U; L]; OB] =
                 std::array::from_fn(|k| [self.bias.map_or(U::zero(), |b| b[o0 + k]); L]);
             for c in 0..self.c_in {
@@ -296,8 +350,8 @@ impl<U: Real> Correlation<'_, U> {
                     }
                 }
             }
-            for (k, a) in acc.iter().enumerate() {
-                out[(o0 + k) * span + t0..][..L].copy_from_slice(a);
+            for (dst, a) in rows.iter_mut().zip(&acc) {
+                dst[t..t + L].copy_from_slice(a);
             }
         }
     }
@@ -374,11 +428,14 @@ fn unflatten<U: Real, T: Real>(
 }
 
 /// The convolution `y = w ⋆ x + bias` (see the module docs), computed in
-/// `arithmetic`. `name` labels errors.
+/// `arithmetic`, each batch element's cells split over up to `threads` threads
+/// (one per block of 16 or 32 flat cells at most; the values do not depend on
+/// the split, bit for bit). `name` labels errors.
 ///
 /// # Errors
 /// [`TapeError::InvalidArgument`] or [`TapeError::ShapeMismatch`] naming `name` if
-/// the shapes do not fit together or a kernel size is even.
+/// the shapes do not fit together or a kernel size is even;
+/// [`TapeError::InvalidArgument`] for zero `threads`.
 pub fn conv_forward<T: Real>(
     name: &str,
     x: ArrayViewD<'_, T>,
@@ -386,8 +443,15 @@ pub fn conv_forward<T: Real>(
     bias: ArrayViewD<'_, T>,
     padding: Padding,
     arithmetic: Arithmetic,
+    threads: usize,
 ) -> Result<ArrayD<T>> {
     let geo = Geometry::of(name, x.shape(), w.shape(), bias.shape())?;
+    if threads == 0 {
+        return Err(TapeError::invalid(
+            name,
+            "0 threads: the forward pass needs at least one",
+        ));
+    }
     let x = x.as_standard_layout();
     let x = x.as_slice().expect("standard layout");
     let w = w.as_standard_layout();
@@ -395,20 +459,22 @@ pub fn conv_forward<T: Real>(
     let bias = bias.as_standard_layout();
     let bias = bias.as_slice().expect("standard layout");
     let out = match arithmetic {
-        Arithmetic::Native => forward_in::<T, T>(&geo, padding, x, w, bias),
-        Arithmetic::Single => forward_in::<T, f32>(&geo, padding, x, w, bias),
+        Arithmetic::Native => forward_in::<T, T>(&geo, padding, x, w, bias, threads),
+        Arithmetic::Single => forward_in::<T, f32>(&geo, padding, x, w, bias, threads),
     };
     ArrayD::from_shape_vec(IxDyn(&geo.shape(geo.c_out)), out)
         .map_err(|e| TapeError::invalid(name, e.to_string()))
 }
 
-/// The forward convolution's values, computed in `U`.
+/// The forward convolution's values, computed in `U` on up to `threads`
+/// threads.
 fn forward_in<T: Real, U: Real>(
     geo: &Geometry,
     padding: Padding,
     x: &[T],
     w: &[T],
     bias: &[T],
+    threads: usize,
 ) -> Vec<T> {
     let lat = Lattice::of(geo);
     let offsets = lat.offsets(geo);
@@ -435,7 +501,7 @@ fn forward_in<T: Real, U: Real>(
             &x[b * in_len..][..in_len],
             &mut padded,
         );
-        correlation.run(&padded, &mut rows);
+        correlation.run(&padded, &mut rows, threads);
         unflatten(geo, &lat, &rows, &mut out[b * out_len..][..out_len], false);
     }
     out
@@ -578,7 +644,7 @@ fn vjp_in<T: Real, U: Real>(
         }
         if let Some(gx) = grad_x.as_mut() {
             lat.pad(geo, padding, geo.c_out, g_b, &mut padded_g);
-            adjoint.run(&padded_g, &mut rows);
+            adjoint.run(&padded_g, &mut rows, 1);
             unflatten(geo, &lat, &rows, &mut gx[b * in_len..][..in_len], true);
         }
     }
@@ -595,6 +661,9 @@ pub struct ConvOp {
     pub padding: Padding,
     /// The arithmetic of the products and sums.
     pub arithmetic: Arithmetic,
+    /// Threads the forward pass splits its cells over (at least 1; see
+    /// [`conv_forward`]). The backward pass runs on the calling thread.
+    pub threads: usize,
 }
 
 impl<T: Real> Op<T> for ConvOp {
@@ -611,6 +680,7 @@ impl<T: Real> Op<T> for ConvOp {
             inputs[2].view(),
             self.padding,
             self.arithmetic,
+            self.threads,
         )?])
     }
 

@@ -117,6 +117,7 @@ struct Conv {
     name: String,
     padding: Padding,
     arithmetic: Arithmetic,
+    threads: usize,
     weight: ParamId,
     bias: ParamId,
 }
@@ -176,9 +177,21 @@ impl Conv {
             name: format!("{kind} {name:?}"),
             padding,
             arithmetic: Arithmetic::Native,
+            threads: 1,
             weight,
             bias,
         })
+    }
+
+    fn with_threads(mut self, threads: usize) -> crate::Result<Self> {
+        if threads == 0 {
+            return Err(NnError::Config {
+                layer: self.name,
+                message: "0 threads: the forward pass needs at least one".into(),
+            });
+        }
+        self.threads = threads;
+        Ok(self)
     }
 
     fn forward<'t, T: Real>(&self, params: &Bound<'t, T>, x: Var<'t, T>) -> Result<Var<'t, T>> {
@@ -186,6 +199,7 @@ impl Conv {
             name: self.name.clone(),
             padding: self.padding,
             arithmetic: self.arithmetic,
+            threads: self.threads,
         };
         x.tape()
             .apply(op, &[x, params.get(self.weight), params.get(self.bias)])
@@ -218,6 +232,17 @@ impl Conv1 {
     pub fn with_arithmetic(mut self, arithmetic: Arithmetic) -> Self {
         self.0.arithmetic = arithmetic;
         self
+    }
+
+    /// The layer with its forward pass split over `threads` threads (new
+    /// layers run on one); its values are the same bit for bit, and its
+    /// backward pass runs on one thread whatever `threads` is (see
+    /// [`crate::conv::conv_forward`]).
+    ///
+    /// # Errors
+    /// [`NnError::Config`] for zero threads.
+    pub fn with_threads(self, threads: usize) -> crate::Result<Self> {
+        self.0.with_threads(threads).map(Conv1)
     }
 }
 
@@ -252,6 +277,17 @@ impl Conv2 {
     pub fn with_arithmetic(mut self, arithmetic: Arithmetic) -> Self {
         self.0.arithmetic = arithmetic;
         self
+    }
+
+    /// The layer with its forward pass split over `threads` threads (new
+    /// layers run on one); its values are the same bit for bit, and its
+    /// backward pass runs on one thread whatever `threads` is (see
+    /// [`crate::conv::conv_forward`]).
+    ///
+    /// # Errors
+    /// [`NnError::Config`] for zero threads.
+    pub fn with_threads(self, threads: usize) -> crate::Result<Self> {
+        self.0.with_threads(threads).map(Conv2)
     }
 }
 

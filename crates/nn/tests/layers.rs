@@ -32,6 +32,7 @@ fn conv_op(padding: Padding, arithmetic: Arithmetic) -> ConvOp {
         name: "conv".into(),
         padding,
         arithmetic,
+        threads: 1,
     }
 }
 
@@ -104,7 +105,7 @@ fn conv_adjoints(
         .collect();
     let y = test_array::<f64>(&y_shape, 6);
     let forward = |x: ArrayViewD<'_, f64>, w: ArrayViewD<'_, f64>| {
-        conv_forward("conv", x, w, zero_bias.view(), padding, arithmetic).unwrap()
+        conv_forward("conv", x, w, zero_bias.view(), padding, arithmetic, 1).unwrap()
     };
     let vjp = |g: ArrayViewD<'_, f64>, needs| {
         conv_vjp("conv", x.view(), w.view(), g, padding, needs, arithmetic).unwrap()
@@ -228,7 +229,7 @@ fn conv_in_single_arithmetic_passes_the_dot_product_test_and_agrees_with_native_
                     .fold(0.0_f64, |m, (p, q)| m.max((p - q).abs()))
                     / scale
             };
-            let forward = |a| conv_forward("conv", x.view(), w.view(), bias.view(), padding, a);
+            let forward = |a| conv_forward("conv", x.view(), w.view(), bias.view(), padding, a, 1);
             let (single, native) = (forward(Single).unwrap(), forward(Native).unwrap());
             let gap = relative(&single, &native);
             assert!(

@@ -223,7 +223,10 @@ impl Study {
     }
 
     /// The speed study with the selected SOL corrector of the first data
-    /// seed (`probe`), and the pressure solves inside a rollout.
+    /// seed (`probe`), its convolutions on the study's threads (one rollout
+    /// at a time here, so the network has the cores the trainings shared;
+    /// `network_threads` in the JSON), and the pressure solves inside a
+    /// rollout.
     fn speed_study(
         &self,
         setup: &Setup<'_>,
@@ -231,9 +234,15 @@ impl Study {
         record: &mut Record,
     ) -> Result<(Value, Value)> {
         let size = probe.as_ref().map_or(self.plan.main_size, |p| p.1);
-        let hybrid = Hybrid::new(self.coarse.clone(), setup.net(size, 0)?.0);
+        let threads = self.options.threads;
+        let net = setup.net(size, 0)?.0.with_threads(threads)?;
+        let hybrid = Hybrid::new(self.coarse.clone(), net);
         let params = probe.as_ref().map(|p| &p.0);
-        let speed_on = |refs: &[Reference]| self.wake.speed(&hybrid, params, refs, &self.out);
+        let speed_on = |refs: &[Reference]| -> Result<Value> {
+            let mut speed = self.wake.speed(&hybrid, params, refs, &self.out)?;
+            speed["network_threads"] = json!(threads);
+            Ok(speed)
+        };
         let speed = if self.validation_only {
             speed_on(&splits.validation)?
         } else {

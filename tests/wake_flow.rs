@@ -401,6 +401,39 @@ fn the_inscribed_body_is_inside_the_reference_body() {
     }
 }
 
+/// A finer reference (`--reference-factor 8`) leaves the coarse solver's
+/// inscribed body as it was at 4× and sees the cylinder itself; a factor
+/// that is not 2, 4, 8 or 16 is refused.
+#[test]
+fn a_finer_reference_keeps_the_coarse_body() {
+    use wake_flow_scene::Body;
+    assert_eq!(options(&[]).unwrap().reference_factor, CHANNEL.factor);
+    let o = options(&["--reference-factor", "8"]).unwrap();
+    assert_eq!(o.reference_factor, 8);
+    let refined = wake_flow_scene::wake(&o, true);
+    assert_eq!(refined.channel.factor, 8);
+    let four = wake(Sizes {
+        body: Body::Inscribed,
+        ..small_sizes()
+    });
+    let coarse =
+        |w: &Wake| (w.uncorrected(1, PressureSolver::Cholesky).unwrap().solid()).to_owned();
+    assert_eq!(coarse(&refined), coarse(&four));
+    let fine = refined.reference_scene().unwrap();
+    assert_eq!(fine.grid().nx, 8 * small_sizes().nx);
+    let cylinder = diffphys::flow::Scene::builder(fine.grid().nx, fine.grid().ny, CHANNEL.extent)
+        .obstacle(diffphys::flow::Obstacle::cylinder(
+            CHANNEL.centre,
+            CHANNEL.diameter / 2.0,
+        ))
+        .build()
+        .unwrap();
+    assert_eq!(fine.solid(), cylinder.solid());
+    for bad in ["3", "1", "32", "0"] {
+        assert!(options(&["--reference-factor", bad]).is_err(), "{bad}");
+    }
+}
+
 /// `wake_flow evaluate` refuses a saved corrector whose settings do not fit
 /// the scene it is asked to run in, naming the field, before it generates any
 /// reference.

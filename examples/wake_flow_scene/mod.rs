@@ -33,7 +33,8 @@ use diffphys::flow::{Advection, Splitting};
 use diffphys::nn::Arithmetic;
 
 /// The scene's channel: 2 long and 1 wide, a cylinder of diameter 0.2 at
-/// (0.5, 0.5), inflow speed 1, a reference 4× finer in space and time,
+/// (0.5, 0.5), inflow speed 1, a reference 4× finer in space and time
+/// (`--reference-factor` refines it; the inscribed body stays that of 4×),
 /// Re from 50 to 3200, the scenes built at Re 400.
 pub const CHANNEL: Channel = Channel {
     extent: [2.0, 1.0],
@@ -41,6 +42,7 @@ pub const CHANNEL: Channel = Channel {
     diameter: 0.2,
     inflow: 1.0,
     factor: 4,
+    inscribed_at: 4,
     re_range: [50.0, 3200.0],
     re_centre: RE_CENTRE,
 };
@@ -88,7 +90,10 @@ pub fn scene_options(args: &SceneArgs) -> Result<Options> {
 /// The scene of `options` (full or small).
 pub fn wake(options: &Options, small: bool) -> Wake {
     Wake {
-        channel: CHANNEL,
+        channel: Channel {
+            factor: options.reference_factor,
+            ..CHANNEL
+        },
         sizes: Sizes {
             advection: options.coarse_advection,
             splitting: options.coarse_splitting,
@@ -177,6 +182,7 @@ pub fn defaults(small: bool) -> Options {
         coarse_splitting: Splitting::Plain,
         body: Body::Inscribed,
         reference: ReferenceScheme::SecondOrder,
+        reference_factor: CHANNEL.factor,
         arithmetic: Arithmetic::Single,
     }
 }

@@ -50,14 +50,22 @@ pub fn deviation_error(
     let Some((p, r)) = states(scene, p, r) else {
         return f64::NAN;
     };
-    let x =
-        p.ux.iter()
-            .zip(&r.ux)
-            .map(|(a, b)| (a - b, b - free_stream[0]));
-    let y =
-        p.uy.iter()
-            .zip(&r.uy)
-            .map(|(a, b)| (a - b, b - free_stream[1]));
+    velocity_deviation_error((&p.ux, &p.uy), &r, free_stream)
+}
+
+/// [`deviation_error`] of the velocity `(u_x, u_y)` against the state `r`'s:
+/// `‖u − u_r‖ / ‖u_r − U‖` over every face of both components.
+pub fn velocity_deviation_error(
+    u: (&Array2<f64>, &Array2<f64>),
+    r: &FlowState<f64>,
+    free_stream: [f64; 2],
+) -> f64 {
+    let x = (u.0.iter())
+        .zip(&r.ux)
+        .map(|(a, b)| (a - b, b - free_stream[0]));
+    let y = (u.1.iter())
+        .zip(&r.uy)
+        .map(|(a, b)| (a - b, b - free_stream[1]));
     ratio(x.chain(y))
 }
 

@@ -18,12 +18,12 @@ use std::time::Instant;
 use diffphys_flow::{restrict_velocity, FlowGrid, FlowParams, FlowState, Scene};
 use diffphys_learn::{Corrector, Hybrid, State};
 use diffphys_nn::Params;
-use ndarray::{ArrayView2, Axis, Ix2};
+use ndarray::{Array2, ArrayView2, Axis, Ix2};
 
 use diffphys_report::chart::{line_chart_svg, LineChart, Series};
 use serde_json::{json, Value};
 
-use crate::metrics::velocity_error;
+use crate::metrics::{velocity_deviation_error, velocity_error};
 use crate::reference::Reference;
 use crate::{FlowSimulator, HybridError, Result};
 
@@ -42,6 +42,8 @@ pub struct Case<'a> {
     /// The reference on the coarse grid after each coarse step (the rollout
     /// runs this many steps).
     pub targets: &'a [FlowState<f64>],
+    /// The free stream `U` the deviation error takes out.
+    pub free_stream: [f64; 2],
 }
 
 /// What one solver measured.
@@ -49,12 +51,15 @@ pub struct Case<'a> {
 pub struct Timed {
     /// The mean relative L2 error of the velocity over the cases and steps.
     pub rel_error: f64,
+    /// The same for the velocity's deviation from the free stream
+    /// ([`crate::metrics::velocity_deviation_error`]).
+    pub deviation_error: f64,
     /// Wall seconds per coarse step and sample.
     pub seconds_per_step: f64,
 }
 
 impl Timed {
-    fn of(err: f64, seconds: f64, steps: f64) -> Result<Self> {
+    fn of((err, deviation): (f64, f64), seconds: f64, steps: f64) -> Result<Self> {
         if steps == 0.0 {
             return Err(HybridError::Trajectory {
                 what: "speed study",
@@ -63,6 +68,7 @@ impl Timed {
         }
         Ok(Timed {
             rel_error: err / steps,
+            deviation_error: deviation / steps,
             seconds_per_step: seconds / steps,
         })
     }
@@ -75,7 +81,7 @@ impl Timed {
 /// [`HybridError::Trajectory`] without a step to time; a restriction (a
 /// `level` that does not divide the start's factor) or a step that fails.
 pub fn finer(scene: &Scene, level: usize, coarse: &FlowGrid, cases: &[Case<'_>]) -> Result<Timed> {
-    let (mut err, mut seconds, mut steps) = (0.0, 0.0, 0.0);
+    let (mut err, mut seconds, mut steps) = ((0.0, 0.0), 0.0, 0.0);
     for case in cases {
         let p = FlowParams {
             viscosity: case.viscosity,
@@ -101,7 +107,7 @@ pub fn finer(scene: &Scene, level: usize, coarse: &FlowGrid, cases: &[Case<'_>])
             seconds += t0.elapsed().as_secs_f64();
             steps += 1.0;
             let (cx, cy) = restrict_velocity(coarse, level, s.ux.view(), s.uy.view())?;
-            err += velocity_error((&cx, &cy), target);
+            add_errors(&mut err, (&cx, &cy), target, case.free_stream);
         }
     }
     Timed::of(err, seconds, steps)
@@ -118,7 +124,7 @@ pub fn corrected<C: Corrector + 'static>(
     params: Option<&Params<f64>>,
     cases: &[Case<'_>],
 ) -> Result<Timed> {
-    let (mut err, mut seconds, mut steps) = (0.0, 0.0, 0.0);
+    let (mut err, mut seconds, mut steps) = ((0.0, 0.0), 0.0, 0.0);
     for case in cases {
         let mut u = State::stack(&[&hybrid.simulator().sample(case.coarse_start, case.viscosity)])?;
         for target in case.targets {
@@ -132,11 +138,22 @@ pub fn corrected<C: Corrector + 'static>(
                     .into_dimensionality::<Ix2>()
             };
             let (ux, uy) = (one(0).map_err(shape)?, one(1).map_err(shape)?);
-            err += velocity_error((&ux, &uy), target);
+            add_errors(&mut err, (&ux, &uy), target, case.free_stream);
             steps += 1.0;
         }
     }
     Timed::of(err, seconds, steps)
+}
+
+/// Adds the state's and the deviation's error of `u` against `target`.
+fn add_errors(
+    sums: &mut (f64, f64),
+    u: (&Array2<f64>, &Array2<f64>),
+    target: &FlowState<f64>,
+    free_stream: [f64; 2],
+) {
+    sums.0 += velocity_error(u, target);
+    sums.1 += velocity_deviation_error(u, target, free_stream);
 }
 
 /// A state field that is not two-dimensional.
@@ -149,7 +166,8 @@ fn shape(e: ndarray::ShapeError) -> HybridError {
 
 /// The cases of a study on `refs`: from each of `speed_starts` (each one of
 /// the references' recorded `starts`, whose fine states they keep, on a grid
-/// `factor` × the coarse one), `rollout` coarse steps.
+/// `factor` × the coarse one), `rollout` coarse steps; the deviation errors
+/// take out `free_stream`.
 ///
 /// # Errors
 /// [`HybridError::Trajectory`] for a speed start that is not a recorded
@@ -159,6 +177,7 @@ pub fn cases<'a>(
     (starts, speed_starts): (&[usize], &[usize]),
     factor: usize,
     rollout: usize,
+    free_stream: [f64; 2],
 ) -> Result<Vec<Case<'a>>> {
     let trajectory = |message: String| HybridError::Trajectory {
         what: "speed study",
@@ -185,6 +204,7 @@ pub fn cases<'a>(
                 fine_factor: factor,
                 coarse_start: &r.states[start],
                 targets,
+                free_stream,
             });
         }
     }
@@ -214,8 +234,9 @@ impl Table {
     pub fn push(&mut self, solver: impl Into<String>, level: usize, timed: Timed) {
         let solver = solver.into();
         println!(
-            "  speed: {solver:<40} error {:.4}, {:.2} ms per step",
+            "  speed: {solver:<40} error {:.4} (deviation {:.4}), {:.2} ms per step",
             timed.rel_error,
+            timed.deviation_error,
             timed.seconds_per_step * 1e3
         );
         self.rows.push(Row {
@@ -230,12 +251,14 @@ impl Table {
         self.rows.iter().find(|r| r.solver == solver)
     }
 
-    /// The rows as JSON: `[{"solver", "level", "rel_error", "ms_per_step"}]`.
+    /// The rows as JSON: `[{"solver", "level", "rel_error",
+    /// "deviation_error", "ms_per_step"}]`.
     pub fn rows_json(&self) -> Value {
         self.rows
             .iter()
             .map(|r| {
                 json!({"solver": r.solver, "level": r.level, "rel_error": r.timed.rel_error,
+                       "deviation_error": r.timed.deviation_error,
                        "ms_per_step": r.timed.seconds_per_step * 1e3})
             })
             .collect()

@@ -292,6 +292,7 @@ fn the_speed_study_measures_every_solver_on_the_same_cases() {
         fine_factor: 1,
         coarse_start: &start,
         targets: &targets,
+        free_stream: [1.0, 0.0],
     };
     // Against its own trajectory, the solver alone is exact, by either path;
     // the zero-head corrector too.
@@ -316,9 +317,17 @@ fn the_speed_study_measures_every_solver_on_the_same_cases() {
         targets: &shifted,
         ..case
     };
-    let a = corrected(&hybrid, None, &[case]).unwrap().rel_error;
-    let b = finer(&scene, 1, scene.grid(), &[case]).unwrap().rel_error;
-    assert!(a > 0.01 && a == b, "{a} {b}");
+    let (a, b) = (
+        corrected(&hybrid, None, &[case]).unwrap(),
+        finer(&scene, 1, scene.grid(), &[case]).unwrap(),
+    );
+    assert!(
+        a.rel_error > 0.01 && a.rel_error == b.rel_error,
+        "{a:?} {b:?}"
+    );
+    // The deviation's error has the same numerator over the wake alone:
+    // larger than the state's, the same by either path.
+    assert!(a.deviation_error > a.rel_error && a.deviation_error == b.deviation_error);
     // A level that does not divide the start's factor, or nothing to time.
     assert!(matches!(
         finer(&scene, 2, scene.grid(), &[case]),
@@ -379,7 +388,8 @@ fn a_reference_records_restricts_round_trips_and_scores_a_rollout() {
     // is exact on them, and a start that was not recorded, or a rollout past
     // the record, is refused.
     use diffphys_hybrid::speed::{cases, corrected, Table};
-    let c = cases(std::slice::from_ref(&r), (&[0, 2], &[2]), 1, 3).unwrap();
+    let free = [1.0, 0.0];
+    let c = cases(std::slice::from_ref(&r), (&[0, 2], &[2]), 1, 3, free).unwrap();
     assert_eq!((c.len(), c[0].targets.len()), (1, 3));
     assert_eq!(c[0].targets[0], r.states[3]);
     let timed = corrected(&hybrid, None, &c).unwrap();
@@ -390,7 +400,8 @@ fn a_reference_records_restricts_round_trips_and_scores_a_rollout() {
                 std::slice::from_ref(&r),
                 (&[0, 2], speed_starts),
                 1,
-                rollout
+                rollout,
+                free
             ),
             Err(HybridError::Trajectory { .. })
         ));
@@ -399,6 +410,7 @@ fn a_reference_records_restricts_round_trips_and_scores_a_rollout() {
     table.push("alone", 1, timed);
     assert_eq!(table.get("alone").map(|row| row.level), Some(1));
     assert_eq!(table.rows_json()[0]["rel_error"], 0.0);
+    assert_eq!(table.rows_json()[0]["deviation_error"], 0.0);
     // A corrector that moves the state scores above zero.
     let mut moved = Params::new();
     for (name, v) in params.names().iter().zip(params.values()) {

@@ -125,6 +125,9 @@ pub struct Options {
     pub body: Body,
     /// The reference's scheme (`--reference-scheme second-order|coarse`).
     pub reference: ReferenceScheme,
+    /// How much finer than the coarse grid the reference is, in space and
+    /// time (`--reference-factor`; a power of two, at least 2).
+    pub reference_factor: usize,
     /// The corrector's convolution arithmetic (`--network-arithmetic f32|f64`).
     pub arithmetic: Arithmetic,
 }
@@ -215,6 +218,9 @@ pub struct SceneArgs {
     /// The reference's scheme: second-order or coarse.
     #[arg(long, default_value = "second-order", value_name = "NAME")]
     pub reference_scheme: String,
+    /// How much finer the reference is than the coarse grid, in space and time: 2, 4, 8 or 16 [default: the scene's].
+    #[arg(long, value_name = "N")]
+    pub reference_factor: Option<usize>,
     /// The corrector's convolution arithmetic: f32 or f64.
     #[arg(long, default_value = "f32", value_name = "NAME")]
     pub network_arithmetic: String,
@@ -320,6 +326,15 @@ impl SceneArgs {
             "--network-arithmetic",
             &self.network_arithmetic,
         )?;
+        if let Some(f) = self.reference_factor {
+            if !((2..=16).contains(&f) && f.is_power_of_two()) {
+                return Err(HybridError::Argument {
+                    option: "--reference-factor".into(),
+                    message: format!("not 2, 4, 8 or 16: {f}"),
+                });
+            }
+            o.reference_factor = f;
+        }
         if let Some(n) = self.threads {
             if n == 0 {
                 return Err(HybridError::Argument {

@@ -60,7 +60,8 @@ impl Wake {
     ) -> Result<Value> {
         let s = &self.sizes;
         let starts = (&s.starts[..], &s.speed_starts[..]);
-        let cases = speed::cases(refs, starts, self.channel.factor, s.rollout)?;
+        let free_stream = [self.channel.inflow, 0.0];
+        let cases = speed::cases(refs, starts, self.channel.factor, s.rollout, free_stream)?;
         let coarse = hybrid.simulator().scene().grid();
         let cells = |level: usize| format!("{} x {}", level * s.ny, level * s.nx);
         let mut table = speed::Table::default();
@@ -92,6 +93,7 @@ impl Wake {
                     "corrected_beats_2x_in_error": t.map(|t| c.rel_error < t.rel_error),
                     "corrected_beats_2x_in_time": t.map(|t| c.seconds_per_step < t.seconds_per_step),
                     "corrected_beats_reference_scheme_2x_in_error": r.map(|r| c.rel_error < r.rel_error),
+                    "corrected_beats_reference_scheme_2x_in_deviation": r.map(|r| c.deviation_error < r.deviation_error),
                     "corrected_beats_reference_scheme_2x_in_time": r.map(|r| c.seconds_per_step < r.seconds_per_step),
                     "first_uncorrected_resolution_at_or_below_corrected_error": matched,
                 })

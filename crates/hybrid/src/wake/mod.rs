@@ -42,6 +42,12 @@ pub struct Channel {
     pub inflow: f64,
     /// The reference's refinement in space and time.
     pub factor: usize,
+    /// The refinement at which an inscribed body ([`Body::Inscribed`]) is
+    /// the cylinder rasterised: a coarser level's cell is solid where every
+    /// cell of this level inside it is, a level at or above it sees the
+    /// cylinder itself. It stays put when the reference is refined, so
+    /// that the coarse solver's body does not change with the reference.
+    pub inscribed_at: usize,
     /// The Reynolds numbers a user may ask for.
     pub re_range: [f64; 2],
     /// The Reynolds number a scene is built at before each sample sets its
@@ -228,21 +234,21 @@ impl Wake {
                 )))
             }
             Body::Inscribed => {
-                if level == 0 || c.factor % level != 0 {
+                let base = c.inscribed_at;
+                if level >= base && level > 0 {
+                    // At or above the inscription's resolution: the cylinder.
+                    return Ok(cylinder);
+                }
+                if level == 0 || base % level != 0 {
                     return Err(HybridError::Setting {
                         what: "body",
                         message: format!(
-                            "an inscribed body needs a level dividing {}, not {level}",
-                            c.factor
+                            "an inscribed body needs a level dividing {base} or at least it, not {level}"
                         ),
                     });
                 }
-                let k = c.factor / level;
-                if k == 1 {
-                    // The reference grid: the cylinder itself.
-                    return Ok(cylinder);
-                }
-                let fine = Scene::builder(c.factor * s.nx, c.factor * s.ny, c.extent)
+                let k = base / level;
+                let fine = Scene::builder(base * s.nx, base * s.ny, c.extent)
                     .obstacle(cylinder)
                     .build()?;
                 let solid = fine.solid();
@@ -323,13 +329,13 @@ impl Wake {
 
     /// The reference's scheme at `factor`× the coarse resolution
     /// (`dt / factor`): [`Wake::reference_scene`] at the channel's factor,
-    /// its convergence check at twice it. A body inscribed at the
-    /// reference's resolution is the cylinder itself at any finer one.
+    /// its convergence check at twice it. An inscribed body is the cylinder
+    /// itself at and above [`Channel::inscribed_at`].
     ///
     /// # Errors
     /// As [`Wake::obstacle`] and [`Wake::scene`].
     pub fn reference_scene_at(&self, factor: usize) -> Result<Scene> {
-        let (c, s) = (&self.channel, &self.sizes);
+        let s = &self.sizes;
         let scheme = match s.reference {
             ReferenceScheme::SecondOrder => (
                 Advection::MacCormack { limiter: true },
@@ -337,11 +343,7 @@ impl Wake {
             ),
             ReferenceScheme::Coarse => (s.advection, Splitting::Plain),
         };
-        let body = if s.body == Body::Inscribed && factor > c.factor {
-            Obstacle::cylinder(c.centre, c.diameter / 2.0)
-        } else {
-            self.obstacle(factor)?
-        };
+        let body = self.obstacle(factor)?;
         self.scene(
             [factor * s.nx, factor * s.ny],
             s.dt / factor as f64,

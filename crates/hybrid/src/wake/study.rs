@@ -261,10 +261,13 @@ impl Study {
     }
 
     /// Appends this run's held-out readings to the output folder's ledger:
-    /// per data seed, the split (the reference's settings, the held-out Re,
-    /// the seed) and the configuration that shaped the models read on it
-    /// (every option but the held-out Re, the thread count and the speed
-    /// study; the sizes; the budget; the training seeds).
+    /// per data seed, the split (what draws its conditions: the coarse grid
+    /// and step, the windows, the held-out Re and the data seed, but not the
+    /// reference's resolution or scheme, so that a reading stays counted
+    /// when the reference is refined) and the configuration that shaped the
+    /// models read on it (every option but the held-out Re, the thread count
+    /// and the speed study, the reference's factor and scheme included; the
+    /// sizes; the budget; the training seeds).
     fn count_readings(&self, record: &mut Record) -> Result<()> {
         let shaping = Options {
             held_out_re: Vec::new(),
@@ -277,8 +280,12 @@ impl Study {
             self.wake.sizes, self.evaluations, self.train_seeds
         );
         let held_out = &self.options.held_out_re;
-        let settings = self.cache.settings();
-        let split = |ds| format!("{settings} | held-out Re {held_out:?} | data seed {ds}");
+        let s = &self.wake.sizes;
+        let conditions = format!(
+            "coarse {}x{} dt {} warm_base {} warm {} record {} base_re {} starts {:?}",
+            s.nx, s.ny, s.dt, s.warm_base, s.warm, s.record, s.base_re, s.starts
+        );
+        let split = |ds| format!("{conditions} | held-out Re {held_out:?} | data seed {ds}");
         Ok((record.log).count_readings(&self.out, split, &configuration)?)
     }
 

@@ -17,10 +17,10 @@ use diffphys_flow::diagnostics::obstacle_force;
 use diffphys_flow::restrict::restrict_velocity;
 use diffphys_flow::validation::Shedding;
 use diffphys_flow::{FlowState, Scene};
-use ndarray::{ArrayD, ArrayViewD};
+use ndarray::Array2;
 use serde_json::{json, Value};
 
-use crate::metrics::{deviation_error, velocity_error};
+use crate::metrics::{velocity_deviation_error, velocity_error};
 use crate::reference::{advance, Recorder};
 use crate::{HybridError, Result};
 
@@ -142,15 +142,8 @@ impl Windows<'_> {
                 s = advance(&ours.fine, ours.factor, s, nu, 1, tick)?;
                 let (cx, cy) =
                     restrict_velocity(self.coarse.grid(), ours.factor, s.ux.view(), s.uy.view())?;
-                let reached = FlowState::from_velocity(self.coarse, cx, cy);
-                let truth = &finer.states[t0 + k];
-                state += velocity_error((&reached.ux, &reached.uy), truth);
-                let (p, r) = (
-                    self.coarse.sample_of(&reached),
-                    self.coarse.sample_of(truth),
-                );
-                deviation += deviation_error(self.coarse, self.free_stream, &views(&p), &views(&r));
-                n += 1.0;
+                let (e, d) = self.step_difference((&cx, &cy), &finer.states[t0 + k]);
+                (state, deviation, n) = (state + e, deviation + d, n + 1.0);
             }
         }
         let (state, deviation) = (state / n, deviation / n);
@@ -158,6 +151,19 @@ impl Windows<'_> {
             return Err(bad(format!("a non-finite difference at Re {re}")));
         }
         Ok((state, deviation))
+    }
+
+    /// One step's difference of the velocity `u` on the coarse grid from
+    /// the finer level's `truth`: `(state, deviation)`.
+    fn step_difference(
+        &self,
+        u: (&Array2<f64>, &Array2<f64>),
+        truth: &FlowState<f64>,
+    ) -> (f64, f64) {
+        (
+            velocity_error(u, truth),
+            velocity_deviation_error(u, truth, self.free_stream),
+        )
     }
 
     /// The difference of two levels' windows at one Reynolds number `re`,
@@ -183,12 +189,8 @@ impl Windows<'_> {
         let (mut state, mut deviation) = (0.0, 0.0);
         for t in steps {
             let s = &ours.states[t];
-            state += velocity_error((&s.ux, &s.uy), &finer.states[t]);
-            let (p, r) = (
-                self.coarse.sample_of(s),
-                self.coarse.sample_of(&finer.states[t]),
-            );
-            deviation += deviation_error(self.coarse, self.free_stream, &views(&p), &views(&r));
+            let (e, d) = self.step_difference((&s.ux, &s.uy), &finer.states[t]);
+            (state, deviation) = (state + e, deviation + d);
         }
         let (state, deviation) = (state / n, deviation / n);
         if !(state.is_finite() && deviation.is_finite()) {
@@ -221,9 +223,4 @@ impl Window {
             "strouhal": shedding.strouhal(length, speed),
         })
     }
-}
-
-/// Views of a sample's fields.
-fn views(fields: &[ArrayD<f64>]) -> Vec<ArrayViewD<'_, f64>> {
-    fields.iter().map(|a| a.view()).collect()
 }

@@ -154,9 +154,19 @@ fn sweep<T: Real>(
     })
 }
 
-/// `K = passes` passes of the direct forcing of `body` and the projection of
-/// `system` over `τ` (see the [module docs](self)); the first solve starts from
-/// `guess` where the solver iterates.
+/// `K = passes` passes of the direct forcing `F` of `body` and the projection
+/// `Π` of `system` over `τ`; the first solve starts from `guess` where the
+/// solver iterates:
+///
+/// ```text
+/// v₀ = u,  w_k = F(v_k),  (v_{k+1}, φ_k) = Π(w_k),  u' = v_K,  P = Σ_k φ_k
+/// ```
+///
+/// Each pass shrinks the slip `u' − F(u')` the projection leaves on the
+/// forced faces; one pass is the direct forcing followed by the projection
+/// (see [`ForcingScheme::MultiDirect`]). References: Wang, Fan and Luo, Int.
+/// J. Multiphase Flow 34 (2008) 283–302; Taira and Colonius, J. Comput.
+/// Phys. 225 (2007) 2118–2137.
 ///
 /// # Errors
 /// [`FlowError::InvalidParameter`] for no pass; those of
@@ -175,7 +185,17 @@ pub fn multi_direct_forcing<T: Real>(
 }
 
 /// The vector–Jacobian product of [`multi_direct_forcing`]: `(∂L/∂u_x,
-/// ∂L/∂u_y, ∂L/∂shape)` given the gradients of `u'` and (absent: zero) of `P`.
+/// ∂L/∂u_y, ∂L/∂shape)` given the gradients `ḡ_u` of `u'` and `ḡ_P`
+/// (absent: zero) of `P`, backwards over the passes with `F*` the VJP of
+/// the forcing at `v_k` ([`super::immersed_forcing_vjp`]) and `Π*` that of
+/// the projection ([`crate::pressure::project_vjp`]):
+///
+/// ```text
+/// a_K = ḡ_u,  b_k = Π*(a_{k+1}, ḡ_P),  (a_k, θ̄_k) = F*(b_k),
+/// ∂L/∂u = a_0,  ∂L/∂θ = Σ_k θ̄_k
+/// ```
+///
+/// It reruns the `K − 1` forward passes for the `v_k`, then one solve a pass.
 ///
 /// # Errors
 /// As [`multi_direct_forcing`].

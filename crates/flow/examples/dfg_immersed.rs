@@ -1,11 +1,12 @@
 //! DFG 2D-1 or 2D-2 with the body as an immersed circle on a forced interior,
-//! by either forcing scheme: the figures of docs/10's tables for the
+//! by any of its forcing schemes: the figures of docs/10's tables for the
 //! immersed body (issue 42).
 //!
 //! ```sh
 //! cargo run --release -p diffphys-flow --example dfg_immersed -- 2d1 20 consistent
 //! cargo run --release -p diffphys-flow --example dfg_immersed -- 2d1 20 direct --tol 1e-6 --max-time 80
 //! cargo run --release -p diffphys-flow --example dfg_immersed -- 2d2 10 direct
+//! cargo run --release -p diffphys-flow --example dfg_immersed -- 2d1 10 multi --passes 3 --courant 0.2
 //! ```
 //!
 //! 2D-1 prints cD, cL (the forcing's exchange and the control volume), dp and
@@ -37,6 +38,9 @@ enum Scheme {
     Direct,
     /// `ForcingScheme::ProjectionConsistent`.
     Consistent,
+    /// `ForcingScheme::MultiDirect` (`--passes` passes of forcing and
+    /// projection per step).
+    Multi,
 }
 
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -77,6 +81,9 @@ struct Args {
     /// 2D-1: the time to stop at, steady or not (`Dfg2d1`'s default 40).
     #[arg(long)]
     max_time: Option<f64>,
+    /// `multi`: the passes of forcing and projection per step.
+    #[arg(long, default_value_t = 3)]
+    passes: u32,
 }
 
 fn channel(mut c: DfgChannel, scheme: ForcingScheme, inside: Inside) -> DfgChannel {
@@ -100,7 +107,9 @@ fn steady(args: &Args, scheme: ForcingScheme) -> Result<Value> {
     case.channel.courant = args.courant.unwrap_or(case.channel.courant);
     case.tol = args.tol.unwrap_or(case.tol);
     case.max_time = args.max_time.unwrap_or(case.max_time);
+    let start = std::time::Instant::now();
     let r = case.run(&mut |_, _, _| Ok(()))?;
+    let seconds = start.elapsed().as_secs_f64();
     let (scene, s) = (&r.scene, &r.run.state);
     let body = scene.immersed().ok_or("no immersed body")?;
     let (mx, my) = body.forced_mask();
@@ -142,7 +151,7 @@ fn steady(args: &Args, scheme: ForcingScheme) -> Result<Value> {
         "cd": cd, "cl": cl, "dp": dp,
         "cd_cv": r.control_volume[0], "cl_cv": r.control_volume[1],
         "cd_error": err(0, cd), "cl_error": err(1, cl), "dp_error": err(2, dp),
-        "residual_over_um": residual / DFG_2D1.um,
+        "residual_over_um": residual / DFG_2D1.um, "seconds": seconds,
     }))
 }
 
@@ -167,6 +176,9 @@ fn main() -> Result<()> {
     let scheme = match args.scheme {
         Scheme::Direct => ForcingScheme::Direct,
         Scheme::Consistent => ForcingScheme::ProjectionConsistent,
+        Scheme::Multi => ForcingScheme::MultiDirect {
+            passes: args.passes,
+        },
     };
     let figures = match args.case {
         Case::Steady => steady(&args, scheme)?,

@@ -433,7 +433,7 @@ impl SolveCounter {
         Self::default()
     }
 
-    fn push(&self, n: usize) {
+    pub(crate) fn push(&self, n: usize) {
         self.0.borrow_mut().push(n);
     }
 

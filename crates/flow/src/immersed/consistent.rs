@@ -72,6 +72,16 @@ pub enum ForcingScheme {
     /// land on their target after the projection, up to the pressure's change
     /// over the step.
     ProjectionConsistent,
+    /// The direct forcing and the projection alternated `passes` times
+    /// within the step ([`super::multi_direct_forcing`]; Wang, Fan and Luo
+    /// 2008): the slip the projection leaves on the forced faces shrinks
+    /// with each pass, and the steady state tends to one that meets the wall
+    /// condition and the divergence constraint whatever the time step. One
+    /// pass is [`ForcingScheme::Direct`]. Each pass costs a pressure solve.
+    MultiDirect {
+        /// Passes of forcing and projection, at least 1 (3 is a good start).
+        passes: u32,
+    },
 }
 
 /// The projection-consistent forcing `u' = F(u − τ G_F P) + τ G_F P` on the

@@ -36,7 +36,11 @@
 //! **Schemes.** That is [`ForcingScheme::Direct`], the default. With
 //! [`ForcingScheme::ProjectionConsistent`] the faces next to the wall are set
 //! to `F(u − τ∇Pⁿ) + τ∇Pⁿ` ([`consistent_forcing`]), so that the projection
-//! leaves them on the interpolation at a steady state.
+//! leaves them on the interpolation at a steady state. With
+//! [`ForcingScheme::MultiDirect`] the forcing and the projection alternate
+//! `K` times within the step ([`multi_direct_forcing`]), so that the slip the
+//! projection leaves on the forced faces, and with it the steady state's
+//! dependence on the time step, shrinks geometrically with `K`.
 //!
 //! **Force.** The forcing changes the momentum of the faces by
 //! `Σ_forced (u'_f − u_f) dx dy` per step ([`ImmersedCircle::momentum_change`],
@@ -83,9 +87,13 @@ use crate::grid::{FlowGrid, Lattice};
 use crate::{FlowError, Result};
 
 mod consistent;
+mod multi_direct;
 
 pub use consistent::{
     consistent_forcing, consistent_forcing_vjp, ConsistentForcing, ForcingScheme,
+};
+pub use multi_direct::{
+    multi_direct_forcing, multi_direct_forcing_vjp, MultiDirect, MultiDirectForcing,
 };
 
 const NAME: &str = "immersed circle";
@@ -611,7 +619,11 @@ impl ForcingImpulse {
         before: (ArrayView2<'_, T>, ArrayView2<'_, T>),
         after: (ArrayView2<'_, T>, ArrayView2<'_, T>),
     ) {
-        let m = body.momentum_change(before, after);
+        self.add(body.momentum_change(before, after));
+    }
+
+    /// Adds the momentum `m`, `[x, y]`.
+    fn add(&self, m: [f64; 2]) {
         let t = self.0.get();
         self.0.set([t[0] + m[0], t[1] + m[1]]);
     }

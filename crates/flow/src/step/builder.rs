@@ -143,8 +143,12 @@ impl SceneBuilder {
     /// How the immersed circle's forced faces are set (default
     /// [`ForcingScheme::Direct`]): [`ForcingScheme::ProjectionConsistent`]
     /// forces `F(u − τ∇Pⁿ) + τ∇Pⁿ` so that the projection leaves them on the
-    /// interpolation ([`crate::immersed::consistent_forcing`]). Without
-    /// [`SceneBuilder::immersed`] it does nothing.
+    /// interpolation ([`crate::immersed::consistent_forcing`]);
+    /// [`ForcingScheme::MultiDirect`] alternates the direct forcing and the
+    /// projection `passes` times within the step
+    /// ([`crate::immersed::multi_direct_forcing`]), so that the steady state
+    /// does not depend on the time step through the projection's slip.
+    /// Without [`SceneBuilder::immersed`] it does nothing.
     pub fn immersed_scheme(mut self, scheme: ForcingScheme) -> Self {
         self.scheme = scheme;
         self
@@ -266,7 +270,7 @@ impl SceneBuilder {
     /// periodic side without its opposite, more than one inflow side, an
     /// inflow without an outflow, a missing inflow profile or one of the wrong
     /// length, an obstacle that does not fit the grid or touches the inflow,
-    /// buoyancy of a scalar that does not exist; solver errors of the
+    /// a multi-direct forcing of no pass, buoyancy of a scalar that does not exist; solver errors of the
     /// factorisation.
     pub fn build(self) -> Result<Scene> {
         let SceneBuilder {
@@ -309,6 +313,12 @@ impl SceneBuilder {
             return Err(FlowError::scene(
                 "dt",
                 format!("need a finite time step > 0, got {dt}"),
+            ));
+        }
+        if scheme == (ForcingScheme::MultiDirect { passes: 0 }) {
+            return Err(FlowError::scene(
+                "immersed scheme",
+                "multi-direct forcing needs at least one pass, got 0",
             ));
         }
         if !(settings.max_courant.is_finite() && settings.max_courant > 0.0) {

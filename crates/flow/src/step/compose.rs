@@ -10,7 +10,9 @@ use crate::advection::{AdvectScalar, AdvectVelocity};
 use crate::boundaries::EnforceBoundaries;
 use crate::diffusion::Diffuse;
 use crate::forcing::{Buoyant, Forced};
-use crate::immersed::{ConsistentForcing, ForcingImpulse, ForcingScheme, ImmersedForcing};
+use crate::immersed::{
+    ConsistentForcing, ForcingImpulse, ForcingScheme, ImmersedForcing, MultiDirectForcing,
+};
 use crate::pressure::{Project, SolveCounter, SubtractPressureGradient};
 use crate::{FlowError, Result};
 
@@ -178,33 +180,48 @@ pub(super) fn substep<T: Real, E: Exec<T>>(
     e.release(vec![ux, uy]);
     let (ux, uy) = diffused;
     let tau = if incremental { dt / 2.0 } else { dt };
-    let (ux, uy) = match (&scene.0.immersed, &p.body, scene.0.immersed_scheme) {
-        (Some(body), Some(shape), ForcingScheme::Direct) => two(e.run(
-            ImmersedForcing {
+    let project = Project {
+        system: Arc::clone(scene.pressure_system()),
+        tau,
+        counter: counter.clone(),
+    };
+    let mut out = match (&scene.0.immersed, &p.body, scene.0.immersed_scheme) {
+        (Some(body), Some(shape), ForcingScheme::Direct) => {
+            let (ux, uy) = two(e.run(
+                ImmersedForcing {
+                    body: Arc::clone(body),
+                    impulse: impulse.clone(),
+                },
+                &[&ux, &uy, shape],
+            )?);
+            e.run(project, &[&ux, &uy, &s.pressure])?
+        }
+        (Some(body), Some(shape), ForcingScheme::ProjectionConsistent) => {
+            let (ux, uy) = two(e.run(
+                ConsistentForcing {
+                    body: Arc::clone(body),
+                    faces: Arc::clone(faces),
+                    tau,
+                    impulse: impulse.clone(),
+                },
+                &[&ux, &uy, &s.pressure, shape],
+            )?);
+            e.run(project, &[&ux, &uy, &s.pressure])?
+        }
+        // the forcing and the projection alternated, as one op
+        (Some(body), Some(shape), scheme @ ForcingScheme::MultiDirect { .. }) => e.run(
+            MultiDirectForcing {
                 body: Arc::clone(body),
-                impulse: impulse.clone(),
-            },
-            &[&ux, &uy, shape],
-        )?),
-        (Some(body), Some(shape), ForcingScheme::ProjectionConsistent) => two(e.run(
-            ConsistentForcing {
-                body: Arc::clone(body),
-                faces: Arc::clone(faces),
+                system: Arc::clone(scene.pressure_system()),
                 tau,
+                passes: MultiDirectForcing::passes_of(scheme),
                 impulse: impulse.clone(),
+                counter: counter.clone(),
             },
             &[&ux, &uy, &s.pressure, shape],
-        )?),
-        _ => (ux, uy),
+        )?,
+        _ => e.run(project, &[&ux, &uy, &s.pressure])?,
     };
-    let mut out = e.run(
-        Project {
-            system: Arc::clone(scene.pressure_system()),
-            tau,
-            counter: counter.clone(),
-        },
-        &[&ux, &uy, &s.pressure],
-    )?;
     let pressure = out.pop().expect("three outputs");
     let projected = two(out);
     e.release(vec![ux, uy, s.pressure]);

@@ -17,6 +17,9 @@
 //! (u, P) ← project(u; guess P)                   τ = dt (plain) or dt/2 (incremental)
 //! ```
 //!
+//! (with [`crate::ForcingScheme::MultiDirect`] the last two lines are one op,
+//! [`crate::immersed::multi_direct_forcing`], which alternates them `K` times)
+//!
 //! written once in `substep` over an [`Exec`]utor: on a tape every piece is
 //! recorded as an op ([`Scene::step`]); without one the same ops' forwards run
 //! directly and no tape memory is allocated ([`Scene::forward`]). On a scene

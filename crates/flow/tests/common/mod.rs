@@ -1,6 +1,8 @@
 //! Scenes and helpers shared by the flow tests.
 #![allow(dead_code)]
 
+pub mod immersed;
+
 use diffphys_flow::{Boundary, Obstacle, PressureSolver, Scene, SceneBuilder, Sides};
 use diffphys_tape::{test_array, ArrayD, Result as TapeResult, Tape, Var};
 use ndarray::{Array2, IxDyn};

@@ -1,12 +1,12 @@
 //! The hybrid wake-flow solver: a coarse flow solver (32 × 64 cells) with a
-//! corrector network trained through it against a 4× finer reference, tested
+//! corrector network trained through it against an 8× finer reference, tested
 //! at Reynolds numbers it never saw, and set against simply running a finer
 //! grid.
 //!
 //! Scene (its statement in `wake_flow_scene`, the work in the library's
 //! `diffphys::hybrid::wake`): a cylinder wake in a 2 × 1 channel,
 //! uniform inflow, outflow, free-slip side walls; the coarse solver is
-//! semi-Lagrangian with plain splitting, the reference 128 × 256 with
+//! semi-Lagrangian with plain splitting, the reference 256 × 512 with
 //! MacCormack and incremental splitting, restricted by face averages.
 //!
 //! Variants, each trained with the same budget of corrector evaluations:

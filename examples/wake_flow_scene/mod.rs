@@ -13,7 +13,8 @@
 //!   splitting (`--coarse-splitting incremental`: second-order, the state
 //!   then carries the pressure), sparse Cholesky pressure solve, `dt` = 0.01 (Courant 0.32 at
 //!   the inflow speed);
-//! - reference: 4× finer in space and time (128 × 256, `dt / 4`), MacCormack
+//! - reference: 8× finer in space and time at full size (256 × 512, `dt / 8`,
+//!   [`FULL_REFERENCE_FACTOR`]; 4× at `--small`), MacCormack
 //!   advection with the limiter and incremental (second-order) splitting,
 //!   restricted to the coarse grid by face averages
 //!   ([`diffphys::flow::restrict_velocity`]);

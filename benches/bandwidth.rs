@@ -1,5 +1,5 @@
 //! The machine's streaming bandwidth, the denominator of the flow step's
-//! roofline (docs/08, "The flow step's roofline"): a stream copy `b = a` and a
+//! roofline (docs/08, "Sixth round: the step's roofline"): a stream copy `b = a` and a
 //! stream triad `c = a + s b` over f64 arrays sized to sit in L2, in L3 and in
 //! main memory, on one thread and split over two.
 //!

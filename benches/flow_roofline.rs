@@ -1,5 +1,5 @@
 //! The periodic box's step operator by operator, against its memory-traffic
-//! floor (issue 45, docs/08 "The flow step's roofline"): JAX-CFD's
+//! floor (issue 45, docs/08 "Sixth round: the step's roofline"): JAX-CFD's
 //! Taylor–Green box at 128², 256² and 512², f32 state, MacCormack with the
 //! limiter and the Fourier pressure solve, each of the step's four operators
 //! alone, forward and vector–Jacobian product, with the scene's own pieces.
